@@ -1,0 +1,65 @@
+"""`ns-train wild-thermal`: the method registered with nerfstudio (entry point group
+`nerfstudio.method_configs`)."""
+
+from __future__ import annotations
+
+import torch
+from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
+from nerfstudio.engine.optimizers import AdamOptimizerConfig
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
+from nerfstudio.plugins.types import MethodSpecification
+
+import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
+from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+# Paper: Adam with weight decay, separate learning rates for geometry, opacity and appearance,
+# no schedule. Weight decay applies to the appearance networks and embeddings, never to geometry.
+_APPEARANCE_WEIGHT_DECAY = 1e-6
+
+
+def _adam(lr: float, weight_decay: float = 0.0) -> dict:
+    return {"optimizer": AdamOptimizerConfig(lr=lr, eps=1e-15, weight_decay=weight_decay), "scheduler": None}
+
+
+def wild_thermal_optimizers() -> dict:
+    return {
+        "means": _adam(1.6e-4),
+        "scales": _adam(5e-3),
+        "quats": _adam(1e-3),
+        "opacities": _adam(5e-2),
+        "emission": _adam(2.5e-3),
+        "gauss_embed": _adam(5e-3, _APPEARANCE_WEIGHT_DECAY),
+        "frame_embed": _adam(5e-3, _APPEARANCE_WEIGHT_DECAY),
+        "emission_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
+        "background_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
+        "camera_opt": _adam(1e-4),
+    }
+
+
+def wild_thermal_trainer() -> TrainerConfig:
+    return TrainerConfig(
+        method_name="wild-thermal",
+        steps_per_eval_image=1000,
+        steps_per_eval_batch=0,
+        steps_per_save=2000,
+        steps_per_eval_all_images=1_000_000,
+        max_num_iterations=30000,
+        mixed_precision=False,
+        machine=MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu"),
+        pipeline=VanillaPipelineConfig(
+            datamanager=ThermalDatamanagerConfig(),
+            model=WildThermalModelConfig(),
+        ),
+        optimizers=wild_thermal_optimizers(),
+        viewer=ViewerConfig(num_rays_per_chunk=1 << 15),
+        vis="viewer",
+    )
+
+
+wild_thermal = MethodSpecification(
+    config=wild_thermal_trainer(),
+    description="Thermal-only Gaussian splatting (Thermal is Always Wild): scalar emission, "
+    "per-Gaussian/per-frame embeddings, background MLP. Default data: the embedded demo scene.",
+)

@@ -1,0 +1,58 @@
+"""Thermal dataset and datamanager: single-channel float frames, normalised per dataset."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Type
+
+import numpy as np
+import torch
+from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
+from nerfstudio.data.dataparsers.base_dataparser import DataParserConfig
+from nerfstudio.data.datasets.base_dataset import InputDataset
+
+from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+from thermal_wild_ns.data.thermal_io import RadiometricRange, read_raw_frame
+
+
+class ThermalDataset(InputDataset):
+    """Frames as float32 [H, W, 1] in the dataset's normalised radiometric scale (no 8-bit rounding)."""
+
+    @property
+    def thermal_range(self) -> RadiometricRange:
+        value = self.metadata.get("thermal_range")
+        if not isinstance(value, RadiometricRange):
+            raise ValueError("ThermalDataset needs a thermal dataparser (metadata['thermal_range'] is missing)")
+        return value
+
+    def get_numpy_image(self, image_idx: int) -> np.ndarray:
+        path = self._dataparser_outputs.image_filenames[image_idx]
+        raw = read_raw_frame(path)
+        if self.scale_factor != 1.0:
+            import cv2
+
+            h, w = raw.shape
+            raw = cv2.resize(raw.astype(np.float32), (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)
+        return self.thermal_range.normalize(raw)[..., None]
+
+    def get_image_float32(self, image_idx: int) -> torch.Tensor:
+        return torch.from_numpy(self.get_numpy_image(image_idx))
+
+    def get_image_uint8(self, image_idx: int) -> torch.Tensor:
+        raise ValueError("Thermal frames are float radiometric data; use cache_images_type='float32'")
+
+
+@dataclass
+class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
+    """Full-image datamanager for single-channel thermal frames."""
+
+    _target: Type = field(default_factory=lambda: ThermalDatamanager)
+    dataparser: DataParserConfig = field(default_factory=ThermalDemoDataParserConfig)
+    cache_images_type: str = "float32"  # type: ignore[assignment]
+    """Thermal frames stay float32 (never re-quantised to 8 bit)."""
+
+
+class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
+    """nerfstudio's full-image datamanager over `ThermalDataset`."""
+
+    config: ThermalDatamanagerConfig

@@ -1,0 +1,262 @@
+"""The embedded default scene: a small procedural thermal capture with known truth.
+
+A courtyard at night, seen by a cheap microbolometer: cool textured ground, a facade with warm
+windows, three warm bodies (people-sized spheres) and a cold sky. Rendered by analytic ray
+casting from cameras on an arc, with the sensor faults the paper describes applied to the
+frames a user would get:
+- low dynamic range: the scene spans ~800 of 65,536 counts;
+- slow drift (offset and gain ramps) plus frame-to-frame gain/offset jitter;
+- vignetting (radial fall-off of the signal);
+- temporal noise and fixed-pattern column noise.
+Clean frames (no faults) of the same views are written as ground truth for evaluation, and
+sparse surface points with their temperatures stand in for an SfM point cloud.
+
+Everything is deterministic for a given `DemoSceneConfig`; no download.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Dict, Tuple
+
+import cv2
+import numpy as np
+
+GENERATOR_VERSION = 1
+
+
+@dataclass(frozen=True)
+class DemoSceneConfig:
+    num_frames: int = 40
+    width: int = 128
+    height: int = 96
+    focal: float = 110.0
+    eval_every: int = 8
+    """Every n-th frame (by capture order, starting at 0) is held out for evaluation."""
+    drift_counts: float = 60.0
+    """Offset drift over the whole sequence (sensor warm-up), in counts."""
+    drift_gain: float = 0.04
+    """Relative gain drift over the whole sequence."""
+    jitter_counts: float = 6.0
+    jitter_gain: float = 0.01
+    vignetting: float = 0.15
+    """Relative signal loss at the image corners."""
+    noise_counts: float = 2.0
+    column_noise_counts: float = 2.0
+    num_points: int = 3000
+    seed: int = 0
+
+
+# Sensor model: counts = COUNTS_AT_0C + COUNTS_PER_C * temperature (degC).
+COUNTS_AT_0C = 3000.0
+COUNTS_PER_C = 20.0
+
+# Scene (world frame: z up, metres).
+WALL_Y = 3.0  # facade plane y = WALL_Y, facing -y, x in [-4, 4], z in [0, 4]
+SPHERES = ((-1.2, 0.6, 0.45, 34.0), (0.3, -0.4, 0.4, 31.0), (1.6, 1.0, 0.5, 28.0))  # x, y, r, degC (centre z = r)
+
+
+def _ground_temp(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    tiles = 0.8 * np.sign(np.sin(2.2 * x) * np.sin(2.2 * y))  # paving
+    patches = 1.5 * np.sin(0.7 * x + 0.3) * np.cos(0.5 * y)  # damp/dry patches
+    return 9.0 + tiles + patches
+
+
+def _wall_temp(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    t = 14.0 + 0.4 * z
+    for wx in (-2.6, -0.9, 0.9, 2.6):
+        for wz in (1.2, 2.9):
+            inside = (np.abs(x - wx) < 0.45) & (np.abs(z - wz) < 0.55)
+            t = np.where(inside, 21.0 + 0.5 * np.cos(3 * (x - wx)), t)
+    return t
+
+
+def _sky_temp(d: np.ndarray) -> np.ndarray:
+    return -6.0 + 8.0 * (1.0 - np.clip(d[..., 2], 0.0, 1.0)) ** 2  # colder towards the zenith
+
+
+def cast_rays(origins: np.ndarray, dirs: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Temperature (degC), hit distance (inf for sky) and hit points for rays [..., 3]."""
+    t_best = np.full(dirs.shape[:-1], np.inf)
+    temp = _sky_temp(dirs)
+    # ground z = 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -origins[..., 2] / dirs[..., 2]
+    p = origins + t[..., None] * dirs
+    hit = (t > 0) & (t < t_best)
+    temp = np.where(hit, _ground_temp(p[..., 0], p[..., 1]), temp)
+    t_best = np.where(hit, t, t_best)
+    # facade y = WALL_Y
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (WALL_Y - origins[..., 1]) / dirs[..., 1]
+    p = origins + t[..., None] * dirs
+    hit = (t > 0) & (t < t_best) & (np.abs(p[..., 0]) < 4.0) & (p[..., 2] > 0) & (p[..., 2] < 4.0)
+    temp = np.where(hit, _wall_temp(p[..., 0], p[..., 2]), temp)
+    t_best = np.where(hit, t, t_best)
+    # warm bodies
+    for sx, sy, r, deg in SPHERES:
+        oc = origins - np.array([sx, sy, r])
+        b = np.sum(oc * dirs, -1)
+        disc = b**2 - (np.sum(oc * oc, -1) - r * r)
+        with np.errstate(invalid="ignore"):
+            t = -b - np.sqrt(disc)
+        hit = (disc > 0) & (t > 0) & (t < t_best)
+        p = origins + t[..., None] * dirs
+        shade = deg - 3.0 * (p[..., 2] / (2 * r))  # cooler head-to-feet gradient
+        temp = np.where(hit, shade, temp)
+        t_best = np.where(hit, t, t_best)
+    points = origins + np.where(np.isfinite(t_best), t_best, 0.0)[..., None] * dirs
+    return temp, t_best, points
+
+
+def camera_to_world(index: int, cfg: DemoSceneConfig) -> np.ndarray:
+    """OpenGL-convention (nerfstudio) camera-to-world 4x4 on an arc in front of the facade."""
+    s = index / max(cfg.num_frames - 1, 1)
+    angle = np.deg2rad(-55.0 + 110.0 * s)
+    eye = np.array([6.0 * np.sin(angle), -6.0 * np.cos(angle) + 0.5, 1.6 + 0.3 * np.sin(2 * np.pi * s)])
+    target = np.array([0.0, 0.8, 0.9])
+    back = eye - target
+    back /= np.linalg.norm(back)
+    right = np.cross(np.array([0.0, 0.0, 1.0]), back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, back, eye
+    return c2w
+
+
+def render_view(c2w: np.ndarray, cfg: DemoSceneConfig, supersample: int = 2) -> Tuple[np.ndarray, np.ndarray]:
+    """Clean temperature image (degC) [H, W] and depth along the optical axis [H, W] (inf = sky)."""
+    s = supersample
+    v, u = np.meshgrid(
+        (np.arange(cfg.height * s) + 0.5) / s, (np.arange(cfg.width * s) + 0.5) / s, indexing="ij"
+    )
+    d_cam = np.stack([(u - cfg.width / 2) / cfg.focal, -(v - cfg.height / 2) / cfg.focal, -np.ones_like(u)], -1)
+    dirs = d_cam @ c2w[:3, :3].T
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    temp, dist, _ = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
+    temp = temp.reshape(cfg.height, s, cfg.width, s).mean(axis=(1, 3))
+    z = dist / np.linalg.norm(d_cam, axis=-1)
+    depth = z.reshape(cfg.height, s, cfg.width, s).min(axis=(1, 3))
+    return temp, depth
+
+
+def sensor_faults(cfg: DemoSceneConfig) -> Dict[str, np.ndarray]:
+    """Per-frame gain/offset and the fixed patterns (vignetting, column noise) of the sensor."""
+    rng = np.random.default_rng(cfg.seed)
+    s = np.linspace(0.0, 1.0, cfg.num_frames)
+    v, u = np.meshgrid(np.arange(cfg.height) + 0.5, np.arange(cfg.width) + 0.5, indexing="ij")
+    r2 = ((u - cfg.width / 2) ** 2 + (v - cfg.height / 2) ** 2) / ((cfg.width / 2) ** 2 + (cfg.height / 2) ** 2)
+    return {
+        "gain": 1.0 + cfg.drift_gain * s + cfg.jitter_gain * rng.standard_normal(cfg.num_frames),
+        "offset": cfg.drift_counts * s + cfg.jitter_counts * rng.standard_normal(cfg.num_frames),
+        "vignetting": 1.0 - cfg.vignetting * r2,
+        "columns": cfg.column_noise_counts * rng.standard_normal(cfg.width)[None, :],
+    }
+
+
+def scene_key(cfg: DemoSceneConfig) -> str:
+    payload = json.dumps({"version": GENERATOR_VERSION, **asdict(cfg)}, sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig()) -> Path:
+    """Write the scene to `out_dir` (nerfstudio transforms.json layout); reuse it if up to date.
+
+    Written into a temporary folder and moved into place at the end, so an interrupted run
+    never leaves a half-written scene behind.
+    """
+    out_dir = Path(out_dir)
+    key = scene_key(cfg)
+    meta_path = out_dir / "transforms.json"
+    if meta_path.exists():
+        with open(meta_path) as f:
+            if json.load(f).get("thermal_demo", {}).get("key") == key:
+                return out_dir
+    rng = np.random.default_rng(cfg.seed + 1)
+    faults = sensor_faults(cfg)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".demo-", dir=out_dir.parent))
+    (tmp / "images").mkdir()
+    (tmp / "ground_truth").mkdir()
+    (tmp / "depth").mkdir()
+    frames, point_sets = [], []
+    for i in range(cfg.num_frames):
+        c2w = camera_to_world(i, cfg)
+        temp, depth = render_view(c2w, cfg)
+        clean = COUNTS_AT_0C + COUNTS_PER_C * temp
+        signal = (clean - COUNTS_AT_0C) * faults["vignetting"]
+        observed = COUNTS_AT_0C + faults["offset"][i] + faults["gain"][i] * signal + faults["columns"]
+        observed = observed + cfg.noise_counts * rng.standard_normal(observed.shape)
+        name = f"frame_{i:05d}.png"
+        cv2.imwrite(str(tmp / "images" / name), np.clip(np.round(observed), 0, 65535).astype(np.uint16))
+        cv2.imwrite(str(tmp / "ground_truth" / name), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
+        np.save(tmp / "depth" / f"frame_{i:05d}.npy", depth.astype(np.float32))
+        frames.append(
+            {
+                "file_path": f"images/{name}",
+                "gt_file_path": f"ground_truth/{name}",
+                "depth_npy_path": f"depth/frame_{i:05d}.npy",
+                "transform_matrix": c2w.tolist(),
+            }
+        )
+        if i % cfg.eval_every != 0:  # SfM-like points only from training views
+            point_sets.append(_surface_points(c2w, cfg, rng, cfg.num_points // cfg.num_frames + 1))
+    points = np.concatenate(point_sets)[: cfg.num_points]
+    _write_points_ply(tmp / "sparse_pc.ply", points)
+    names = [f["file_path"] for f in frames]
+    meta = {
+        "camera_model": "OPENCV",
+        "fl_x": cfg.focal,
+        "fl_y": cfg.focal,
+        "cx": cfg.width / 2,
+        "cy": cfg.height / 2,
+        "w": cfg.width,
+        "h": cfg.height,
+        "frames": frames,
+        "train_filenames": [n for i, n in enumerate(names) if i % cfg.eval_every != 0],
+        "val_filenames": [n for i, n in enumerate(names) if i % cfg.eval_every == 0],
+        "test_filenames": [n for i, n in enumerate(names) if i % cfg.eval_every == 0],
+        "ply_file_path": "sparse_pc.ply",
+        "thermal": {
+            "celsius_low": -10.0,
+            "celsius_high": 40.0,
+            "low": COUNTS_AT_0C - 10.0 * COUNTS_PER_C,
+            "high": COUNTS_AT_0C + 40.0 * COUNTS_PER_C,
+            "dtype": "uint16",
+        },
+        "thermal_demo": {"key": key, "config": asdict(cfg), "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset")}},
+    }
+    with open(tmp / "transforms.json", "w") as f:
+        json.dump(meta, f, indent=1)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+def _surface_points(c2w: np.ndarray, cfg: DemoSceneConfig, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n noisy surface points seen by this camera: x, y, z, counts [n, 4] (SfM stand-in)."""
+    u = rng.uniform(0, cfg.width, n)
+    v = rng.uniform(0, cfg.height, n)
+    d_cam = np.stack([(u - cfg.width / 2) / cfg.focal, -(v - cfg.height / 2) / cfg.focal, -np.ones(n)], -1)
+    dirs = d_cam @ c2w[:3, :3].T
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    temp, dist, pts = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
+    keep = np.isfinite(dist)
+    pts = pts[keep] + 0.02 * rng.standard_normal((int(keep.sum()), 3))
+    return np.concatenate([pts, (COUNTS_AT_0C + COUNTS_PER_C * temp[keep])[:, None]], -1)
+
+
+def _write_points_ply(path: Path, points: np.ndarray) -> None:
+    from plyfile import PlyData, PlyElement
+
+    vertex = np.empty(len(points), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("thermal", "f4")])
+    for i, name in enumerate(("x", "y", "z", "thermal")):
+        vertex[name] = points[:, i]
+    PlyData([PlyElement.describe(vertex, "vertex")]).write(str(path))

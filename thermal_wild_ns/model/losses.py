@@ -1,0 +1,71 @@
+"""Losses and image metrics on single-channel thermal images ([H, W, 1] tensors)."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def _gaussian_window(size: int, sigma: float, device, dtype) -> Tensor:
+    x = torch.arange(size, device=device, dtype=dtype) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    g = g / g.sum()
+    return (g[:, None] * g[None, :])[None, None]  # [1, 1, size, size]
+
+
+def ssim(pred: Tensor, target: Tensor, data_range: float | Tensor = 1.0, window: int = 11, sigma: float = 1.5) -> Tensor:
+    """Mean SSIM (Wang et al. 2004) of two single-channel images [H, W, 1], Gaussian 11x11 window,
+    K1 = 0.01, K2 = 0.03, 'valid' filtering (as pytorch_msssim, which nerfstudio reports)."""
+    x = pred.permute(2, 0, 1)[None]  # [1, 1, H, W]
+    y = target.permute(2, 0, 1)[None]
+    w = _gaussian_window(window, sigma, x.device, x.dtype)
+    c1 = (0.01 * data_range) ** 2
+    c2 = (0.03 * data_range) ** 2
+    mu_x, mu_y = F.conv2d(x, w), F.conv2d(y, w)
+    sxx = F.conv2d(x * x, w) - mu_x**2
+    syy = F.conv2d(y * y, w) - mu_y**2
+    sxy = F.conv2d(x * y, w) - mu_x * mu_y
+    ssim_map = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2))
+    return ssim_map.mean()
+
+
+def thermal_contrast(target: Tensor, max_samples: int = 65536) -> Tensor:
+    """Robust intensity span of a thermal frame: 99th minus 1st percentile (detached, >= 1e-3)."""
+    flat = target.detach().reshape(-1)
+    if flat.numel() > max_samples:  # percentiles of a strided subsample are accurate enough
+        flat = flat[:: flat.numel() // max_samples + 1]
+    lo, hi = torch.quantile(flat, torch.tensor([0.01, 0.99], device=flat.device, dtype=flat.dtype))
+    return (hi - lo).clamp(min=1e-3)
+
+
+def heat_aware_ssim(pred: Tensor, target: Tensor) -> Tensor:
+    """SSIM whose stabilising constants follow the frame's own thermal contrast.
+
+    Thermal-NeRF (Ye et al. 2024) motivates a "heat-aware" SSIM; its exact formula is not
+    available here, so this is the form we can justify: plain SSIM's constants C1 = (0.01 L)^2,
+    C2 = (0.03 L)^2 assume the signal spans the data range L = 1. A thermal frame normalised per
+    dataset typically spans a few percent of it, so its local variances are of the order of C2
+    and SSIM goes blind to exactly the soft heat gradients we must reconstruct. Here
+    L = p99 - p1 of the *target* frame (detached), i.e. SSIM is measured relative to the scene's
+    actual temperature contrast. For a frame that spans the full range it equals plain SSIM.
+    """
+    return ssim(pred, target, data_range=thermal_contrast(target))
+
+
+def alpha_regularizer(alpha: Tensor, target: Tensor, background: Tensor, tolerance: float) -> Tensor:
+    """Penalise opacity where the background model already explains the target.
+
+    weight = exp(-|target - background| / tolerance) is ~1 on pixels the background MLP predicts
+    (sky, far field) and ~0 elsewhere; the loss is the mean weighted alpha. Gaussians that sit in
+    front of such pixels are floaters: they only pay, so they fade and get pruned. The background
+    is detached so that the regulariser cannot move the background towards the splats instead.
+    """
+    weight = torch.exp(-(target - background.detach()).abs() / tolerance)
+    return (weight.detach() * alpha).mean()
+
+
+def psnr(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
+    """PSNR in dB for images with values in a range of `data_range`."""
+    mse = torch.mean((pred - target) ** 2).clamp(min=1e-12)
+    return 10 * torch.log10(data_range**2 / mse)

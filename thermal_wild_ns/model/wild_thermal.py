@@ -1,0 +1,349 @@
+"""WildThermalModel: splatfacto for thermal-only data ("Thermal is Always Wild", CVPR 2026).
+
+Differences from `SplatfactoModel`, and only these are overridden:
+- one scalar emission per Gaussian (no spherical harmonics), rendered as a 1-channel image;
+- a per-Gaussian embedding (in `gauss_params`, so densification clones/splits/prunes it with
+  its Gaussian) and a per-frame embedding feed an emission MLP (`fields.EmissionMLP`);
+- a background MLP b(view direction, frame embedding) fills the residual transmittance:
+  image = render + (1 - alpha) * b  (gsplat's render is premultiplied by alpha);
+- loss = l1 * L1 + ssim * (1 - heat-aware SSIM) + alpha * alpha regulariser (`losses.py`);
+- rendering goes through `thermal_wild_ns.rendering.rasterization` (gsplat on CUDA, the
+  pure-torch rasterizer elsewhere) on the model's device; no LPIPS (it would download weights).
+Outside training the frame embedding is fixed (`inference_embedding`), so renders are stable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple, Type, Union
+
+import torch
+from gsplat.strategy import DefaultStrategy
+from nerfstudio.cameras.camera_optimizers import CameraOptimizer
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
+from nerfstudio.utils.rich_utils import CONSOLE
+from torch import Tensor, nn
+from torch.nn import Parameter
+
+from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
+from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim
+from thermal_wild_ns.rendering import Backend, rasterization
+
+
+@dataclass
+class WildThermalModelConfig(SplatfactoModelConfig):
+    """Thermal splatting: scalar emission, appearance embeddings, background MLP."""
+
+    _target: Type = field(default_factory=lambda: WildThermalModel)
+    rasterizer: Backend = "auto"
+    """Rendering backend: 'auto' (gsplat on CUDA, pure torch elsewhere), 'gsplat' or 'torch'."""
+    use_emission_mlp: bool = True
+    """Condition each Gaussian's emission on per-Gaussian and per-frame embeddings through an MLP.
+    Off: plain scalar emission per Gaussian (the 3DGS baseline)."""
+    gaussian_embed_dim: int = 16
+    """Size of the per-Gaussian appearance embedding."""
+    frame_embed_dim: int = 16
+    """Size of the per-frame appearance embedding (also conditions the background MLP)."""
+    emission_mlp_width: int = 128
+    """Width of the emission MLP's hidden layers."""
+    emission_mlp_layers: int = 3
+    """Number of hidden layers (ReLU) of the emission MLP."""
+    use_background_mlp: bool = True
+    """Fill the residual transmittance with a background MLP b(view direction, frame embedding).
+    Off: a constant background of `background_value`."""
+    background_value: float = 0.0
+    """Constant background (normalised intensity) when the background MLP is off; the background
+    MLP's initial value when it is on."""
+    inference_embedding: str = "mean"
+    """Frame embedding used outside training (evaluation, viewer, renders): 'mean' (average of the
+    training frames' embeddings), 'zero', or a training-frame index such as '12'."""
+    l1_lambda: float = 0.8
+    """Weight of the L1 loss."""
+    ssim_lambda: float = 0.2
+    """Weight of the heat-aware SSIM loss (1 - SSIM)."""
+    alpha_lambda: float = 0.01
+    """Weight of the alpha regulariser against floaters in front of the background."""
+    alpha_reg_tolerance: float = 0.02
+    """Intensity difference (normalised units) under which a target pixel counts as 'explained by
+    the background' for the alpha regulariser."""
+    background_color: str = "black"  # type: ignore[assignment]
+    """Unused by this model (see use_background_mlp); kept for splatfacto's code paths."""
+    sh_degree: int = 0
+    """No spherical harmonics: thermal emission is a scalar."""
+
+
+class WildThermalModel(SplatfactoModel):
+    """Splatfacto with scalar thermal emission, appearance embeddings and a background MLP."""
+
+    config: WildThermalModelConfig
+
+    # ------------------------------------------------------------------ setup
+    def populate_modules(self):
+        # Own version rather than super(): splatfacto's builds SH colour features with a hard-coded
+        # .cuda(), a 3-channel SSIM and LPIPS (which downloads AlexNet weights).
+        cfg = self.config
+        if self.seed_points is not None and not cfg.random_init:
+            means = self.seed_points[0].float()
+            seed_values = self.seed_points[1].float()
+            if seed_values.shape[0] == means.shape[0] and seed_values.numel() > 0:
+                emission = (seed_values[:, :1] / 255.0).clone()  # [N, 1]
+            else:
+                emission = torch.full((means.shape[0], 1), 0.5)
+        else:
+            means = (torch.rand((cfg.num_random, 3)) - 0.5) * cfg.random_scale
+            emission = torch.full((cfg.num_random, 1), 0.5)
+        num_points = means.shape[0]
+        if num_points < 4:
+            raise ValueError(
+                f"WildThermalModel needs at least 4 seed points to initialise Gaussians, got {num_points}. "
+                "Provide sparse points or set random_init=True."
+            )
+        distances, _ = self.k_nearest_sklearn(means, 3)
+        avg_dist = torch.from_numpy(distances).mean(dim=-1, keepdim=True).clamp(min=1e-6)
+        params = {
+            "means": means,
+            "scales": torch.log(avg_dist.repeat(1, 3)),
+            "quats": random_quat_tensor(num_points),
+            "emission": emission,
+            "opacities": torch.logit(0.1 * torch.ones(num_points, 1)),
+        }
+        if cfg.use_emission_mlp:
+            params["gauss_embed"] = 0.1 * torch.randn(num_points, cfg.gaussian_embed_dim)
+        self.gauss_params = nn.ParameterDict({k: Parameter(v) for k, v in params.items()})
+
+        num_frames = max(self.num_train_data, 1)
+        self.frame_embed = nn.Embedding(num_frames, cfg.frame_embed_dim)
+        nn.init.zeros_(self.frame_embed.weight)
+        self.emission_mlp = (
+            EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
+            if cfg.use_emission_mlp
+            else None
+        )
+        self.background_mlp = (
+            BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
+        )
+        self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(num_cameras=self.num_train_data, device="cpu")
+        self.step = 0
+        self.optimizers = {}  # set by splatfacto's step_cb once training starts
+        self.crop_box = None
+        self.background_color = torch.tensor([cfg.background_value] * 3)
+        self._warned_nonfinite = False
+        self.strategy = DefaultStrategy(
+            prune_opa=cfg.cull_alpha_thresh,
+            grow_grad2d=cfg.densify_grad_thresh,
+            grow_scale3d=cfg.densify_size_thresh,
+            grow_scale2d=cfg.split_screen_size,
+            prune_scale3d=cfg.cull_scale_thresh,
+            prune_scale2d=cfg.cull_screen_size,
+            refine_scale2d_stop_iter=cfg.stop_screen_size_at,
+            refine_start_iter=cfg.warmup_length,
+            refine_stop_iter=cfg.stop_split_at,
+            reset_every=cfg.reset_alpha_every * cfg.refine_every,
+            refine_every=cfg.refine_every,
+            pause_refine_after_reset=self.num_train_data + cfg.refine_every,
+            absgrad=cfg.use_absgrad,
+            revised_opacity=False,
+            verbose=False,
+        )
+        self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
+
+    @property
+    def emission(self) -> Tensor:
+        return self.gauss_params["emission"]
+
+    @property
+    def colors(self) -> Tensor:
+        """Grey RGB in [0, 1] per Gaussian (for nerfstudio's exporters and viewers)."""
+        return self.emission.clamp(0.0, 1.0).expand(-1, 3)
+
+    def get_gaussian_param_groups(self) -> Dict[str, List[Parameter]]:
+        # every tensor in gauss_params needs its own group: gsplat's strategies look optimizers
+        # up by the gauss_params key when they clone, split and prune
+        return {name: [param] for name, param in self.gauss_params.items()}
+
+    def get_param_groups(self) -> Dict[str, List[Parameter]]:
+        groups = self.get_gaussian_param_groups()
+        groups["frame_embed"] = list(self.frame_embed.parameters())
+        if self.emission_mlp is not None:
+            groups["emission_mlp"] = list(self.emission_mlp.parameters())
+        if self.background_mlp is not None:
+            groups["background_mlp"] = list(self.background_mlp.parameters())
+        self.camera_optimizer.get_param_groups(param_groups=groups)
+        return groups
+
+    # -------------------------------------------------------------- rendering
+    def frame_embedding(self, camera: Cameras) -> Tensor:
+        """The frame embedding for this camera [Df]: the training frame's own while training,
+        the configured fixed choice otherwise."""
+        weight = self.frame_embed.weight  # [F, Df]
+        if self.training and camera.metadata is not None and "cam_idx" in camera.metadata:
+            return weight[int(camera.metadata["cam_idx"])]
+        choice = self.config.inference_embedding
+        if choice == "mean":
+            return weight.mean(dim=0)
+        if choice == "zero":
+            return torch.zeros_like(weight[0])
+        if choice.isdigit() and int(choice) < weight.shape[0]:
+            return weight[int(choice)]
+        raise ValueError(
+            f"inference_embedding must be 'mean', 'zero' or a training-frame index below {weight.shape[0]}, "
+            f"got {choice!r}"
+        )
+
+    def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
+        """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]."""
+        base = self.emission if ids is None else self.emission[ids]
+        if self.emission_mlp is None:
+            return base
+        embed = self.gauss_params["gauss_embed"]
+        return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
+
+    @staticmethod
+    def ray_directions(camera: Cameras, camera_to_world: Tensor, width: int, height: int) -> Tensor:
+        """Unit world-space view directions of every pixel centre [H, W, 3] (nerfstudio/OpenGL axes)."""
+        device = camera_to_world.device
+        K = camera.get_intrinsics_matrices()[0].to(device)  # [3, 3]
+        v, u = torch.meshgrid(
+            torch.arange(height, device=device, dtype=torch.float32) + 0.5,
+            torch.arange(width, device=device, dtype=torch.float32) + 0.5,
+            indexing="ij",
+        )
+        dirs = torch.stack([(u - K[0, 2]) / K[0, 0], -(v - K[1, 2]) / K[1, 1], -torch.ones_like(u)], -1)
+        dirs = dirs @ camera_to_world[0, :3, :3].T  # [H, W, 3]
+        return dirs / dirs.norm(dim=-1, keepdim=True)
+
+    def background(self, camera: Cameras, camera_to_world: Tensor, frame_embed: Tensor, width: int, height: int) -> Tensor:
+        """Background radiance per pixel [H, W, 1]."""
+        if self.background_mlp is None:
+            return torch.full((height, width, 1), self.config.background_value, device=self.device)
+        return self.background_mlp(self.ray_directions(camera, camera_to_world, width, height), frame_embed)
+
+    def get_outputs(self, camera: Cameras) -> Dict[str, Union[Tensor, List]]:
+        if not isinstance(camera, Cameras):
+            raise TypeError(f"WildThermalModel.get_outputs needs a Cameras object, got {type(camera).__name__}")
+        if self.training:
+            assert camera.shape[0] == 1, "Only one camera at a time"
+            camera_to_world = self.camera_optimizer.apply_to_camera(camera)
+        else:
+            camera_to_world = camera.camera_to_worlds
+        camera_to_world = camera_to_world.to(self.device)
+
+        scale = self._get_downscale_factor()
+        camera.rescale_output_resolution(1 / scale)
+        viewmat = get_viewmat(camera_to_world)  # [1, 4, 4]
+        K = camera.get_intrinsics_matrices().to(self.device)  # [1, 3, 3]
+        W, H = int(camera.width.item()), int(camera.height.item())
+        self.last_size = (H, W)
+        frame_embed = self.frame_embedding(camera)
+        background = self.background(camera, camera_to_world, frame_embed, W, H)  # [H, W, 1]
+        camera.rescale_output_resolution(scale)
+
+        ids = None
+        if self.crop_box is not None and not self.training:
+            ids = self.crop_box.within(self.means).squeeze()
+        if self.num_points == 0 or (ids is not None and ids.sum() == 0):
+            if self.training:
+                raise RuntimeError(
+                    "All Gaussians have been pruned: training collapsed. Lower cull_alpha_thresh or "
+                    "check the data (constant or NaN frames)."
+                )
+            CONSOLE.log("[yellow]WildThermalModel: no Gaussians to render; returning the background only.")
+            return self._outputs(background, torch.zeros_like(background), background, None)
+
+        def crop(x: Tensor) -> Tensor:
+            return x if ids is None else x[ids]
+
+        render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
+        render, alpha, self.info = rasterization(
+            means=crop(self.means),
+            quats=crop(self.quats),  # rasterization normalises internally
+            scales=torch.exp(crop(self.scales)),
+            opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
+            colors=self.gaussian_emission(frame_embed, ids),  # [N, 1]
+            viewmats=viewmat,
+            Ks=K,
+            width=W,
+            height=H,
+            packed=False,
+            near_plane=0.01,
+            far_plane=1e10,
+            render_mode=render_mode,
+            sh_degree=None,
+            sparse_grad=False,
+            absgrad=self.strategy.absgrad,
+            rasterize_mode=self.config.rasterize_mode,
+            backend=self.config.rasterizer,
+        )  # [1, H, W, 1(+1)], [1, H, W, 1]
+        if self.training:
+            self.strategy.step_pre_backward(self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info)
+        alpha = alpha[0]
+        thermal = render[0, ..., :1] + (1.0 - alpha) * background  # premultiplied render over background
+        depth = None
+        if render_mode == "RGB+ED":
+            depth = render[0, ..., 1:2]
+            depth = torch.where(alpha > 0, depth, depth.detach().max())
+        return self._outputs(thermal, alpha, background, depth)
+
+    @staticmethod
+    def _outputs(thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
+        return {
+            "thermal": thermal,  # [H, W, 1], normalised dataset units
+            "rgb": thermal.clamp(0.0, 1.0).expand(-1, -1, 3),  # grey view for nerfstudio's viewer/renderer
+            "accumulation": alpha,
+            "background": background,
+            "depth": depth,
+        }
+
+    # ----------------------------------------------------------------- losses
+    def _target(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Tensor]:
+        """Ground-truth thermal image at the render's resolution, and its finite-pixel mask."""
+        image = batch["image"]
+        if image.dim() != 3 or image.shape[-1] != 1:
+            raise ValueError(
+                f"WildThermalModel expects single-channel thermal images [H, W, 1]; image {batch.get('image_idx')} "
+                f"has shape {tuple(image.shape)}. Use the thermal datamanager/dataparsers of thermal_wild_ns."
+            )
+        gt = self.get_gt_img(image)
+        finite = torch.isfinite(gt)
+        if not bool(finite.all()):
+            if not self._warned_nonfinite:
+                CONSOLE.log(
+                    f"[yellow]Image {batch.get('image_idx')} has {int((~finite).sum())} non-finite pixels; "
+                    "they are left out of the loss and metrics."
+                )
+                self._warned_nonfinite = True
+            gt = torch.where(finite, gt, outputs["thermal"].detach())
+        return gt, finite
+
+    def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
+        gt, _ = self._target(outputs, batch)
+        return {"psnr": psnr(outputs["thermal"].detach(), gt), "gaussian_count": self.num_points}
+
+    def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
+        gt, _ = self._target(outputs, batch)
+        pred = outputs["thermal"]
+        cfg = self.config
+        losses = {
+            "l1_loss": cfg.l1_lambda * (gt - pred).abs().mean(),
+            "ssim_loss": cfg.ssim_lambda * (1.0 - heat_aware_ssim(pred, gt)),
+        }
+        if cfg.alpha_lambda > 0:
+            losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(
+                outputs["accumulation"], gt, outputs["background"], cfg.alpha_reg_tolerance
+            )
+        if self.training:
+            self.camera_optimizer.get_loss_dict(losses)
+        return losses
+
+    def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
+        gt, finite = self._target(outputs, batch)
+        pred = outputs["thermal"]
+        metrics = {
+            "psnr": float(psnr(pred, gt)),
+            "ssim": float(ssim(pred, gt, data_range=1.0)),
+            "gaussian_count": float(self.num_points),
+        }
+        images = {"img": torch.cat([gt, pred], dim=1).clamp(0, 1).expand(-1, -1, 3)}
+        return metrics, images
