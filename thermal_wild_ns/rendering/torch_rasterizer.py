@@ -46,25 +46,26 @@ _T_MIN = 1e-4
 
 
 class _GatherMeans2d(torch.autograd.Function):
-    """`src[index]` whose backward also accumulates sum |per-pixel gradient| into `holder.absgrad`."""
+    """`src[index]` broadcast over a tile's pixels [B, P, K, 2]. Its backward sees the gradient of
+    every (pixel, splat) pair, so besides the usual sum it accumulates sum |per-pixel gradient|
+    into `holder.absgrad`, as gsplat's kernels do (autograd's own broadcast would sum first)."""
 
     @staticmethod
-    def forward(ctx, src: Tensor, index: Tensor, holder: Optional[Tensor]) -> Tensor:  # type: ignore[override]
+    def forward(ctx, src: Tensor, index: Tensor, num_pixels: int, holder: Tensor) -> Tensor:  # type: ignore[override]
         ctx.save_for_backward(index)
         ctx.num = src.shape[0]
         ctx.holder = holder
-        return src[index]
+        return src[index][:, None].expand(-1, num_pixels, -1, -1)
 
     @staticmethod
     def backward(ctx, grad: Tensor):  # type: ignore[override]
         (index,) = ctx.saved_tensors
         flat_index = index.reshape(-1)
-        flat_grad = grad.reshape(-1, grad.shape[-1])
-        out = grad.new_zeros(ctx.num, grad.shape[-1]).index_add_(0, flat_index, flat_grad)
-        if ctx.holder is not None:
-            absgrad = grad.new_zeros(ctx.num, grad.shape[-1]).index_add_(0, flat_index, flat_grad.abs())
-            ctx.holder.absgrad.view(-1, grad.shape[-1]).add_(absgrad)
-        return out, None, None
+        dim = grad.shape[-1]
+        out = grad.new_zeros(ctx.num, dim).index_add_(0, flat_index, grad.sum(1).reshape(-1, dim))
+        absgrad = grad.new_zeros(ctx.num, dim).index_add_(0, flat_index, grad.abs().sum(1).reshape(-1, dim))
+        ctx.holder.absgrad.view(-1, dim).add_(absgrad)
+        return out, None, None, None
 
 
 def project_gaussians(
@@ -184,6 +185,9 @@ def composite_tiles(
     if pair_tile.numel() > 0:
         tiles, counts = torch.unique_consecutive(pair_tile, return_counts=True)
         starts = torch.cumsum(counts, 0) - counts
+        # composite tiles in order of splat count so that a chunk pads to a similar length
+        by_count = torch.argsort(counts)
+        tiles, counts, starts = tiles[by_count], counts[by_count], starts[by_count]
         # pixel centres of a tile, relative to its corner: [P2, 2]
         yy, xx = torch.meshgrid(
             torch.arange(tile_size, device=device), torch.arange(tile_size, device=device), indexing="ij"
@@ -192,11 +196,13 @@ def composite_tiles(
         counts_list = counts.tolist()
         i = 0
         while i < len(counts_list):
-            # grow the chunk while the padded pixels x splats stays within budget
+            # grow the chunk while it stays within the memory budget and pads little
             j, kmax = i, 0
             while j < len(counts_list):
                 k_new = max(kmax, counts_list[j])
-                if j > i and (j + 1 - i) * P2 * k_new > _CHUNK_ELEMENTS:
+                over_budget = (j + 1 - i) * P2 * k_new > _CHUNK_ELEMENTS
+                too_ragged = k_new > 1.5 * max(counts_list[i], 16)  # padding would waste > 1/3
+                if j > i and (over_budget or too_ragged):
                     break
                 kmax = k_new
                 j += 1
@@ -211,12 +217,14 @@ def composite_tiles(
             corner = torch.stack([tile_in_cam % tile_width, tile_in_cam // tile_width], -1).to(dtype) * tile_size
             pix = corner[:, None, :] + local_px[None]  # [B, P2, 2]
 
-            mu = _GatherMeans2d.apply(means2d, idx, absgrad_holder) if absgrad_holder is not None else means2d[idx]
-            delta = mu[:, None, :, :] - pix[:, :, None, :]  # [B, P2, K, 2]
+            if absgrad_holder is not None:
+                mu = _GatherMeans2d.apply(means2d, idx, P2, absgrad_holder)  # [B, P2, K, 2]
+            else:
+                mu = means2d[idx][:, None]  # [B, 1, K, 2]
+            dx = mu[..., 0] - pix[:, :, None, 0]  # [B, P2, K]
+            dy = mu[..., 1] - pix[:, :, None, 1]
             con = conics[idx][:, None]  # [B, 1, K, 3]
-            sigma = 0.5 * (con[..., 0] * delta[..., 0] ** 2 + con[..., 2] * delta[..., 1] ** 2) + (
-                con[..., 1] * delta[..., 0] * delta[..., 1]
-            )  # [B, P2, K]
+            sigma = 0.5 * (con[..., 0] * dx * dx + con[..., 2] * dy * dy) + con[..., 1] * dx * dy  # [B, P2, K]
             alpha = torch.clamp(opacities[idx][:, None] * torch.exp(-sigma), max=_ALPHA_MAX)
             keep = valid[:, None, :] & (sigma >= 0) & (alpha >= _ALPHA_MIN)
             alpha = torch.where(keep, alpha, torch.zeros_like(alpha))
