@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple, Type, Union
 
 import torch
-from gsplat.strategy import DefaultStrategy
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
@@ -28,6 +27,7 @@ from torch import Tensor, nn
 from torch.nn import Parameter
 
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
+from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim
 from thermal_wild_ns.rendering import Backend, rasterization
 
@@ -72,6 +72,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """Unused by this model (see use_background_mlp); kept for splatfacto's code paths."""
     sh_degree: int = 0
     """No spherical harmonics: thermal emission is a scalar."""
+    max_gaussians: int = 300_000
+    """Densification never grows the model past this many Gaussians (provisional default; stock
+    splatfacto reaches ~400k on DUNR)."""
 
 
 class WildThermalModel(SplatfactoModel):
@@ -130,7 +133,8 @@ class WildThermalModel(SplatfactoModel):
         self.crop_box = None
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
-        self.strategy = DefaultStrategy(
+        self.strategy = BudgetedDefaultStrategy(
+            max_gaussians=cfg.max_gaussians,
             prune_opa=cfg.cull_alpha_thresh,
             grow_grad2d=cfg.densify_grad_thresh,
             grow_scale3d=cfg.densify_size_thresh,
@@ -276,7 +280,7 @@ class WildThermalModel(SplatfactoModel):
             rasterize_mode=self.config.rasterize_mode,
             backend=self.config.rasterizer,
         )  # [1, H, W, 1(+1)], [1, H, W, 1]
-        if self.training:
+        if self.training and torch.is_grad_enabled():  # no densification statistics from no-grad renders
             self.strategy.step_pre_backward(self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info)
         alpha = alpha[0]
         thermal = render[0, ..., :1] + (1.0 - alpha) * background  # premultiplied render over background

@@ -1,0 +1,138 @@
+"""WildThermalModel on CPU: forward/backward, densification alignment, bad input, checkpoints."""
+
+import pytest
+import torch
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.data.scene_box import SceneBox
+
+from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+
+def make_model(n=400, frames=5, **overrides):
+    g = torch.Generator().manual_seed(0)
+    points = torch.randn(n, 3, generator=g) * 0.5
+    grey = (torch.rand(n, 1, generator=g) * 255).to(torch.uint8).repeat(1, 3)
+    config = WildThermalModelConfig(num_downscales=0, **overrides)
+    model = config.setup(scene_box=SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=frames, seed_points=(points, grey))
+    return model
+
+
+def perturb_output_layers(model):
+    """As after a few steps: the zero-initialised MLP output layers have moved."""
+    with torch.no_grad():
+        model.emission_mlp.net[-1].weight.normal_(0, 0.1)
+        model.background_mlp.net[-1].weight.normal_(0, 0.1)
+
+
+def make_camera(idx=0, width=48, height=32):
+    c2w = torch.eye(4)[None, :3].clone()
+    c2w[0, 2, 3] = 3.0  # looking down -z at the origin (OpenGL)
+    camera = Cameras(camera_to_worlds=c2w, fx=50.0, fy=50.0, cx=width / 2, cy=height / 2, width=width, height=height)
+    camera.metadata = {"cam_idx": idx}
+    return camera
+
+
+def test_forward_backward_reaches_every_parameter_group():
+    model = make_model()
+    perturb_output_layers(model)
+    model.train()
+    outputs = model.get_outputs(make_camera(1))
+    assert outputs["thermal"].shape == (32, 48, 1) and outputs["rgb"].shape == (32, 48, 3)
+    batch = {"image": torch.rand(32, 48, 1), "image_idx": 1}
+    losses = model.get_loss_dict(outputs, batch)
+    assert set(losses) == {"l1_loss", "ssim_loss", "alpha_loss"}
+    sum(losses.values()).backward()
+    groups = model.get_param_groups()
+    assert {"means", "emission", "gauss_embed", "frame_embed", "emission_mlp", "background_mlp"} <= set(groups)
+    for name in ("means", "emission", "opacities", "background_mlp"):
+        assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in groups[name]), name
+    # only the trained frame's embedding gets gradient
+    assert model.emission_mlp.net[-1].weight.grad.abs().sum() > 0
+    frame_grad = model.frame_embed.weight.grad
+    assert frame_grad[1].abs().sum() > 0 and frame_grad[[0, 2, 3, 4]].abs().sum() == 0
+
+
+def test_fixed_inference_embedding_makes_renders_frame_independent():
+    model = make_model()
+    perturb_output_layers(model)
+    with torch.no_grad():
+        model.frame_embed.weight.normal_()
+    model.eval()
+    a = model.get_outputs(make_camera(0))["thermal"]
+    b = model.get_outputs(make_camera(3))["thermal"]
+    assert torch.equal(a, b)
+    model.train()
+    with torch.no_grad():
+        c = model.get_outputs(make_camera(3))["thermal"]
+    assert not torch.equal(a, c)  # while training each frame uses its own embedding
+
+
+def test_densification_keeps_embeddings_aligned():
+    model = make_model(n=200)
+    params, optimizers = model.gauss_params, {}
+    for name, p in params.items():
+        optimizers[name] = torch.optim.Adam([p], lr=1e-3)
+    # tag each Gaussian: its embedding's first entry equals its emission
+    with torch.no_grad():
+        params["gauss_embed"][:, 0] = params["emission"][:, 0] = torch.arange(200, dtype=torch.float32)
+    state = model.strategy_state
+    state["grad2d"] = torch.zeros(200)
+    state["count"] = torch.ones(200)
+    state["radii"] = torch.zeros(200)
+    state["grad2d"][:50] = 1.0  # grow the first 50
+    model.strategy._grow_gs(params, optimizers, state, step=model.strategy.refine_start_iter + 1)
+    assert params["means"].shape[0] > 200
+    torch.testing.assert_close(params["gauss_embed"][:, 0], params["emission"][:, 0])
+    keep = torch.ones(params["means"].shape[0], dtype=torch.bool)
+    keep[::3] = False
+    from gsplat.strategy.ops import remove
+
+    remove(params=params, optimizers=optimizers, state={}, mask=~keep)
+    torch.testing.assert_close(params["gauss_embed"][:, 0], params["emission"][:, 0])
+    assert all(p.shape[0] == params["means"].shape[0] for p in params.values())
+    assert all(optimizers[k].param_groups[0]["params"][0] is params[k] for k in params)
+
+
+def test_gaussian_budget_caps_growth():
+    model = make_model(n=200, max_gaussians=230)
+    params = model.gauss_params
+    optimizers = {k: torch.optim.Adam([p], lr=1e-3) for k, p in params.items()}
+    state = model.strategy_state
+    state.update(grad2d=torch.ones(200), count=torch.ones(200), radii=torch.zeros(200))
+    model.strategy._grow_gs(params, optimizers, state, step=model.strategy.refine_start_iter + 1)
+    assert params["means"].shape[0] == 230
+
+
+def test_bad_input_is_reported_or_skipped():
+    model = make_model()
+    model.train()
+    outputs = model.get_outputs(make_camera(0))
+    with pytest.raises(ValueError, match="single-channel"):
+        model.get_loss_dict(outputs, {"image": torch.rand(32, 48, 3), "image_idx": 0})
+    image = torch.rand(32, 48, 1)
+    image[:5] = float("nan")
+    losses = model.get_loss_dict(outputs, {"image": image, "image_idx": 0})
+    assert all(torch.isfinite(v) for v in losses.values())  # NaN pixels are left out, with a warning
+    with pytest.raises(ValueError, match="at least 4 seed points"):
+        make_model(n=2)
+    with pytest.raises(ValueError, match="inference_embedding"):
+        model = make_model(inference_embedding="99")
+        model.eval()
+        model.get_outputs(make_camera(0))
+    model = make_model()
+    model.train()
+    for name, p in list(model.gauss_params.items()):
+        model.gauss_params[name] = torch.nn.Parameter(p[:0])
+    with pytest.raises(RuntimeError, match="pruned"):
+        model.get_outputs(make_camera(0))
+    model.eval()
+    empty = model.get_outputs(make_camera(0))  # rendering an empty model shows the background
+    torch.testing.assert_close(empty["thermal"], empty["background"])
+
+
+def test_baseline_variant_has_no_mlp():
+    model = make_model(use_emission_mlp=False, use_background_mlp=False)
+    assert model.emission_mlp is None and "gauss_embed" not in model.gauss_params
+    model.train()
+    out = model.get_outputs(make_camera(0))
+    sum(model.get_loss_dict(out, {"image": torch.rand(32, 48, 1), "image_idx": 0}).values()).backward()

@@ -1,0 +1,37 @@
+"""Densification with a Gaussian budget: gsplat's DefaultStrategy that never grows past a cap."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from gsplat.strategy import DefaultStrategy
+
+
+@dataclass
+class BudgetedDefaultStrategy(DefaultStrategy):
+    """DefaultStrategy whose growth step keeps only the strongest candidates within `max_gaussians`.
+
+    Candidates are ranked by how far they exceed their growth rule (mean 2D gradient over
+    `grow_grad2d`, or screen radius over `grow_scale2d`); the rest are left out of this round
+    by masking their statistics before gsplat's own `_grow_gs` runs. Without a cap, small
+    images make the screen-size rule split nearly every Gaussian at every refinement.
+    """
+
+    max_gaussians: int = 1_000_000
+
+    def _grow_gs(self, params, optimizers, state, step):
+        n = params["means"].shape[0]
+        room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian
+        grads = state["grad2d"] / state["count"].clamp_min(1)
+        score = grads / self.grow_grad2d
+        if step < self.refine_scale2d_stop_iter:
+            score = torch.maximum(score, state["radii"] / self.grow_scale2d)
+        candidates = score > 1
+        if int(candidates.sum()) > room:
+            keep = torch.zeros_like(candidates)
+            if room > 0:
+                keep[torch.topk(torch.where(candidates, score, torch.zeros_like(score)), room).indices] = True
+            state["grad2d"] = torch.where(keep, state["grad2d"], torch.zeros_like(state["grad2d"]))
+            state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
+        return super()._grow_gs(params, optimizers, state, step)
