@@ -9,6 +9,6 @@ constraints=()
 if [ "${GPU:-0}" != "1" ]; then
   constraints=(-c thermal_wild_ns/install/constraints-cpu.txt)
 fi
-.venv/bin/pip install -q "${constraints[@]}" '.[dev]' 2>&1 | grep -v "^WARNING: Location" || true
+.venv/bin/pip install -q "${constraints[@]}" '.[dev]' 2> >(grep -v "^WARNING: Location" >&2)
 rm -rf build
 .venv/bin/python -c "import torchvision, thermal_wild_ns.compat; print('environment ready')"
