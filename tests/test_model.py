@@ -136,3 +136,14 @@ def test_baseline_variant_has_no_mlp():
     model.train()
     out = model.get_outputs(make_camera(0))
     sum(model.get_loss_dict(out, {"image": torch.rand(32, 48, 1), "image_idx": 0}).values()).backward()
+    assert model.emission.grad.abs().sum() > 0
+    assert set(model.get_param_groups()) == {"means", "scales", "quats", "emission", "opacities", "frame_embed"}
+
+
+def test_every_attribute_nerfstudio_tools_read_is_available():
+    """ns-viewer walks every attribute of the model (viewer/utils.py parse_object); exporters read
+    the SH accessors. All must work on a model without spherical harmonics."""
+    model = make_model()
+    for name in dir(model):
+        getattr(model, name)
+    assert model.features_dc.shape == (model.num_points, 3) and model.shs_rest.shape == (model.num_points, 0, 3)

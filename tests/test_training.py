@@ -5,7 +5,7 @@ import json
 
 import torch
 
-from thermal_wild_ns.demo import DemoArgs, demo_trainer_config, evaluate
+from thermal_wild_ns.demo import demo_trainer_config, evaluate
 
 
 def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
@@ -16,7 +16,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     config.save_config()
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
-    before = evaluate(trainer.pipeline, tmp_path / "before")
+    before = evaluate(trainer.pipeline)
     losses = []
     model = trainer.pipeline.model
     original = model.get_loss_dict
@@ -72,3 +72,7 @@ def test_dunr_loads_with_dataset_level_normalisation():
     # one range for every frame: the drift between frames survives normalisation
     assert abs(float(a.median()) - float(b.median())) > 0.05
     assert len(torch.unique(a)) > 256  # no 8-bit re-quantisation of 16-bit data
+    # what training caches is 1-channel float; the viewer's thumbnails (dataset[idx]) are grey RGB
+    assert dataset.get_data(0)["image"].shape == (512, 640, 1)
+    thumb = dataset[0]["image"]
+    assert thumb.shape == (512, 640, 3) and 0.0 <= float(thumb.min()) and float(thumb.max()) <= 1.0

@@ -64,23 +64,24 @@ def _inferno(x: np.ndarray) -> np.ndarray:
     return cv2.applyColorMap((np.clip(x, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
 
 
-def evaluate(pipeline, out_dir: Path) -> dict:
-    """PSNR/SSIM on every test view (fixed inference embedding) and PNG panels of each."""
+def evaluate(pipeline, out_dir: Optional[Path] = None) -> dict:
+    """The model's own test-view metrics (fixed inference embedding), averaged; with `out_dir`,
+    also a PNG panel per view."""
     import cv2
 
-    from thermal_wild_ns.model.losses import psnr, ssim
-
-    out_dir.mkdir(parents=True, exist_ok=True)
     pipeline.eval()
     rows = []
     for i, (camera, batch) in enumerate(pipeline.datamanager.fixed_indices_eval_dataloader):
         with torch.no_grad():
             outputs = pipeline.model.get_outputs_for_camera(camera)
-        pred, gt = outputs["thermal"].cpu(), batch["image"].cpu()
-        rows.append({"psnr": float(psnr(pred, gt)), "ssim": float(ssim(pred, gt))})
-        err = (pred - gt).abs().numpy()[..., 0] * 5  # x5 so small errors are visible
-        panel = np.concatenate([_inferno(gt.numpy()[..., 0]), _inferno(pred.numpy()[..., 0]), _inferno(err)], 1)
-        cv2.imwrite(str(out_dir / f"test_{i:02d}.png"), cv2.resize(panel, None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST))
+            metrics, _ = pipeline.model.get_image_metrics_and_images(outputs, batch)
+        rows.append({"psnr": metrics["psnr"], "ssim": metrics["ssim"]})
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            pred, gt = outputs["thermal"].cpu().numpy()[..., 0], batch["image"].cpu().numpy()[..., 0]
+            err = np.abs(pred - gt) * 5  # x5 so small errors are visible
+            panel = np.concatenate([_inferno(gt), _inferno(pred), _inferno(err)], 1)
+            cv2.imwrite(str(out_dir / f"test_{i:02d}.png"), cv2.resize(panel, None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST))
     return {
         "psnr": float(np.mean([r["psnr"] for r in rows])),
         "ssim": float(np.mean([r["ssim"] for r in rows])),
@@ -101,7 +102,7 @@ def main(args: DemoArgs) -> dict:
     config.save_config()
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
-    untrained = evaluate(trainer.pipeline, args.output_dir / "renders_untrained")
+    untrained = evaluate(trainer.pipeline)
     start = time.time()
     trainer.train()
     train_seconds = time.time() - start

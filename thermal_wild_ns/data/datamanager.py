@@ -41,6 +41,13 @@ class ThermalDataset(InputDataset):
     def get_image_uint8(self, image_idx: int) -> torch.Tensor:
         raise ValueError("Thermal frames are float radiometric data; use cache_images_type='float32'")
 
+    def __getitem__(self, image_idx: int) -> dict:
+        """A display copy for nerfstudio's viewer, which draws `dataset[idx]["image"]` as RGB
+        thumbnails: grey, 3 channels, clipped to [0, 1]. Training reads `get_data` (1 channel)."""
+        data = self.get_data(image_idx)
+        data["image"] = data["image"].clamp(0.0, 1.0).expand(-1, -1, 3)
+        return data
+
 
 @dataclass
 class ThermalDatamanagerConfig(FullImageDatamanagerConfig):

@@ -8,8 +8,9 @@ frames a user would get:
 - slow drift (offset and gain ramps) plus frame-to-frame gain/offset jitter;
 - vignetting (radial fall-off of the signal);
 - temporal noise and fixed-pattern column noise.
-Clean frames (no faults) of the same views are written as ground truth for evaluation, and
-sparse surface points with their temperatures stand in for an SfM point cloud.
+Clean frames (no faults) of the same views are written as ground truth for evaluation; sparse
+surface points with their temperatures stand in for an SfM point cloud; the true depth of every
+view (`depth/*.npy`, camera z) is kept for floater measures.
 
 Everything is deterministic for a given `DemoSceneConfig`; no download.
 """

@@ -7,7 +7,7 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -71,12 +71,6 @@ class RadiometricRange:
 
     def normalize(self, raw: np.ndarray) -> np.ndarray:
         return ((raw.astype(np.float64) - self.low) / (self.high - self.low)).astype(np.float32)
-
-    def denormalize(self, value: np.ndarray) -> np.ndarray:
-        return np.asarray(value, dtype=np.float64) * (self.high - self.low) + self.low
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def measure_range(paths: Sequence[Path], percentiles: tuple[float, float] = (0.1, 99.9)) -> RadiometricRange:

@@ -25,7 +25,8 @@ class BudgetedDefaultStrategy(DefaultStrategy):
         room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian
         grads = state["grad2d"] / state["count"].clamp_min(1)
         score = grads / self.grow_grad2d
-        if step < self.refine_scale2d_stop_iter:
+        uses_radii = step < self.refine_scale2d_stop_iter  # as in gsplat's _grow_gs
+        if uses_radii:
             score = torch.maximum(score, state["radii"] / self.grow_scale2d)
         candidates = score > 1
         if int(candidates.sum()) > room:
@@ -33,5 +34,6 @@ class BudgetedDefaultStrategy(DefaultStrategy):
             if room > 0:
                 keep[torch.topk(torch.where(candidates, score, torch.zeros_like(score)), room).indices] = True
             state["grad2d"] = torch.where(keep, state["grad2d"], torch.zeros_like(state["grad2d"]))
-            state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
+            if uses_radii:
+                state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
         return super()._grow_gs(params, optimizers, state, step)

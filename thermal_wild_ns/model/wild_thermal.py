@@ -21,7 +21,7 @@ from typing import Dict, List, Optional, Tuple, Type, Union
 import torch
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
+from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
 from torch.nn import Parameter
@@ -162,6 +162,24 @@ class WildThermalModel(SplatfactoModel):
         """Grey RGB in [0, 1] per Gaussian (for nerfstudio's exporters and viewers)."""
         return self.emission.clamp(0.0, 1.0).expand(-1, 3)
 
+    # splatfacto's SH accessors, which nerfstudio's viewer and exporters read: the grey emission
+    # as the DC band and no higher bands (the model has no spherical harmonics)
+    @property
+    def features_dc(self) -> Tensor:
+        return RGB2SH(self.colors)
+
+    @property
+    def features_rest(self) -> Tensor:
+        return self.emission.new_zeros(self.num_points, 0, 3)
+
+    @property
+    def shs_0(self) -> Tensor:
+        return self.features_dc
+
+    @property
+    def shs_rest(self) -> Tensor:
+        return self.features_rest
+
     def get_gaussian_param_groups(self) -> Dict[str, List[Parameter]]:
         # every tensor in gauss_params needs its own group: gsplat's strategies look optimizers
         # up by the gauss_params key when they clone, split and prune
@@ -301,7 +319,7 @@ class WildThermalModel(SplatfactoModel):
         }
 
     # ----------------------------------------------------------------- losses
-    def _target(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Tensor]:
+    def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Tensor]:
         """Ground-truth thermal image at the render's resolution, and its finite-pixel mask."""
         image = batch["image"]
         if image.dim() != 3 or image.shape[-1] != 1:
@@ -322,11 +340,11 @@ class WildThermalModel(SplatfactoModel):
         return gt, finite
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
-        gt, _ = self._target(outputs, batch)
+        gt, _ = self._ground_truth(outputs, batch)
         return {"psnr": psnr(outputs["thermal"].detach(), gt), "gaussian_count": self.num_points}
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
-        gt, _ = self._target(outputs, batch)
+        gt, _ = self._ground_truth(outputs, batch)
         pred = outputs["thermal"]
         cfg = self.config
         losses = {
@@ -342,7 +360,7 @@ class WildThermalModel(SplatfactoModel):
         return losses
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
-        gt, finite = self._target(outputs, batch)
+        gt, finite = self._ground_truth(outputs, batch)
         pred = outputs["thermal"]
         metrics = {
             "psnr": float(psnr(pred, gt)),
