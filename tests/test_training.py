@@ -50,7 +50,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
 def test_dunr_loads_with_dataset_level_normalisation():
     from pathlib import Path
 
-    from thermal_wild_ns.data.dataparsers import ThermalNerfstudioDataParserConfig
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
     from thermal_wild_ns.data.datamanager import ThermalDataset
 
     import pytest
@@ -58,7 +58,7 @@ def test_dunr_loads_with_dataset_level_normalisation():
     dunr = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dunr"
     if not dunr.is_dir():
         pytest.skip(f"real DUNR scene not found at {dunr} (it sits in ../shared beside the checkout)")
-    parser = ThermalNerfstudioDataParserConfig(data=dunr, load_3D_points=False).setup()
+    parser = ThermalDataParserConfig(data=dunr, seed_points="random", num_random_points=100).setup()
     train = parser.get_dataparser_outputs("train")
     test = parser.get_dataparser_outputs("test")
     assert len(train.image_filenames) + len(test.image_filenames) == 45

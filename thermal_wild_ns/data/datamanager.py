@@ -8,11 +8,11 @@ from typing import Type
 import numpy as np
 import torch
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
-from nerfstudio.data.dataparsers.base_dataparser import DataParserConfig
+from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
 from nerfstudio.data.datasets.base_dataset import InputDataset
 
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
-from thermal_wild_ns.data.thermal_io import RadiometricRange, read_raw_frame
+from thermal_wild_ns.data.thermal_io import RadiometricRange
 
 
 class ThermalDataset(InputDataset):
@@ -26,14 +26,13 @@ class ThermalDataset(InputDataset):
         return value
 
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
-        path = self._dataparser_outputs.image_filenames[image_idx]
-        raw = read_raw_frame(path)
+        image = self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx])
         if self.scale_factor != 1.0:
             import cv2
 
-            h, w = raw.shape
-            raw = cv2.resize(raw.astype(np.float32), (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)
-        return self.thermal_range.normalize(raw)[..., None]
+            h, w = image.shape
+            image = cv2.resize(image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)
+        return image[..., None]
 
     def get_image_float32(self, image_idx: int) -> torch.Tensor:
         return torch.from_numpy(self.get_numpy_image(image_idx))
@@ -54,7 +53,8 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     """Full-image datamanager for single-channel thermal frames."""
 
     _target: Type = field(default_factory=lambda: ThermalDatamanager)
-    dataparser: DataParserConfig = field(default_factory=ThermalDemoDataParserConfig)
+    dataparser: AnnotatedDataParserUnion = field(default_factory=ThermalDemoDataParserConfig)
+    """Which thermal layout to read (a subcommand: `thermal`, `msx-data`, ...); default: the embedded demo scene."""
     cache_images_type: str = "float32"  # type: ignore[assignment]
     """Thermal frames stay float32 (never re-quantised to 8 bit)."""
 

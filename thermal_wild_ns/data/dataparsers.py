@@ -1,129 +1,293 @@
-"""Thermal dataparsers for nerfstudio.
+"""Thermal dataparsers for nerfstudio: every published thermal layout, one implementation.
 
-`thermal-nerfstudio-data`: a nerfstudio `transforms.json` capture of single-channel thermal
-frames (8/16-bit or float), e.g. `../shared/data/dunr`. Poses, intrinsics and splits are read by
-nerfstudio's own parser; this subclass adds what thermal data needs:
-- the dataset-level radiometric range (`metadata["thermal_range"]`), from the transforms'
-  `thermal` block if present, otherwise measured over all frames (percentiles 0.1 / 99.9);
-- clean ground-truth frames for evaluation where frames carry `gt_file_path` (the demo scene);
-- seed points from a `.ply` with a `thermal` (native units) or grey colour property, read
-  with plyfile (nerfstudio's reader needs open3d);
-- a default split of every 8th frame held out (`eval_mode='interval'`).
+`ThermalDataParser` reads a capture with the chosen layout reader (`layouts.py`, or the one
+`detect_layout` finds), checks it (`capture.validate`, `thermal_io.scan_frames`), orients and
+scales the poses as nerfstudio's own parsers do, and adds what thermal training needs:
+- `metadata["thermal_range"]`: ONE radiometric range per dataset (declared or measured);
+- seed points (`points3D_xyz`, `points3D_rgb` as grey levels) from, in order of preference, the
+  layout's sparse model / point cloud, triangulation from the known poses (`triangulation.py`,
+  cached), or random points inside the training cameras' view volume; the route taken and its
+  point count are logged and kept in `metadata["seed_points"]`;
+- the capture-order index of every frame (`metadata["frame_indices"]`);
+- clean ground-truth frames for evaluation when the capture has them (generated scenes).
 
-`thermal-demo-data`: the same parser whose default data is the embedded procedural scene,
-generated on first use (see `demo_scene.py`).
+Registered parsers (`ns-train wild-thermal <parser> --data PATH`) are this class with a fixed
+layout; `thermal` detects the layout and says which it chose.
 """
 
 from __future__ import annotations
 
-import json
+import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Optional, Type
+from typing import Dict, List, Literal, Optional, Tuple, Type
 
 import numpy as np
 import torch
-from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
+from nerfstudio.cameras import camera_utils
+from nerfstudio.cameras.cameras import Cameras, CameraType
+from nerfstudio.data.dataparsers.base_dataparser import DataParser, DataParserConfig, DataparserOutputs
+from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.plugins.registry_dataparser import DataParserSpecification
+from nerfstudio.utils.rich_utils import CONSOLE
 
+from thermal_wild_ns.data import layouts
+from thermal_wild_ns.data.capture import SeedPoints, ThermalCapture, ThermalFrame, fraction_split, interval_split, opencv_to_opengl, validate
 from thermal_wild_ns.data.demo_scene import generate_demo_scene
-from thermal_wild_ns.data.thermal_io import RadiometricRange, measure_range
+from thermal_wild_ns.data.thermal_io import RadiometricRange, scan_frames
+from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
 
 DEMO_SCENE_DIR = Path("outputs/thermal-demo-scene")
+LayoutName = Literal["auto", "thermalnerf", "nerfstudio", "ye", "msx", "thermalmix", "mvtv", "llff", "colmap", "ti-nsd"]
 
 
 @dataclass
-class ThermalNerfstudioDataParserConfig(NerfstudioDataParserConfig):
-    """nerfstudio transforms.json with single-channel thermal frames."""
+class ThermalDataParserConfig(DataParserConfig):
+    """Single-channel thermal captures in any supported layout."""
 
-    _target: Type = field(default_factory=lambda: ThermalNerfstudio)
-    downscale_factor: Optional[int] = 1
-    """Thermal frames are small; never downscale unless asked."""
-    eval_mode: Literal["fraction", "filename", "interval", "all"] = "interval"
-    """Held-out split when transforms.json has no explicit one: every `eval_interval`-th frame."""
+    _target: Type = field(default_factory=lambda: ThermalDataParser)
+    data: Path = Path()
+    """Dataset folder (or a transforms.json)."""
+    layout: LayoutName = "auto"
+    """Dataset layout; 'auto' detects it (and fails listing the layouts it tried)."""
+    split: Literal["dataset", "interval", "fraction", "all"] = "dataset"
+    """Held-out frames: the dataset's published rule ('dataset'), every `eval_interval`-th frame,
+    an evenly spaced `train_split_fraction`, or none held out ('all')."""
     eval_interval: int = 8
-    """Every n-th frame is held out for evaluation."""
-    load_3D_points: bool = True
-    """Seed Gaussians from the transforms' point cloud (ply_file_path) when there is one."""
-    range_percentiles: tuple[float, float] = (0.1, 99.9)
-    """Percentiles of all pixels of all frames that map to 0 and 1 when the data has no declared range."""
+    train_split_fraction: float = 0.9
+    palette: Literal["auto", "grey", "iron", "inferno", "jet"] = "auto"
+    """Palette of colour-mapped frames; 'auto' uses the layout's or detects it."""
+    range_percentiles: Tuple[float, float] = (0.1, 99.9)
+    """Percentiles of all pixels of all frames mapped to 0 and 1 when the dataset declares no range."""
+    thermalmix_celsius: Optional[Tuple[float, float]] = None
+    """ThermalMix: degC of 8-bit levels 0 and 255 (default: the published bounds of the scene folder's name)."""
+    thermalmix_holdout: int = 20
+    """ThermalMix: index (by COLMAP image id) of the held-out view."""
+    orientation_method: Literal["pca", "up", "vertical", "none"] = "up"
+    center_method: Literal["poses", "focus", "none"] = "poses"
+    auto_scale_poses: bool = True
+    """Scale poses to fit in [-1, 1]."""
+    scale_factor: float = 1.0
+    scene_scale: float = 1.0
+    seed_points: Literal["auto", "sfm", "triangulate", "random"] = "auto"
+    """Gaussian seeds: 'auto' takes the dataset's sparse points, else triangulates, else random."""
+    num_random_points: int = 50_000
+    """Random seeds when nothing better exists."""
+    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
+    cache_dir: Optional[Path] = None
+    """Where triangulated points are cached. Default: `<data>/.thermal_wild_ns`, or
+    `~/.cache/thermal_wild_ns/<name>-<hash>` when the data folder is read-only."""
 
 
-class ThermalNerfstudio(Nerfstudio):
-    config: ThermalNerfstudioDataParserConfig
+class ThermalDataParser(DataParser):
+    config: ThermalDataParserConfig
 
-    def _transforms(self) -> tuple[dict, Path]:
-        path = self.config.data if self.config.data.suffix == ".json" else self.config.data / "transforms.json"
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no transforms.json (nerfstudio layout) in the thermal data folder")
-        with open(path) as f:
-            return json.load(f), path.parent
+    def __init__(self, config: ThermalDataParserConfig):
+        super().__init__(config)
+        self._capture: Optional[ThermalCapture] = None
+        self._range: Optional[RadiometricRange] = None
+        self._seeds: Optional[SeedPoints] = None
+
+    # ------------------------------------------------------------------ reading
+    def capture(self) -> ThermalCapture:
+        if self._capture is None:
+            root = Path(self.config.data)
+            name = self.config.layout
+            if name == "auto":
+                name = layouts.detect_layout(root)
+                CONSOLE.log(f"{root}: detected layout '{name}' ({layouts.LAYOUTS[name].description})")
+            options = {"thermalmix": {"holdout_index": self.config.thermalmix_holdout, "celsius": self.config.thermalmix_celsius}}
+            capture = validate(layouts.LAYOUTS[name].read(root, **options.get(name, {})))
+            n = len(capture.frames)
+            override = {"interval": lambda: interval_split(n, self.config.eval_interval),
+                        "fraction": lambda: fraction_split(n, self.config.train_split_fraction),
+                        "all": lambda: ["train"] * n}.get(self.config.split)
+            if override is not None:
+                for frame, split in zip(capture.frames, override()):
+                    frame.split = split
+                capture.split_rule = f"split='{self.config.split}'"
+            self._capture = capture
+        return self._capture
 
     def radiometric_range(self) -> RadiometricRange:
-        """Dataset-level range: declared in transforms.json, or measured over every frame once."""
-        if getattr(self, "_range", None) is None:
-            meta, data_dir = self._transforms()
-            declared = meta.get("thermal")
-            if declared and "low" in declared and "high" in declared:
-                self._range = RadiometricRange(**{k: declared.get(k) for k in RadiometricRange.__dataclass_fields__})
-            else:
-                paths = [data_dir / frame["file_path"] for frame in meta["frames"]]
-                self._range = measure_range(paths, self.config.range_percentiles)
+        """Dataset-level range: declared by the dataset or measured over every frame, once."""
+        if self._range is None:
+            capture = self.capture()
+            palette = None if self.config.palette == "auto" else self.config.palette
+            self._range = scan_frames(
+                [f.image for f in capture.frames],
+                sizes=[(f.width, f.height) for f in capture.frames],
+                declared=capture.declared_range,
+                palette=palette or capture.palette,
+                percentiles=self.config.range_percentiles,
+            )
         return self._range
 
-    def _generate_dataparser_outputs(self, split="train"):
-        outputs = super()._generate_dataparser_outputs(split)
-        meta, data_dir = self._transforms()
-        outputs.metadata["thermal_range"] = self.radiometric_range()
-        if split != "train":
-            # evaluate against clean ground truth where the capture provides it
-            gt = {
-                (data_dir / f["file_path"]).resolve(): data_dir / f["gt_file_path"]
-                for f in meta["frames"]
-                if "gt_file_path" in f
-            }
-            outputs.image_filenames = [gt.get(Path(p).resolve(), p) for p in outputs.image_filenames]
-        return outputs
+    # ------------------------------------------------------------------ seed points
+    def _cache_root(self) -> Path:
+        if self.config.cache_dir is not None:
+            return Path(self.config.cache_dir)
+        root = self.capture().root
+        if os.access(root, os.W_OK):
+            return root / ".thermal_wild_ns"
+        digest = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:8]
+        return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "thermal_wild_ns" / f"{root.name}-{digest}"
 
-    def _load_3D_points(self, ply_file_path: Path, transform_matrix: torch.Tensor, scale_factor: float):
-        from plyfile import PlyData
+    def seed_points(self) -> SeedPoints:
+        if self._seeds is None:
+            capture, route = self.capture(), self.config.seed_points
+            train = [f for f in capture.frames if f.split == "train"]
+            seeds = None
+            if route in ("auto", "sfm") and capture.points is not None:
+                seeds = capture.points
+            elif route == "sfm":
+                raise ValueError(f"{capture.root}: seed_points='sfm' but the {capture.layout} layout has no sparse points")
+            if seeds is None and route in ("auto", "triangulate"):
+                cache = self._cache_root()
+                xyz, report = cached_triangulation(train, self.radiometric_range(), cache, self.config.triangulation)
+                CONSOLE.log(
+                    f"triangulated {report['points']} points from {report['frames']} training frames with the known "
+                    f"poses: median reprojection error {report['reprojection_error_px_median']} px (cache: {cache})"
+                )
+                if len(xyz) >= 4:
+                    seeds = SeedPoints(xyz=xyz, source="triangulated")
+                elif route == "triangulate":
+                    raise ValueError(f"{capture.root}: triangulation found only {len(xyz)} points (SIFT finds too little texture)")
+            if seeds is None:
+                seeds = SeedPoints(xyz=random_view_volume_points(train, self.config.num_random_points), source="random")
+            CONSOLE.log(f"Gaussian seeds: {len(seeds.xyz)} points ({seeds.source})")
+            self._seeds = seeds
+        return self._seeds
 
-        vertex = PlyData.read(str(ply_file_path))["vertex"]
-        if len(vertex) == 0:
-            return None
-        xyz = torch.from_numpy(np.stack([vertex[a] for a in ("x", "y", "z")], -1).astype(np.float32))
-        xyz = torch.cat([xyz, torch.ones_like(xyz[:, :1])], -1) @ transform_matrix.T * scale_factor
-        names = vertex.data.dtype.names
-        if "thermal" in names:
-            value = self.radiometric_range().normalize(np.asarray(vertex["thermal"]))
-        elif "red" in names:
-            value = np.asarray(vertex["red"], dtype=np.float32) / 255.0
-        else:
-            value = np.full(len(vertex), 0.5, dtype=np.float32)
-        grey = torch.from_numpy((np.clip(value, 0, 1) * 255).astype(np.uint8))[:, None].repeat(1, 3)
-        return {"points3D_xyz": xyz, "points3D_rgb": grey}
+    # ------------------------------------------------------------------ nerfstudio outputs
+    def _generate_dataparser_outputs(self, split: str = "train") -> DataparserOutputs:
+        capture = self.capture()
+        rng = self.radiometric_range()
+        frames = capture.frames
+        poses = torch.from_numpy(np.stack([opencv_to_opengl(f.camera_to_world) for f in frames])).float()
+        poses, transform = camera_utils.auto_orient_and_center_poses(poses, method=self.config.orientation_method, center_method=self.config.center_method)
+        scale = self.config.scale_factor
+        if self.config.auto_scale_poses:
+            scale /= float(torch.max(torch.abs(poses[:, :3, 3])).clamp(min=1e-8))
+        poses[:, :3, 3] *= scale
+
+        wanted = "train" if split == "train" else "test"
+        indices = [i for i, f in enumerate(frames) if f.split == wanted or self.config.split == "all"]
+        if not indices:
+            raise ValueError(f"{capture.root}: no '{wanted}' frames ({capture.split_rule})")
+        chosen = [frames[i] for i in indices]
+        cameras = Cameras(
+            camera_to_worlds=poses[indices, :3, :4],
+            fx=torch.tensor([f.fx for f in chosen])[:, None],
+            fy=torch.tensor([f.fy for f in chosen])[:, None],
+            cx=torch.tensor([f.cx for f in chosen])[:, None],
+            cy=torch.tensor([f.cy for f in chosen])[:, None],
+            width=torch.tensor([f.width for f in chosen])[:, None],
+            height=torch.tensor([f.height for f in chosen])[:, None],
+            distortion_params=torch.from_numpy(np.stack([f.distortion for f in chosen])).float(),
+            camera_type=CameraType.PERSPECTIVE,
+        )
+        if split == "train":
+            CONSOLE.log(
+                f"{capture.root} ({capture.layout}): {len(frames)} frames, "
+                f"{sum(f.split == 'train' for f in frames)} for training; held out: {capture.split_rule}"
+            )
+        images = [f.image if split == "train" or f.ground_truth is None else f.ground_truth for f in chosen]
+        metadata: Dict = {"thermal_range": rng, "frame_indices": indices, "layout": capture.layout}
+        seeds = self.seed_points()
+        xyz = torch.from_numpy(seeds.xyz).float()
+        xyz = (torch.cat([xyz, torch.ones_like(xyz[:, :1])], -1) @ transform.T) * scale
+        values = rng.normalize(seeds.values) if seeds.values is not None else sample_point_values(seeds.xyz, [f for f in frames if f.split == "train"], rng)
+        metadata["points3D_xyz"] = xyz
+        metadata["points3D_rgb"] = torch.from_numpy((np.clip(values, 0.0, 1.0) * 255).astype(np.uint8))[:, None].repeat(1, 3)
+        metadata["seed_points"] = {"source": seeds.source, "count": len(seeds.xyz)}
+        aabb = self.config.scene_scale
+        return DataparserOutputs(
+            image_filenames=images,
+            cameras=cameras,
+            scene_box=SceneBox(aabb=torch.tensor([[-aabb] * 3, [aabb] * 3], dtype=torch.float32)),
+            metadata=metadata,
+            dataparser_transform=transform,
+            dataparser_scale=scale,
+        )
+
+
+def _project(xyz: np.ndarray, frame: ThermalFrame) -> Tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates [N, 2] (COLMAP convention) and camera depth [N] of world points."""
+    w2c = np.linalg.inv(frame.camera_to_world)
+    cam = xyz @ w2c[:3, :3].T + w2c[:3, 3]
+    z = cam[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([frame.fx * cam[:, 0] / z + frame.cx, frame.fy * cam[:, 1] / z + frame.cy], -1)
+    return uv, z
+
+
+def sample_point_values(xyz: np.ndarray, frames: List[ThermalFrame], rng: RadiometricRange, max_frames: int = 16) -> np.ndarray:
+    """Normalised thermal value [N] of each point: its mean over (up to `max_frames`, evenly spaced)
+    training frames that see it; 0.5 where none does. Occlusion is ignored: this only seeds emission."""
+    total, count = np.zeros(len(xyz)), np.zeros(len(xyz))
+    for frame in [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))]:
+        uv, z = _project(xyz, frame)
+        col, row = np.floor(uv[:, 0]).astype(np.int64, copy=False), np.floor(uv[:, 1]).astype(np.int64, copy=False)
+        seen = (z > 0) & (col >= 0) & (col < frame.width) & (row >= 0) & (row < frame.height)
+        image = rng.read(frame.image)
+        total[seen] += image[row[seen], col[seen]]
+        count[seen] += 1
+    return np.where(count > 0, total / np.maximum(count, 1), 0.5).astype(np.float32)
+
+
+def random_view_volume_points(frames: List[ThermalFrame], num: int, seed: int = 0) -> np.ndarray:
+    """[num, 3] points on random pixels' rays of random training cameras, at depths uniform in
+    [0.1, 2] x the cameras' spread (the distance scale of the capture)."""
+    generator = np.random.default_rng(seed)
+    centres = np.stack([f.camera_to_world[:3, 3] for f in frames])
+    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) if len(frames) > 1 else 1.0
+    spread = spread if spread > 1e-6 else 1.0
+    which = generator.integers(0, len(frames), num)
+    points = np.empty((num, 3))
+    for i, frame in enumerate(frames):
+        mask = which == i
+        n = int(mask.sum())
+        u, v = generator.uniform(0, frame.width, n), generator.uniform(0, frame.height, n)
+        rays = np.stack([(u - frame.cx) / frame.fx, (v - frame.cy) / frame.fy, np.ones(n)], -1)
+        depth = generator.uniform(0.1, 2.0, n) * spread
+        points[mask] = (rays * depth[:, None]) @ frame.camera_to_world[:3, :3].T + frame.camera_to_world[:3, 3]
+    return points
 
 
 @dataclass
-class ThermalDemoDataParserConfig(ThermalNerfstudioDataParserConfig):
+class ThermalDemoDataParserConfig(ThermalDataParserConfig):
     """The embedded procedural thermal scene (generated into `data` on first use)."""
 
     _target: Type = field(default_factory=lambda: ThermalDemo)
     data: Path = DEMO_SCENE_DIR
     """Where the demo scene is generated (and read from)."""
+    layout: LayoutName = "nerfstudio"
 
 
-class ThermalDemo(ThermalNerfstudio):
+class ThermalDemo(ThermalDataParser):
     config: ThermalDemoDataParserConfig
 
-    def _generate_dataparser_outputs(self, split="train"):
+    def capture(self) -> ThermalCapture:
         generate_demo_scene(self.config.data)
-        return super()._generate_dataparser_outputs(split)
+        return super().capture()
 
 
-thermal_nerfstudio_dataparser = DataParserSpecification(
-    config=ThermalNerfstudioDataParserConfig(), description="nerfstudio transforms.json of single-channel thermal frames"
-)
+def _spec(layout: str, description: str) -> DataParserSpecification:
+    return DataParserSpecification(config=ThermalDataParserConfig(layout=layout), description=description)  # type: ignore[arg-type]
+
+
+thermal_dataparser = _spec("auto", "any supported thermal layout, detected (says which it chose)")
+thermal_nerfstudio_dataparser = _spec("nerfstudio", layouts.LAYOUTS["nerfstudio"].description)
+thermalnerf_dataparser = _spec("thermalnerf", layouts.LAYOUTS["thermalnerf"].description)
+ye_dataparser = _spec("ye", layouts.LAYOUTS["ye"].description)
+msx_dataparser = _spec("msx", layouts.LAYOUTS["msx"].description)
+thermalmix_dataparser = _spec("thermalmix", layouts.LAYOUTS["thermalmix"].description)
+mvtv_dataparser = _spec("mvtv", layouts.LAYOUTS["mvtv"].description)
+llff_dataparser = _spec("llff", layouts.LAYOUTS["llff"].description)
+colmap_dataparser = _spec("colmap", layouts.LAYOUTS["colmap"].description)
+ti_nsd_dataparser = _spec("ti-nsd", layouts.LAYOUTS["ti-nsd"].description)
 thermal_demo_dataparser = DataParserSpecification(
     config=ThermalDemoDataParserConfig(), description="the embedded procedural thermal demo scene (generated, no download)"
 )

@@ -7,21 +7,25 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
+from tqdm import tqdm
+
+from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 
 
-def read_raw_frame(path: Path) -> np.ndarray:
+def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
     """One thermal frame as a 2D array in its native units and dtype ([H, W]).
 
-    8/16-bit PNG/TIFF/JPG and float `.npy` arrays. A 3-channel image is accepted only if it is
-    grey (all channels equal); colour-mapped frames need a palette inversion.
+    8/16-bit PNG/TIFF/JPG and float `.npy` arrays. A 3-channel grey image (all channels equal) is
+    read as grey; a colour-mapped one is inverted to its palette levels (uint8) with `palette`,
+    or with the detected palette when `palette` is None (see `palettes.py`).
     """
     path = Path(path)
     if not path.is_file():
@@ -37,21 +41,27 @@ def read_raw_frame(path: Path) -> np.ndarray:
             raise ValueError(f"{path}: unreadable image file")
     else:
         raise ValueError(f"{path}: unsupported thermal frame type '{path.suffix}' (use {sorted(IMAGE_SUFFIXES)} or .npy)")
-    if image.ndim == 3:
-        if image.shape[2] == 4:
-            image = image[..., :3]
-        if image.shape[2] == 1 or (np.all(image[..., :1] == image) if image.shape[2] == 3 else False):
+    if image.ndim == 3 and image.shape[2] in (1, 3, 4):
+        image = image[..., :3]
+        if np.all(image[..., :1] == image):
             image = image[..., 0]
+        elif image.dtype != np.uint8:
+            raise ValueError(f"{path}: {image.dtype} colour image; colour-mapped frames must be 8-bit")
         else:
-            raise ValueError(
-                f"{path}: {image.shape[2]}-channel colour image; thermal frames must be single-channel "
-                "(colour-mapped frames need their palette inverted first)"
-            )
+            image = decode_colour_frame(image[..., ::-1], path, palette)  # OpenCV reads BGR
     if image.ndim != 2:
         raise ValueError(f"{path}: expected a 2D thermal frame, got shape {image.shape}")
     if image.dtype not in (np.uint8, np.uint16) and not np.issubdtype(image.dtype, np.floating):
         raise ValueError(f"{path}: unsupported pixel type {image.dtype} (uint8, uint16 or float)")
     return image
+
+
+def frame_palette(path: Path) -> Optional[str]:
+    """The palette of a colour-mapped frame (detected), or None for a scalar frame."""
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if Path(path).suffix.lower() in IMAGE_SUFFIXES else None
+    if image is None or image.ndim != 3 or image.dtype != np.uint8 or np.all(image[..., :1] == image[..., :3]):
+        return None
+    return detect_palette(image[..., 2::-1], Path(path))
 
 
 @dataclass(frozen=True)
@@ -68,42 +78,71 @@ class RadiometricRange:
     """Temperature (degC) of `low`, when the dataset documents it."""
     celsius_high: Optional[float] = None
     """Temperature (degC) of `high`, when the dataset documents it."""
+    palette: Optional[str] = None
+    """Colour palette the frames were exported with (native values are its levels 0..255), if any."""
 
     def normalize(self, raw: np.ndarray) -> np.ndarray:
         return ((raw.astype(np.float64) - self.low) / (self.high - self.low)).astype(np.float32)
 
+    def read(self, path: Path) -> np.ndarray:
+        """One frame, normalised: float32 [H, W]."""
+        return self.normalize(read_raw_frame(path, self.palette))
 
-def measure_range(paths: Sequence[Path], percentiles: tuple[float, float] = (0.1, 99.9)) -> RadiometricRange:
-    """Robust dataset-level range over all frames: the given percentiles of all pixels.
+    def to_celsius(self, normalised: np.ndarray) -> np.ndarray:
+        """Normalised values -> degC (linear between the documented bounds)."""
+        if self.celsius_low is None or self.celsius_high is None:
+            raise ValueError("this dataset documents no temperature bounds (celsius_low/celsius_high)")
+        return self.celsius_low + normalised * (self.celsius_high - self.celsius_low)
 
-    Every frame must have the same pixel type (mixing bit depths would mix radiometric scales).
-    Integer data is histogrammed exactly; float data is sampled on a strided grid.
+
+def scan_frames(
+    paths: Sequence[Path],
+    sizes: Optional[Sequence[Tuple[int, int]]] = None,
+    declared: Optional[RadiometricRange] = None,
+    palette: Optional[str] = None,
+    percentiles: Tuple[float, float] = (0.1, 99.9),
+) -> RadiometricRange:
+    """Read every frame once: check it, and measure the dataset-level range unless one is declared.
+
+    Checks: each file is readable, all frames share one pixel type (mixing bit depths would mix
+    radiometric scales) and one palette, each frame's size matches its camera (`sizes`, (W, H)),
+    and float frames are finite. The measured range is the given percentiles of all pixels of all
+    frames (integers histogrammed exactly, floats sampled on a strided grid).
     """
     if not paths:
-        raise ValueError("No thermal frames to measure a radiometric range from")
+        raise ValueError("No thermal frames to read")
+    if palette is None and declared is not None:
+        palette = declared.palette
+    if palette is None:
+        palette = frame_palette(paths[0])
     dtype = None
     hist = None
     samples = []
-    for path in paths:
-        raw = read_raw_frame(path)
+    for i, path in enumerate(tqdm(paths, desc="Checking thermal frames", leave=False, disable=len(paths) < 50)):
+        raw = read_raw_frame(path, palette)
         if dtype is None:
             dtype = raw.dtype
         elif raw.dtype != dtype:
             raise ValueError(f"{path}: pixel type {raw.dtype} differs from the dataset's {dtype} (mixed bit depths)")
+        if sizes is not None and (raw.shape[1], raw.shape[0]) != tuple(sizes[i]):
+            raise ValueError(f"{path}: image is {raw.shape[1]}x{raw.shape[0]} but its camera says {sizes[i][0]}x{sizes[i][1]}")
         if raw.dtype in (np.uint8, np.uint16):
             counts = np.bincount(raw.reshape(-1), minlength=1 << (8 * raw.dtype.itemsize))
             hist = counts if hist is None else hist + counts
         else:
-            finite = raw[np.isfinite(raw)]
-            samples.append(finite.reshape(-1)[:: max(1, finite.size // 65536)])
+            if not np.all(np.isfinite(raw)):
+                raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
+            samples.append(raw.reshape(-1)[:: max(1, raw.size // 65536)])
+    if declared is not None:
+        if declared.dtype != str(np.dtype(dtype)):
+            raise ValueError(f"{paths[0]}: frames are {dtype} but the dataset declares {declared.dtype}")
+        return replace(declared, palette=palette)
     if hist is not None:
         cdf = np.cumsum(hist) / hist.sum()
-        low = float(np.searchsorted(cdf, percentiles[0] / 100.0))
+        low = float(np.searchsorted(cdf, percentiles[0] / 100.0, side="right"))  # first level above the percentile
         high = float(np.searchsorted(cdf, percentiles[1] / 100.0))
     else:
-        values = np.concatenate(samples)
-        low, high = (float(v) for v in np.percentile(values, percentiles))
+        low, high = (float(v) for v in np.percentile(np.concatenate(samples), percentiles))
     if not high > low:
         raise ValueError(f"Thermal frames ({paths[0].parent}) have no contrast: range [{low}, {high}] is empty")
-    return RadiometricRange(low=low, high=high, dtype=str(np.dtype(dtype)))
-
+    return RadiometricRange(low=low, high=high, dtype=str(np.dtype(dtype)), palette=palette)

@@ -1,0 +1,115 @@
+"""Every published thermal layout loads with the right poses, intrinsics and splits.
+
+Each fixture (tests/layout_fixtures.py, which cites the published facts it mirrors) stores the
+same known cameras in its layout's convention; after parsing, a known 3D point must reproject to
+the pixel the true camera sees it at, in every layout and split.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import layout_fixtures as fx
+from thermal_wild_ns.data.capture import fraction_split
+from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+from thermal_wild_ns.data.layouts import detect_layout
+
+
+def reproject(outputs, index: int, point: np.ndarray) -> np.ndarray:
+    """Pixel of a world point in parsed camera `index` (nerfstudio: OpenGL axes, transformed world)."""
+    p = torch.from_numpy(np.append(point, 1.0)).float()
+    x = (outputs.dataparser_transform @ p) * outputs.dataparser_scale
+    c2w = outputs.cameras.camera_to_worlds[index]
+    cam = c2w[:3, :3].T @ (x - c2w[:3, 3])
+    cams = outputs.cameras
+    u = cams.fx[index, 0] * cam[0] / -cam[2] + cams.cx[index, 0]
+    v = cams.fy[index, 0] * -cam[1] / -cam[2] + cams.cy[index, 0]
+    return np.array([float(u), float(v)])
+
+
+CASES = {
+    # layout: (writer, folder name, expected held-out indices in capture order, n)
+    "thermalnerf": (fx.write_thermalnerf, "scene", [i for i, s in enumerate(fraction_split(10, 0.9)) if s == "test"]),
+    "ye": (fx.write_ye, "seq01", [4, 9]),
+    "llff": (fx.write_llff, "scene", [0, 8]),
+    "mvtv": (lambda root: fx.write_llff(root, folder="thermal"), "scene", [0, 8]),
+    "msx": (fx.write_msx, "scene", [0, 8]),
+    "thermalmix": (fx.write_thermalmix, "lion", [20]),
+    "colmap": (fx.write_colmap, "scene", [0, 8, 16]),
+}
+
+
+@pytest.mark.parametrize("layout", sorted(CASES))
+def test_layout_poses_intrinsics_and_split(layout, tmp_path):
+    writer, folder, held_out = CASES[layout]
+    root = tmp_path / folder
+    truth = writer(root)
+    assert detect_layout(root) == layout
+    for name in (layout, "auto"):
+        parser = ThermalDataParserConfig(data=root, layout=name, seed_points="random", num_random_points=64).setup()
+        train, test = parser.get_dataparser_outputs("train"), parser.get_dataparser_outputs("test")
+        assert train.metadata["layout"] == layout
+        assert train.metadata["frame_indices"] == [i for i in range(len(truth)) if i not in held_out]
+        assert test.metadata["frame_indices"] == held_out
+        for outputs in (train, test):
+            for k, i in enumerate(outputs.metadata["frame_indices"]):
+                c2w, K = truth[i]
+                expected = fx.project(c2w, K)
+                np.testing.assert_allclose(reproject(outputs, k, fx.KNOWN_POINT), expected, atol=2e-3, err_msg=f"{layout} frame {i}")
+                assert float(outputs.cameras.fx[k]) == pytest.approx(K[0, 0], rel=1e-6)
+                assert float(outputs.cameras.cy[k]) == pytest.approx(K[1, 2], rel=1e-6)
+
+
+def test_thermalnerf_uses_thermal_frames_only(tmp_path):
+    fx.write_thermalnerf(tmp_path / "s")
+    outputs = ThermalDataParserConfig(data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=8).setup().get_dataparser_outputs("train")
+    assert all(p.parent.name == "images_thermal" for p in outputs.image_filenames)
+    assert int(outputs.cameras.width[0]) == 64 and outputs.metadata["thermal_range"].dtype == "uint8"
+
+
+def test_msx_iron_jpgs_decode_to_levels(tmp_path):
+    from thermal_wild_ns.data.datamanager import ThermalDataset
+
+    fx.write_msx(tmp_path / "s")
+    outputs = ThermalDataParserConfig(data=tmp_path / "s", layout="msx", seed_points="random", num_random_points=8).setup().get_dataparser_outputs("train")
+    rng = outputs.metadata["thermal_range"]
+    assert rng.palette == "iron" and rng.dtype == "uint8"
+    image = ThermalDataset(outputs).get_image_float32(0)[..., 0].numpy()
+    truth = rng.normalize(fx.thermal_image(640, 480, 1, np.uint8))  # frame 0 is held out: index 0 is frame 1
+    # JPEG-compressed colours invert to within a couple of levels; the median is within one
+    error_levels = np.abs(image - truth) * (rng.high - rng.low)
+    assert np.median(error_levels) <= 1.0 and np.percentile(error_levels, 95) <= 3.0
+
+
+def test_thermalmix_keeps_published_celsius_bounds(tmp_path):
+    fx.write_thermalmix(tmp_path / "lion")
+    parser = ThermalDataParserConfig(data=tmp_path / "lion", layout="thermalmix", seed_points="random", num_random_points=8).setup()
+    rng = parser.get_dataparser_outputs("train").metadata["thermal_range"]
+    assert (rng.low, rng.high, rng.celsius_low, rng.celsius_high) == (0.0, 255.0, 16.8, 48.3)
+    assert rng.to_celsius(np.array([0.0, 1.0])).tolist() == [16.8, 48.3]
+
+
+def test_colmap_text_model_and_sfm_seeds(tmp_path):
+    fx.write_colmap(tmp_path / "s", binary=False)
+    outputs = ThermalDataParserConfig(data=tmp_path / "s", layout="colmap").setup().get_dataparser_outputs("train")
+    assert outputs.metadata["seed_points"] == {"source": "colmap", "count": 1}
+    xyz = outputs.metadata["points3D_xyz"][0]
+    expected = (outputs.dataparser_transform @ torch.tensor([*fx.KNOWN_POINT, 1.0]).float()) * outputs.dataparser_scale
+    torch.testing.assert_close(xyz, expected)
+
+
+def test_layouts_train_through_the_datamanager(tmp_path):
+    """What `ns-train wild-thermal <parser> --data X` does before the first step: the datamanager
+    caches every frame as float [H, W, 1]."""
+    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+
+    for layout, (writer, folder, _) in CASES.items():
+        root = tmp_path / layout / folder
+        writer(root)
+        config = ThermalDatamanagerConfig(dataparser=ThermalDataParserConfig(data=root, layout=layout, seed_points="random", num_random_points=32))
+        datamanager = config.setup(device="cpu")
+        camera, batch = datamanager.next_train(0)
+        assert batch["image"].ndim == 3 and batch["image"].shape[-1] == 1 and batch["image"].dtype == torch.float32, layout
+        assert int(camera.height) == batch["image"].shape[0], layout

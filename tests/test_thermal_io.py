@@ -1,0 +1,148 @@
+"""Reading thermal frames: exact 16-bit values, palette inversion, one range per dataset, and
+errors that name the file and the problem for every kind of bad input."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+import layout_fixtures as fx
+from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+from thermal_wild_ns.data.layouts import detect_layout
+from thermal_wild_ns.data.palettes import PALETTE_NAMES, apply_palette, invert_palette, palette_rgb
+from thermal_wild_ns.data.thermal_io import read_raw_frame, scan_frames
+
+
+@pytest.mark.parametrize("suffix", [".png", ".tiff"])
+def test_16bit_values_survive_exactly(tmp_path, suffix):
+    raw = np.random.default_rng(0).integers(0, 65536, (37, 53), dtype=np.uint16)
+    cv2.imwrite(str(tmp_path / f"f{suffix}"), raw)
+    out = read_raw_frame(tmp_path / f"f{suffix}")
+    assert out.dtype == np.uint16 and np.array_equal(out, raw)
+
+
+def test_float_npy_temperatures(tmp_path):
+    temps = np.linspace(-5.0, 80.0, 40 * 30, dtype=np.float32).reshape(30, 40)
+    np.save(tmp_path / "t.npy", temps)
+    assert np.array_equal(read_raw_frame(tmp_path / "t.npy"), temps)
+
+
+@pytest.mark.parametrize("name", PALETTE_NAMES)
+def test_palette_roundtrip_within_one_level(name, tmp_path):
+    assert len({tuple(c) for c in palette_rgb(name)}) == 256  # every level has its own colour
+    levels = np.arange(256, dtype=np.uint8).reshape(16, 16).repeat(3, 0)
+    rgb = apply_palette(levels, name)
+    back, distance = invert_palette(rgb, name)
+    assert np.array_equal(back, levels) and float(distance.max()) == 0.0
+    cv2.imwrite(str(tmp_path / "c.png"), rgb[..., ::-1])  # through a file, OpenCV's BGR included
+    decoded = read_raw_frame(tmp_path / "c.png")  # grey is read as plain 8-bit, the others are detected
+    assert np.abs(decoded.astype(int) - levels).max() <= 1
+
+
+def test_palette_detected_through_jpeg_within_a_level(tmp_path):
+    levels = fx.thermal_image(160, 120, 0, np.uint8)
+    cv2.imwrite(str(tmp_path / "c.jpg"), apply_palette(levels, "inferno")[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+    rng = scan_frames([tmp_path / "c.jpg"])
+    assert rng.palette == "inferno"
+    error = np.abs(read_raw_frame(tmp_path / "c.jpg", "inferno").astype(int) - levels)
+    assert np.median(error) <= 1
+
+
+def test_unknown_palette_is_refused(tmp_path):
+    hue = np.tile(np.linspace(0, 179, 64).astype(np.uint8), (48, 1))  # an HSV rainbow
+    image = cv2.cvtColor(np.dstack([hue, np.full_like(hue, 255), np.full_like(hue, 255)]), cv2.COLOR_HSV2BGR)
+    cv2.imwrite(str(tmp_path / "rainbow.png"), image)
+    with pytest.raises(ValueError, match=r"rainbow\.png: colour-mapped frame in an unknown palette"):
+        read_raw_frame(tmp_path / "rainbow.png")
+
+
+def test_normalisation_is_per_dataset_not_per_frame(tmp_path):
+    cold = np.full((20, 30), 3600, np.uint16)
+    warm = np.full((20, 30), 3900, np.uint16)
+    cold[:, :15] += 100
+    warm[:, :15] += 100
+    for name, image in (("a.png", cold), ("b.png", warm)):
+        cv2.imwrite(str(tmp_path / name), image)
+    rng = scan_frames([tmp_path / "a.png", tmp_path / "b.png"], percentiles=(0.0, 100.0))
+    assert (rng.low, rng.high) == (3600.0, 4000.0)
+    a, b = rng.read(tmp_path / "a.png"), rng.read(tmp_path / "b.png")
+    assert a.mean() == pytest.approx(0.125) and b.mean() == pytest.approx(0.875)  # per-frame min-max would give equal means
+
+
+# --------------------------------------------------------------------------- bad input
+def _parse(root, **kw):
+    parser = ThermalDataParserConfig(data=root, seed_points="random", num_random_points=8, **kw).setup()
+    return parser.get_dataparser_outputs("train")
+
+
+def test_missing_image_names_it(tmp_path):
+    fx.write_colmap(tmp_path / "s")
+    (tmp_path / "s" / "images" / "frame_3.png").unlink()
+    with pytest.raises(FileNotFoundError, match=r"frame_3\.png"):
+        _parse(tmp_path / "s")
+
+
+def test_unreadable_image_names_it(tmp_path):
+    fx.write_colmap(tmp_path / "s")
+    (tmp_path / "s" / "images" / "frame_5.png").write_bytes(b"not an image")
+    with pytest.raises(ValueError, match=r"frame_5\.png: unreadable image file"):
+        _parse(tmp_path / "s")
+
+
+def test_pose_image_count_mismatch(tmp_path):
+    fx.write_llff(tmp_path / "llff")
+    cv2.imwrite(str(tmp_path / "llff" / "images" / "IMG_9999.png"), fx.thermal_image(64, 48, 0))
+    with pytest.raises(ValueError, match=r"poses_bounds\.npy: 10 poses but 11 images.*count mismatch"):
+        _parse(tmp_path / "llff")
+    fx.write_ye(tmp_path / "ye")
+    (tmp_path / "ye" / "train" / "pose" / "00002.txt").unlink()
+    with pytest.raises(ValueError, match=r"train: 8 images in rgb/, 7 poses in pose/"):
+        _parse(tmp_path / "ye")
+
+
+@pytest.mark.parametrize("fault, message", [("nan", "non-finite"), ("scaled", "not rigid")])
+def test_bad_pose_names_the_file(tmp_path, fault, message):
+    fx.write_thermalnerf(tmp_path / "s")
+    meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
+    pose = np.array(meta["frames"][3]["transform_matrix"])
+    pose[:3, :3] *= 1.5 if fault == "scaled" else 1.0
+    pose[0, 3] = np.nan if fault == "nan" else pose[0, 3]
+    meta["frames"][3]["transform_matrix"] = pose.tolist()
+    (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=rf"transforms\.json: camera pose .*{message}"):
+        _parse(tmp_path / "s")
+
+
+def test_mixed_bit_depths_name_the_file(tmp_path):
+    fx.write_colmap(tmp_path / "s")
+    cv2.imwrite(str(tmp_path / "s" / "images" / "frame_4.png"), fx.thermal_image(64, 48, 4, np.uint8))
+    with pytest.raises(ValueError, match=r"frame_4\.png: pixel type uint8 differs from the dataset's uint16"):
+        _parse(tmp_path / "s")
+
+
+def test_wrong_size_names_the_file(tmp_path):
+    fx.write_colmap(tmp_path / "s")
+    cv2.imwrite(str(tmp_path / "s" / "images" / "frame_6.png"), fx.thermal_image(32, 48, 6))
+    with pytest.raises(ValueError, match=r"frame_6\.png: image is 32x48 but its camera says 64x48"):
+        _parse(tmp_path / "s")
+
+
+def test_empty_sparse_model(tmp_path):
+    fx.write_colmap(tmp_path / "s")
+    fx.write_colmap_model(tmp_path / "s" / "sparse" / "0", [], [], np.eye(3), (64, 48))
+    with pytest.raises(ValueError, match=r"sparse/0: the COLMAP model has no images"):
+        _parse(tmp_path / "s")
+
+
+def test_wrong_folder_lists_the_layouts_tried(tmp_path):
+    (tmp_path / "photos").mkdir()
+    with pytest.raises(ValueError, match=r"photos: not a thermal dataset layout") as err:
+        detect_layout(tmp_path / "photos")
+    for name in ("thermalnerf", "nerfstudio", "ye", "msx", "thermalmix", "mvtv", "llff", "colmap"):
+        assert f"- {name} (" in str(err.value)
+    fx.write_colmap(tmp_path / "colmap")
+    with pytest.raises(FileNotFoundError, match=r"thermal"):
+        _parse(tmp_path / "colmap", layout="msx")
+    with pytest.raises(FileNotFoundError, match=r"nowhere: data folder not found"):
+        _parse(tmp_path / "nowhere")

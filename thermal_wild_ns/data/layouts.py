@@ -1,0 +1,432 @@
+"""Readers for the published thermal dataset layouts, each returning a `ThermalCapture`.
+
+Facts per layout come from the datasets' own loaders (cited per reader). Each reader sets every
+frame's split by the dataset's published rule; `LAYOUTS` maps a layout name to its reader and to
+a test that says why a folder is NOT of that layout (None when it is), which `detect_layout` uses.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from thermal_wild_ns.data.capture import (
+    SeedPoints,
+    ThermalCapture,
+    ThermalFrame,
+    check_pose,
+    fraction_split,
+    interval_split,
+    opencv_to_opengl,
+)
+from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange
+
+THERMALMIX_CELSIUS = {
+    "face": (22.5, 35.2),
+    "hand": (22.1, 33.6),
+    "panel": (22.7, 55.8),
+    "lion": (16.8, 48.3),
+    "pan": (19.4, 129.8),
+    "laptop": (21.6, 40.2),
+}
+"""ThermalMix (Ozer et al.): 8-bit frames are linear in degC between these per-scene bounds."""
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders 'frame2' before 'frame10'."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def _image_files(folder: Path, suffixes=IMAGE_SUFFIXES) -> List[Path]:
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in suffixes), key=lambda p: natural_key(p.name))
+
+
+# --------------------------------------------------------------------------- nerfstudio transforms.json
+def _declared_range(meta: dict) -> Optional[RadiometricRange]:
+    declared = meta.get("thermal")
+    if not declared or "low" not in declared or "high" not in declared:
+        return None
+    return RadiometricRange(**{k: declared.get(k) for k in RadiometricRange.__dataclass_fields__ if k in declared})
+
+
+def _read_ply_points(path: Path) -> Optional[SeedPoints]:
+    from plyfile import PlyData
+
+    try:
+        vertex = PlyData.read(str(path))["vertex"]
+    except Exception as err:  # plyfile raises several types for bad files
+        raise ValueError(f"{path}: unreadable point cloud ({err})") from err
+    if len(vertex) == 0:
+        return None
+    xyz = np.stack([np.asarray(vertex[a], dtype=np.float64) for a in ("x", "y", "z")], -1)
+    values = np.asarray(vertex["thermal"], dtype=np.float64) if "thermal" in vertex.data.dtype.names else None
+    return SeedPoints(xyz=xyz, values=values, source=f"ply ({path.name})")
+
+
+def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
+    """nerfstudio `transforms.json` (OpenGL camera axes), global or per-frame intrinsics and
+    OPENCV distortion (k1, k2, k3, p1, p2). Split: its `train_filenames`/`test_filenames` when
+    present, otherwise every 8th frame held out. Optional extras: `thermal` (declared range),
+    `ply_file_path` (seed points, `thermal` property in native units), `gt_file_path` per frame.
+
+    `thermal_only`: keep only frames flagged `is_thermal` (ThermalNeRF, Lin et al.).
+    """
+    path = root / "transforms.json" if root.suffix != ".json" else root
+    root = path.parent
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no transforms.json")
+    try:
+        meta = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from err
+    if not isinstance(meta.get("frames"), list):
+        raise ValueError(f"{path}: no 'frames' list")
+    raw_frames = [f for f in meta["frames"] if f.get("is_thermal", False)] if thermal_only else meta["frames"]
+    if thermal_only and not raw_frames:
+        raise ValueError(f"{path}: no frame is flagged is_thermal (ThermalNeRF layout)")
+    frames = []
+    for f in raw_frames:
+        def get(key, default=None):
+            return f.get(key, meta.get(key, default))
+
+        model = get("camera_model", "OPENCV")
+        if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
+            raise ValueError(f"{path}: camera_model {model} of {f.get('file_path')} is not supported (OPENCV or PINHOLE)")
+        try:
+            c2w = check_pose(np.array(f["transform_matrix"], dtype=np.float64), path)
+            intrinsics = [float(get(k)) for k in ("fl_x", "fl_y", "cx", "cy")] + [int(get(k)) for k in ("w", "h")]
+        except (KeyError, TypeError) as err:
+            raise ValueError(f"{path}: frame {f.get('file_path')} lacks {err} (pose or intrinsics)") from err
+        frames.append(
+            ThermalFrame(
+                image=root / f["file_path"],
+                camera_to_world=opencv_to_opengl(c2w),
+                fx=intrinsics[0], fy=intrinsics[1], cx=intrinsics[2], cy=intrinsics[3],
+                width=intrinsics[4], height=intrinsics[5],
+                distortion=np.array([float(get(k, 0.0)) for k in ("k1", "k2", "k3", "k4", "p1", "p2")]),
+                ground_truth=root / f["gt_file_path"] if "gt_file_path" in f else None,
+            )
+        )
+    if "train_filenames" in meta:
+        held_out = {(root / n).resolve() for n in meta.get("test_filenames", meta.get("val_filenames", []))}
+        splits = ["test" if fr.image.resolve() in held_out else "train" for fr in frames]
+        rule = "the transforms' train/test_filenames"
+    elif thermal_only:
+        splits, rule = fraction_split(len(frames), 0.9), "evenly spaced 90/10 (ThermalNeRF)"
+    else:
+        splits, rule = interval_split(len(frames)), "every 8th frame held out"
+    for frame, split in zip(frames, splits):
+        frame.split = split
+    ply = meta.get("ply_file_path")
+    return ThermalCapture(
+        layout="thermalnerf" if thermal_only else "nerfstudio",
+        root=root,
+        frames=frames,
+        split_rule=rule,
+        declared_range=_declared_range(meta),
+        points=_read_ply_points(root / ply) if ply else None,
+    )
+
+
+def read_thermalnerf(root: Path) -> ThermalCapture:
+    """ThermalNeRF (Lin et al.): nerfstudio transforms.json holding RGB and thermal frames; the
+    thermal ones are flagged `is_thermal` (their loader, nerfstudio-thermal's
+    `thermalnerf_dataparser.py`), with their own intrinsics and k1, k2, p1, p2, images in
+    `images_thermal/` as 8-bit grey PNG. Only thermal frames are used; evenly spaced 90/10 split."""
+    return read_nerfstudio(root, thermal_only=True)
+
+
+# --------------------------------------------------------------------------- COLMAP based
+def _read_colmap_model(folder: Path):
+    import pycolmap
+
+    if not folder.is_dir() or not any((folder / f"images{ext}").is_file() for ext in (".bin", ".txt")):
+        raise FileNotFoundError(f"{folder}: no COLMAP model (images.bin/.txt, cameras.bin/.txt)")
+    try:
+        rec = pycolmap.Reconstruction(str(folder))
+    except Exception as err:  # pycolmap raises RuntimeError/ValueError for corrupt models
+        raise ValueError(f"{folder}: unreadable COLMAP model ({err})") from err
+    if rec.num_images() == 0:
+        raise ValueError(f"{folder}: the COLMAP model has no images (empty sparse model)")
+    return rec
+
+
+def _colmap_intrinsics(camera, source: str) -> Tuple[float, float, float, float, np.ndarray]:
+    """fx, fy, cx, cy and nerfstudio distortion [k1, k2, k3, k4, p1, p2] of a COLMAP camera."""
+    p = list(camera.params)
+    model = camera.model.name
+    dist = np.zeros(6)
+    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+        fx = fy = p[0]
+        cx, cy = p[1], p[2]
+        dist[: len(p) - 3] = p[3:]
+    elif model in ("PINHOLE", "OPENCV"):
+        fx, fy, cx, cy = p[:4]
+        if model == "OPENCV":
+            dist[[0, 1, 4, 5]] = p[4:8]
+    else:
+        raise ValueError(f"{source}: COLMAP camera model {model} is not supported (PINHOLE, SIMPLE_*, RADIAL, OPENCV)")
+    return fx, fy, cx, cy, dist
+
+
+def _colmap_frames(rec, folder: Path, find_image: Callable[[str], Tuple[Path, Optional[str]]], order: str = "name") -> List[ThermalFrame]:
+    """Frames of a COLMAP model; `find_image(name)` gives the thermal file and split of an image."""
+    images = sorted(rec.images.values(), key=(lambda im: natural_key(im.name)) if order == "name" else (lambda im: im.image_id))
+    frames = []
+    for image in images:
+        camera = rec.cameras[image.camera_id]
+        fx, fy, cx, cy, dist = _colmap_intrinsics(camera, str(folder))
+        w2c = np.concatenate([image.cam_from_world().matrix(), [[0.0, 0.0, 0.0, 1.0]]])
+        path, split = find_image(image.name)
+        frames.append(
+            ThermalFrame(
+                image=path, camera_to_world=np.linalg.inv(w2c), fx=fx, fy=fy, cx=cx, cy=cy,
+                width=camera.width, height=camera.height, distortion=dist, split=split,
+            )
+        )
+    return frames
+
+
+def _colmap_points(rec) -> Optional[SeedPoints]:
+    if rec.num_points3D() == 0:
+        return None
+    xyz = np.stack([p.xyz for p in rec.points3D.values()])
+    return SeedPoints(xyz=xyz, source="colmap")
+
+
+def read_colmap(root: Path, images: str = "images", layout: str = "colmap") -> ThermalCapture:
+    """Generic COLMAP: `sparse/0` (binary or text) + a folder of thermal frames named as in the
+    model. Also TI-NSD (Thermal3D-GS): `images/` + `sparse/0/*.bin`, sorted by name, every 8th
+    image held out (the 3DGS `llffhold` rule)."""
+    rec = _read_colmap_model(root / "sparse" / "0")
+    frames = _colmap_frames(rec, root / "sparse" / "0", lambda name: (root / images / name, None))
+    for frame, split in zip(frames, interval_split(len(frames))):
+        frame.split = split
+    return ThermalCapture(layout, root, frames, "sorted by name, every 8th frame held out", points=_colmap_points(rec))
+
+
+def read_msx(root: Path) -> ThermalCapture:
+    """MSX (ThermalGaussian / RGBT-Scenes): `rgb/{train,test}/`, `thermal/{train,test}/`,
+    `sparse/0` computed on the RGB frames; a thermal frame has its RGB frame's file name
+    (ThermalGaussian's `readTemperSceneInfo`). Thermal frames are 3-channel colour-mapped JPGs
+    (iron palette), 640x480. The split is the folders' (test: every 8th image)."""
+    rec = _read_colmap_model(root / "sparse" / "0")
+
+    def find(name: str):
+        base = Path(name).name
+        for split in ("train", "test"):
+            if (root / "thermal" / split / base).is_file():
+                return root / "thermal" / split / base, split
+        raise FileNotFoundError(f"{root / 'thermal'}/{{train,test}}/{base}: thermal frame of COLMAP image '{name}' is missing")
+
+    frames = _colmap_frames(rec, root / "sparse" / "0", find)
+    return ThermalCapture("msx", root, frames, "the thermal/{train,test} folders", palette="iron", points=_colmap_points(rec))
+
+
+def read_thermalmix(root: Path, holdout_index: int = 20, celsius: Optional[Tuple[float, float]] = None) -> ThermalCapture:
+    """ThermalMix (Ozer et al.): COLMAP model in `colmap_sparse/0` (or `sparse/0`); thermal
+    frames named after the model's images: `thermal/*.jpg` (8-bit grey, linear in degC between
+    the scene's bounds) or float degC `.npy` (`warped_thermal/` in the authors' loader,
+    `colmap_provider.py`, which orders frames by image id and holds out one view, `--val_idx`:
+    20 in their README's example). Bounds per scene (`THERMALMIX_CELSIUS`) come from the folder
+    name unless `celsius` is given; without either the range is measured."""
+    model = next((root / d / "0" for d in ("colmap_sparse", "sparse") if (root / d / "0").is_dir()), root / "colmap_sparse" / "0")
+    rec = _read_colmap_model(model)
+
+    def find(name: str):
+        stem = Path(name).stem
+        candidates = [root / "thermal" / f"{stem}{ext}" for ext in (".jpg", ".png", ".npy")]
+        candidates.append(root / "warped_thermal" / f"{stem}.npy")
+        for path in candidates:
+            if path.is_file():
+                return path, None
+        raise FileNotFoundError(f"{candidates[0]}: thermal frame of COLMAP image '{name}' is missing (also tried .png/.npy, warped_thermal/)")
+
+    frames = _colmap_frames(rec, model, find, order="id")
+    if not 0 <= holdout_index < len(frames):
+        raise ValueError(f"{model}: held-out view index {holdout_index} is outside the {len(frames)} frames")
+    for i, frame in enumerate(frames):
+        frame.split = "test" if i == holdout_index else "train"
+    bounds = celsius or THERMALMIX_CELSIUS.get(root.name.lower())
+    declared = None
+    if bounds is not None:
+        if frames[0].image.suffix == ".npy":
+            declared = RadiometricRange(bounds[0], bounds[1], str(np.load(frames[0].image, mmap_mode="r").dtype), *bounds)
+        else:
+            declared = RadiometricRange(0.0, 255.0, "uint8", *bounds)
+    return ThermalCapture(
+        "thermalmix", root, frames, f"view {holdout_index} (by image id) held out", declared_range=declared, points=_colmap_points(rec)
+    )
+
+
+# --------------------------------------------------------------------------- per-file poses / LLFF
+def read_ye(root: Path) -> ThermalCapture:
+    """Thermal-NeRF (Ye et al.): `<condition>/<sequence>/{train,test}/{intrinsics,pose,rgb}/`, one
+    text file per image holding a 4x4 intrinsic matrix and a 4x4 camera-to-world pose (OpenCV
+    axes); 382x288 frames (in `rgb/`, despite the name). `root` is the sequence folder. Split: the
+    folders. Capture order: file names across both folders."""
+    frames = []
+    for split in ("train", "test"):
+        folder = root / split
+        images = _image_files(folder / "rgb", IMAGE_SUFFIXES | {".npy"})
+        poses = sorted((folder / "pose").glob("*.txt"), key=lambda p: natural_key(p.name))
+        intrinsics = sorted((folder / "intrinsics").glob("*.txt"), key=lambda p: natural_key(p.name))
+        if not (len(images) == len(poses) == len(intrinsics)):
+            raise ValueError(
+                f"{folder}: {len(images)} images in rgb/, {len(poses)} poses in pose/, {len(intrinsics)} files in "
+                "intrinsics/: the counts must match"
+            )
+        for image, pose, intr in zip(images, poses, intrinsics):
+            if not (image.stem == pose.stem == intr.stem):
+                raise ValueError(f"{pose}: pose file does not match image {image.name} (files are paired by name)")
+            c2w = check_pose(_read_matrix(pose), pose)
+            K = _read_matrix(intr)
+            if K.shape not in ((4, 4), (3, 3)):
+                raise ValueError(f"{intr}: intrinsics must be a 3x3 or 4x4 matrix, got {K.shape}")
+            # image size: from the principal point until the frame is read (scan_frames checks it)
+            frames.append(ThermalFrame(image, c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0, 0, split=split))
+    if frames:  # the layout does not record the image size
+        size = _frame_size(frames[0].image)
+        for f in frames:
+            f.width, f.height = size
+    frames.sort(key=lambda f: natural_key(f.image.name))
+    return ThermalCapture("ye", root, frames, "the train/ and test/ folders")
+
+
+def _read_matrix(path: Path) -> np.ndarray:
+    try:
+        return np.loadtxt(path, dtype=np.float64, ndmin=2)
+    except ValueError as err:
+        raise ValueError(f"{path}: not a whitespace-separated matrix ({err})") from err
+
+
+def _frame_size(path: Path) -> Tuple[int, int]:
+    """(width, height) of a frame file."""
+    from thermal_wild_ns.data.thermal_io import read_raw_frame
+
+    h, w = read_raw_frame(path).shape
+    return w, h
+
+
+def read_llff(root: Path, layout: str = "llff") -> ThermalCapture:
+    """LLFF: `poses_bounds.npy` [N, 17] = per image a 3x5 matrix [R | t | (h, w, f)] with camera
+    axes (down, right, back), plus near/far bounds; images in `images/` sorted by name (one per
+    row). The focal length is rescaled to the actual image width. Split: every 8th image held out
+    (LLFF's `llffhold`)."""
+    path = root / "poses_bounds.npy"
+    try:
+        table = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{path}: unreadable poses_bounds.npy ({err})") from err
+    if table.ndim != 2 or table.shape[1] != 17:
+        raise ValueError(f"{path}: expected an [N, 17] array, got {table.shape}")
+    folder = next((root / d for d in ("images", "thermal") if (root / d).is_dir()), root / "images")
+    images = _image_files(folder, IMAGE_SUFFIXES | {".npy"}) if folder.is_dir() else []
+    if len(images) != len(table):
+        raise ValueError(f"{path}: {len(table)} poses but {len(images)} images in {folder}: pose/image count mismatch")
+    frames = []
+    for row, image in zip(table, images):
+        m = row[:15].reshape(3, 5)
+        down, right, back = m[:, 0], m[:, 1], m[:, 2]
+        c2w = np.eye(4)
+        c2w[:3, :3] = np.stack([right, down, -back], axis=1)  # OpenCV: x right, y down, z forward
+        c2w[:3, 3] = m[:, 3]
+        c2w = check_pose(c2w, path)
+        h, w, f = m[:, 4]
+        frames.append(ThermalFrame(image, c2w, f, f, w / 2.0, h / 2.0, int(round(w)), int(round(h))))
+    # LLFF records the size the poses were computed at; rescale to the stored frames
+    w, h = _frame_size(frames[0].image)
+    for f in frames:
+        s = w / f.width
+        f.fx, f.fy, f.cx, f.cy, f.width, f.height = f.fx * s, f.fy * s, f.cx * s, f.cy * s, w, h
+    for frame, split in zip(frames, interval_split(len(frames))):
+        frame.split = split
+    return ThermalCapture(layout, root, frames, "every 8th image held out (LLFF)")
+
+
+def read_mvtv(root: Path) -> ThermalCapture:
+    """MVTV (Xu et al., ECCV 2024). ASSUMPTION: its released layout could not be confirmed; the
+    method builds on raw-image NeRF work that uses LLFF, so MVTV scenes are read as LLFF
+    (`poses_bounds.npy` + thermal frames in `images/` or `thermal/`). If a release differs,
+    convert it to LLFF or COLMAP."""
+    return read_llff(root, layout="mvtv")
+
+
+# --------------------------------------------------------------------------- registry / detection
+@dataclass(frozen=True)
+class Layout:
+    read: Callable[[Path], ThermalCapture]
+    mismatch: Callable[[Path], Optional[str]]
+    """Why `root` is not this layout, or None when it looks like it."""
+    description: str
+
+
+def _needs(*parts: str) -> Callable[[Path], Optional[str]]:
+    def mismatch(root: Path) -> Optional[str]:
+        missing = [p for p in parts if not (root / p).exists()]
+        return f"no {', '.join(missing)}" if missing else None
+
+    return mismatch
+
+
+def _transforms_mismatch(thermal_flag: bool) -> Callable[[Path], Optional[str]]:
+    def mismatch(root: Path) -> Optional[str]:
+        path = root / "transforms.json"
+        if not path.is_file():
+            return "no transforms.json"
+        try:
+            flagged = any(f.get("is_thermal") for f in json.loads(path.read_text()).get("frames", []))
+        except (json.JSONDecodeError, AttributeError):
+            return "transforms.json is not valid JSON"
+        if flagged != thermal_flag:
+            return "frames flagged is_thermal (ThermalNeRF)" if flagged else "no frame flagged is_thermal"
+        return None
+
+    return mismatch
+
+
+def _thermalmix_mismatch(root: Path) -> Optional[str]:
+    if not any((root / d / "0").is_dir() for d in ("colmap_sparse", "sparse")):
+        return "no colmap_sparse/0 or sparse/0"
+    if (root / "thermal" / "train").is_dir():
+        return "thermal/train/ (that is MSX)"
+    if not ((root / "thermal").is_dir() or (root / "warped_thermal").is_dir()):
+        return "no thermal/ or warped_thermal/"
+    return None
+
+
+def _colmap_mismatch(root: Path) -> Optional[str]:
+    return _needs("sparse/0", "images")(root)
+
+
+# Detection order matters: the specific layouts come before the generic ones they resemble.
+LAYOUTS: Dict[str, Layout] = {
+    "thermalnerf": Layout(read_thermalnerf, _transforms_mismatch(True), "ThermalNeRF (Lin et al.): transforms.json with is_thermal frames"),
+    "nerfstudio": Layout(read_nerfstudio, _transforms_mismatch(False), "nerfstudio transforms.json of thermal frames"),
+    "ye": Layout(read_ye, _needs("train/pose", "train/intrinsics", "train/rgb"), "Thermal-NeRF (Ye et al.): {train,test}/{intrinsics,pose,rgb}/"),
+    "msx": Layout(read_msx, _needs("thermal/train", "sparse/0"), "MSX / RGBT-Scenes (ThermalGaussian): thermal/{train,test}/ + sparse/0"),
+    "thermalmix": Layout(read_thermalmix, _thermalmix_mismatch, "ThermalMix (Ozer et al.): thermal/ + colmap_sparse/0"),
+    "mvtv": Layout(read_mvtv, _needs("poses_bounds.npy", "thermal"), "MVTV (assumed LLFF): poses_bounds.npy + thermal/"),
+    "llff": Layout(read_llff, _needs("poses_bounds.npy"), "LLFF: poses_bounds.npy + images/"),
+    "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
+    "ti-nsd": Layout(lambda root: read_colmap(root, layout="ti-nsd"), _colmap_mismatch, "TI-NSD (Thermal3D-GS): images/ + sparse/0, read as COLMAP"),
+}
+
+
+def detect_layout(root: Path) -> str:
+    """The first layout `root` looks like; an error listing every layout tried (and why not)."""
+    if not Path(root).is_dir():
+        raise FileNotFoundError(f"{root}: data folder not found")
+    reasons = {}
+    for name, layout in LAYOUTS.items():
+        reason = layout.mismatch(Path(root))
+        if reason is None:
+            return name
+        reasons[name] = reason
+    tried = "\n".join(f"  - {name} ({LAYOUTS[name].description}): {why}" for name, why in reasons.items())
+    raise ValueError(f"{root}: not a thermal dataset layout this plugin knows. Tried:\n{tried}")
