@@ -113,3 +113,22 @@ def test_layouts_train_through_the_datamanager(tmp_path):
         camera, batch = datamanager.next_train(0)
         assert batch["image"].ndim == 3 and batch["image"].shape[-1] == 1 and batch["image"].dtype == torch.float32, layout
         assert int(camera.height) == batch["image"].shape[0], layout
+
+
+def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
+    """ThermalNeRF frames carry k1, k2, p1, p2: nerfstudio undistorts them when caching, and the
+    frames must stay [H, W, 1] (OpenCV returns 1-channel images as [H, W])."""
+    import json
+
+    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+
+    fx.write_thermalnerf(tmp_path / "s")
+    meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
+    for frame in meta["frames"]:
+        frame.update(k1=0.05, p1=0.001)
+    (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
+    parser = ThermalDataParserConfig(data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=32)
+    datamanager = ThermalDatamanagerConfig(dataparser=parser).setup(device="cpu")
+    camera, batch = datamanager.next_train(0)
+    assert float(camera.distortion_params[0, 0]) == pytest.approx(0.05)
+    assert batch["image"].shape == (int(camera.height), int(camera.width), 1)

@@ -63,3 +63,10 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
     """nerfstudio's full-image datamanager over `ThermalDataset`."""
 
     config: ThermalDatamanagerConfig
+
+    def _load_images(self, split, cache_images_device):
+        images = super()._load_images(split, cache_images_device)
+        for cache in images:  # OpenCV's undistortion returns [H, W] for a 1-channel frame
+            if cache["image"].ndim == 2:
+                cache["image"] = cache["image"][..., None]
+        return images
