@@ -9,6 +9,7 @@ a GPU, gsplat and a longer one. Outputs (under --output-dir):
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from dataclasses import dataclass
@@ -32,12 +33,15 @@ class DemoArgs:
     """Gaussian budget; the 128x96 demo scene needs few."""
 
 
-def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int):
-    """wild-thermal's config, scheduled for the small demo scene."""
-    from method_configs.wild_thermal import wild_thermal_trainer
+def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method: str = "wild-thermal"):
+    """A registered method's config (`wild-thermal` or one of its ablations), scheduled for the small demo scene."""
+    from method_configs import wild_thermal as methods
     from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 
-    config = wild_thermal_trainer()
+    specs = {"wild-thermal": methods.wild_thermal, **methods.ablation_methods}
+    if method not in specs:
+        raise ValueError(f"unknown method '{method}' (one of {', '.join(specs)})")
+    config = copy.deepcopy(specs[method].config)
     config.output_dir = output_dir
     config.experiment_name = "demo"
     config.timestamp = "run"
@@ -47,6 +51,7 @@ def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int):
     config.steps_per_eval_image = max(steps // 5, 1)
     config.save_only_latest_checkpoint = True
     config.pipeline.datamanager.dataparser = ThermalDemoDataParserConfig(data=output_dir / "scene")
+    config.pipeline.datamanager.preprocessing_cache = output_dir / ".thermal_cache"
     model = config.pipeline.model
     model.num_downscales = 0  # 128x96 frames: no coarse-to-fine needed
     model.max_gaussians = max_gaussians
@@ -65,29 +70,45 @@ def _inferno(x: np.ndarray) -> np.ndarray:
 
 
 def evaluate(pipeline, out_dir: Optional[Path] = None) -> dict:
-    """The model's own test-view metrics (fixed inference embedding), averaged; with `out_dir`,
-    also a PNG panel per view."""
+    """Test-view metrics (fixed inference embedding), averaged, in the ORIGINAL radiometric space:
+    with preprocessing, each render is mapped back through its frame's inverse LUT and compared
+    with the unprocessed (dataset-normalised) ground truth; the model's own numbers in the
+    preprocessed space are kept as `*_preprocessed`. With `out_dir`, a PNG panel per view."""
     import cv2
 
+    from thermal_wild_ns.model.losses import psnr, ssim
+
     pipeline.eval()
+    datamanager = pipeline.datamanager
+    sequence = datamanager.preprocessed
+    dataset = datamanager.eval_dataset
     rows = []
-    for i, (camera, batch) in enumerate(pipeline.datamanager.fixed_indices_eval_dataloader):
+    for i, (camera, batch) in enumerate(datamanager.fixed_indices_eval_dataloader):
         with torch.no_grad():
             outputs = pipeline.model.get_outputs_for_camera(camera)
             metrics, _ = pipeline.model.get_image_metrics_and_images(outputs, batch)
-        rows.append({"psnr": metrics["psnr"], "ssim": metrics["ssim"]})
+        pred = outputs["thermal"].cpu().numpy()[..., 0]
+        gt = batch["image"].cpu().numpy()[..., 0]
+        row = {"psnr": metrics["psnr"], "ssim": metrics["ssim"]}
+        if sequence is not None:
+            index = int(batch["frame_index"])
+            pred = sequence.to_original_normalised(pred, index).astype(np.float32)
+            gt = dataset.thermal_range.read(dataset.image_filenames[int(batch["image_idx"])])
+            as_tensor = lambda x: torch.from_numpy(np.ascontiguousarray(x))[..., None]  # noqa: E731
+            row = {
+                "psnr": float(psnr(as_tensor(pred), as_tensor(gt))),
+                "ssim": float(ssim(as_tensor(pred), as_tensor(gt), data_range=1.0)),
+                "psnr_preprocessed": metrics["psnr"],
+                "ssim_preprocessed": metrics["ssim"],
+            }
+        rows.append(row)
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)
-            pred, gt = outputs["thermal"].cpu().numpy()[..., 0], batch["image"].cpu().numpy()[..., 0]
             err = np.abs(pred - gt) * 5  # x5 so small errors are visible
             panel = np.concatenate([_inferno(gt), _inferno(pred), _inferno(err)], 1)
             cv2.imwrite(str(out_dir / f"test_{i:02d}.png"), cv2.resize(panel, None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST))
-    return {
-        "psnr": float(np.mean([r["psnr"] for r in rows])),
-        "ssim": float(np.mean([r["ssim"] for r in rows])),
-        "per_view": rows,
-        "gaussians": int(pipeline.model.num_points),
-    }
+    summary = {key: float(np.mean([r[key] for r in rows])) for key in rows[0]}
+    return {**summary, "per_view": rows, "gaussians": int(pipeline.model.num_points)}
 
 
 def main(args: DemoArgs) -> dict:

@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Type
+from functools import cached_property
+from pathlib import Path
+from typing import Dict, Optional, Type
 
 import numpy as np
 import torch
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
 from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
+from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
 
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
+from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
+from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 
 
 class ThermalDataset(InputDataset):
@@ -25,8 +30,19 @@ class ThermalDataset(InputDataset):
             raise ValueError("ThermalDataset needs a thermal dataparser (metadata['thermal_range'] is missing)")
         return value
 
+    def frame_index(self, image_idx: int) -> int:
+        """Capture-order index of this image (what frame embeddings and preprocessing LUTs use)."""
+        return int(self.metadata["frame_indices"][image_idx])
+
+    def get_metadata(self, data: Dict) -> Dict:
+        return {"frame_index": torch.tensor(self.frame_index(data["image_idx"]))}
+
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
-        image = self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx])
+        sequence: Optional[PreprocessedSequence] = self.metadata.get("preprocessed")
+        if sequence is not None:
+            image = np.load(sequence.frame_path(self.frame_index(image_idx), self.metadata["is_ground_truth"][image_idx]))
+        else:
+            image = self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx])
         if self.scale_factor != 1.0:
             import cv2
 
@@ -57,12 +73,36 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     """Which thermal layout to read (a subcommand: `thermal`, `msx-data`, ...); default: the embedded demo scene."""
     cache_images_type: str = "float32"  # type: ignore[assignment]
     """Thermal frames stay float32 (never re-quantised to 8 bit)."""
+    preprocessing: PhotometricConfig = field(default_factory=PhotometricConfig)
+    """Photometric stabilization / contrast enhancement applied once at setup (variant 'none' to skip)."""
+    preprocessing_cache: Path = Path("outputs/.thermal_cache")
+    """Where processed frames and LUTs are cached (keyed by data and parameters)."""
 
 
 class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
-    """nerfstudio's full-image datamanager over `ThermalDataset`."""
+    """nerfstudio's full-image datamanager over `ThermalDataset`, with the preprocessing stage:
+    the chosen variant runs once over the whole capture (capture order) before caching images."""
 
     config: ThermalDatamanagerConfig
+
+    @cached_property
+    def preprocessed(self) -> Optional[PreprocessedSequence]:
+        """LUTs and processed frames (None for variant 'none'); `to_original_normalised` maps renders back."""
+        if self.config.preprocessing.variant == "none":
+            return None
+        capture = self.dataparser.capture()
+        return preprocess(capture.frames, self.dataparser.radiometric_range(), self.config.preprocessing, self.config.preprocessing_cache)
+
+    def _with_preprocessing(self, outputs: DataparserOutputs) -> DataparserOutputs:
+        outputs.metadata["preprocessed"] = self.preprocessed
+        return outputs
+
+    def create_train_dataset(self) -> ThermalDataset:
+        return ThermalDataset(self._with_preprocessing(self.train_dataparser_outputs), scale_factor=self.config.camera_res_scale_factor)
+
+    def create_eval_dataset(self) -> ThermalDataset:
+        outputs = self._with_preprocessing(self.dataparser.get_dataparser_outputs(split=self.test_split))
+        return ThermalDataset(outputs, scale_factor=self.config.camera_res_scale_factor)
 
     def _load_images(self, split, cache_images_device):
         images = super()._load_images(split, cache_images_device)

@@ -194,7 +194,12 @@ class ThermalDataParser(DataParser):
                 f"{sum(f.split == 'train' for f in frames)} for training; held out: {capture.split_rule}"
             )
         images = [f.image if split == "train" or f.ground_truth is None else f.ground_truth for f in chosen]
-        metadata: Dict = {"thermal_range": rng, "frame_indices": indices, "layout": capture.layout}
+        metadata: Dict = {
+            "thermal_range": rng,
+            "frame_indices": indices,
+            "is_ground_truth": [image != f.image for image, f in zip(images, chosen)],
+            "layout": capture.layout,
+        }
         seeds = self.seed_points()
         xyz = torch.from_numpy(seeds.xyz).float()
         xyz = (torch.cat([xyz, torch.ones_like(xyz[:, :1])], -1) @ transform.T) * scale

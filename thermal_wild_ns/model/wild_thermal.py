@@ -59,6 +59,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     inference_embedding: str = "mean"
     """Frame embedding used outside training (evaluation, viewer, renders): 'mean' (average of the
     training frames' embeddings), 'zero', or a training-frame index such as '12'."""
+    heat_aware_ssim: bool = True
+    """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
@@ -349,7 +351,7 @@ class WildThermalModel(SplatfactoModel):
         cfg = self.config
         losses = {
             "l1_loss": cfg.l1_lambda * (gt - pred).abs().mean(),
-            "ssim_loss": cfg.ssim_lambda * (1.0 - heat_aware_ssim(pred, gt)),
+            "ssim_loss": cfg.ssim_lambda * (1.0 - (heat_aware_ssim(pred, gt) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0))),
         }
         if cfg.alpha_lambda > 0:
             losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(

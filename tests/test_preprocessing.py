@@ -1,0 +1,172 @@
+"""Photometric stabilization + BBHE: properties of the LUTs, the cached stage, the datamanager."""
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from thermal_wild_ns.analysis.diagnostics import relative_mean_change
+from thermal_wild_ns.preprocessing.photometric import VARIANTS, LevelGrid, PhotometricConfig, apply_lut, frame_luts, invert_lut
+
+GRID16 = LevelGrid(65536)
+
+
+def drifting_sequence(num_frames=60, seed=0):
+    """A static scene seen through a known gain (+8 %) and offset (+80 counts) ramp, plus noise."""
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:96, 0:128]
+    base = 3500 + 300 * (0.5 + 0.5 * np.sin(u / 9.0) * np.cos(v / 7.0))
+    frames = []
+    for t in range(num_frames):
+        gain, offset = 1 + 0.08 * t / num_frames, 80 * t / num_frames
+        frames.append(np.clip(np.round(3000 + (base - 3000) * gain + offset + rng.normal(0, 2, base.shape)), 0, 65535).astype(np.uint16))
+    return frames
+
+
+def skewed_frames(num=5, seed=1):
+    """Low-contrast uint16 frames with a long tail and empty levels (as thermal frames are)."""
+    rng = np.random.default_rng(seed)
+    return [(3600 + rng.gamma(2.0, 40.0, (48, 64)) + 300 * (rng.random((48, 64)) < 0.01)).astype(np.uint16) for _ in range(num)]
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_luts_strictly_monotonic_and_invertible_within_a_level(variant):
+    frames = skewed_frames()
+    for lut, frame in zip(frame_luts(frames, GRID16, 3550.0, 4100.0, PhotometricConfig(variant)), frames):
+        assert lut.shape == (65536,) and np.all(np.isfinite(lut))
+        assert np.all(np.diff(lut) > 0)  # strictly: the inverse exists
+        processed = apply_lut(lut, frame, GRID16)  # float32, as the stage stores it
+        back = invert_lut(lut, processed.astype(np.float64), GRID16)
+        assert np.abs(back - frame).max() <= 1.0
+        every_level = invert_lut(lut, lut, GRID16)  # the whole LUT, not only the levels present
+        assert np.abs(every_level - np.arange(65536)).max() <= 1e-6
+
+
+def test_identity_at_beta_zero_without_bbhe():
+    frames = skewed_frames()
+    for lut in frame_luts(frames, GRID16, 3550.0, 4100.0, PhotometricConfig("stab", alpha=0.3, beta=0.0)):
+        np.testing.assert_array_equal(lut, np.arange(65536, dtype=np.float64))
+
+
+def _std_delta_i(frames):
+    return float(np.std(relative_mean_change([f.mean() for f in frames])))
+
+
+def test_stabilization_removes_injected_drift():
+    frames = drifting_sequence()
+    raw = _std_delta_i(frames)
+
+    def stabilized(alpha, beta):
+        luts = frame_luts(frames, GRID16, 3400.0, 3900.0, PhotometricConfig("stab", alpha, beta))
+        return _std_delta_i([apply_lut(lut, f, GRID16) for lut, f in zip(luts, frames)])
+
+    # measured: defaults (alpha 0.01, beta 0.5) 0.0103 -> 0.0065 (1.58x); beta 1: -> 0.0027 (3.8x)
+    assert raw / stabilized(0.01, 0.5) >= 1.5
+    assert raw / stabilized(0.01, 1.0) >= 3.5
+
+
+def test_bbhe_preserves_mean_brightness_plain_equalization_does_not():
+    """BBHE (Kim 1997) keeps the output mean near the input mean: within half the distance from the
+    input mean to the middle of the range, plus 2 % of the range. Plain equalization moves it to the middle."""
+    low, high = 3550.0, 4100.0
+    middle = (low + high) / 2
+    frames = skewed_frames(num=8, seed=3)
+    bbhe = frame_luts(frames, GRID16, low, high, PhotometricConfig("bbhe"))
+    histeq = frame_luts(frames, GRID16, low, high, PhotometricConfig("histeq"))
+    for frame, lut_b, lut_h in zip(frames, bbhe, histeq):
+        mean_in = frame.mean()
+        mean_bbhe = apply_lut(lut_b, frame, GRID16).mean()
+        mean_he = apply_lut(lut_h, frame, GRID16).mean()
+        assert abs(mean_bbhe - mean_in) <= 0.5 * abs(middle - mean_in) + 0.02 * (high - low)
+        assert abs(mean_bbhe - mean_in) < abs(mean_he - mean_in)
+        # and it does enhance: the processed frame spreads over more of the range
+        assert np.percentile(apply_lut(lut_b, frame, GRID16), 99) - np.percentile(apply_lut(lut_b, frame, GRID16), 1) > 1.5 * (
+            np.percentile(frame, 99) - np.percentile(frame, 1)
+        )
+
+
+def test_streaming_reads_one_frame_per_lut():
+    consumed = []
+
+    def frames():
+        for i, frame in enumerate(itertools.cycle(skewed_frames(2))):
+            consumed.append(i)
+            yield frame
+
+    stream = frame_luts(frames(), GRID16, 3550.0, 4100.0, PhotometricConfig())
+    for _ in range(3):
+        next(stream)
+    assert len(consumed) == 3  # an endless sequence is fine: nothing is collected
+
+
+def test_degenerate_frames_are_safe_or_refused():
+    constant = np.full((10, 10), 3700, np.uint16)
+    (lut,) = frame_luts([constant], GRID16, 3550.0, 4100.0, PhotometricConfig())  # a single, constant frame
+    assert np.all(np.diff(lut) > 0) and abs(invert_lut(lut, lut[3700:3701], GRID16)[0] - 3700) < 1e-6
+    sizes = [np.full((5, 7), 3600, np.uint16), skewed_frames(1)[0]]  # different sizes: histograms are normalised
+    assert len(list(frame_luts(sizes, GRID16, 3550.0, 4100.0, PhotometricConfig()))) == 2
+    nan = np.full((4, 4), 20.0, np.float32)
+    nan[1, 1] = np.nan
+    grid = LevelGrid.for_dtype("float32", 10.0, 30.0)
+    with pytest.raises(ValueError, match="frame 0 has non-finite values"):
+        list(frame_luts([nan], grid, 10.0, 30.0, PhotometricConfig()))
+    with pytest.raises(ValueError, match="unknown preprocessing variant"):
+        PhotometricConfig("clahe")
+
+
+def test_float_temperatures_round_trip_on_the_16bit_grid():
+    rng = np.random.default_rng(5)
+    temps = [20.0 + 10.0 * rng.random((30, 40)).astype(np.float32) for _ in range(3)]
+    grid = LevelGrid.for_dtype("float32", 20.0, 30.0)
+    for lut, frame in zip(frame_luts(temps, grid, 20.0, 30.0, PhotometricConfig()), temps):
+        back = invert_lut(lut, apply_lut(lut, frame, grid).astype(np.float64), grid)
+        assert np.abs(back - frame).max() <= grid.step  # one level of the grid (0.0002 degC here)
+
+
+# --------------------------------------------------------------------------- the cached stage
+def _demo_sequence(demo_scene_dir):
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+
+    parser = ThermalDataParserConfig(data=demo_scene_dir, layout="nerfstudio").setup()
+    return parser.capture().frames, parser.radiometric_range()
+
+
+def test_stage_caches_and_rebuilds_when_parameters_change(demo_scene_dir, tmp_path, monkeypatch):
+    import thermal_wild_ns.preprocessing.stage as stage
+
+    frames, rng = _demo_sequence(demo_scene_dir)
+    first = stage.preprocess(frames, rng, PhotometricConfig(), tmp_path)
+    assert first.luts.shape == (40, 65536) and len(list((first.folder / "frames").glob("*.npy"))) == 40
+    processed = np.load(first.frame_path(3))
+    assert processed.dtype == np.float32 and len(np.unique(processed)) > 256  # no 8-bit re-quantisation
+    raw = rng.read(frames[3].image)
+    np.testing.assert_allclose(first.to_original_normalised(processed, 3), raw, atol=1.0 / (rng.high - rng.low))
+
+    monkeypatch.setattr(stage, "frame_luts", lambda *a, **k: (_ for _ in ()).throw(AssertionError("recomputed")))
+    assert stage.preprocess(frames, rng, PhotometricConfig(), tmp_path).folder == first.folder  # from the cache
+    with pytest.raises(AssertionError, match="recomputed"):  # new parameters: rebuilt ...
+        stage.preprocess(frames, rng, PhotometricConfig(alpha=0.2), tmp_path)
+    # ... and the failed rebuild left nothing half-written
+    assert sorted(p.name for p in tmp_path.iterdir()) == [first.folder.name]
+
+
+def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_dir, tmp_path):
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+
+    images = {}
+    for variant in ("none", "stab+bbhe"):
+        config = ThermalDatamanagerConfig(
+            dataparser=ThermalDataParserConfig(data=demo_scene_dir, layout="nerfstudio"),
+            preprocessing=PhotometricConfig(variant),
+            preprocessing_cache=tmp_path,
+        )
+        datamanager = config.setup(device="cpu")
+        data = datamanager.train_dataset.get_data(0)
+        assert int(data["frame_index"]) == 1  # frame 0 is held out (every 8th)
+        images[variant] = data["image"]
+        assert (datamanager.preprocessed is None) == (variant == "none")
+    assert images["none"].shape == images["stab+bbhe"].shape == (96, 128, 1)
+    # BBHE spreads the frame over the range: the processed frame has more contrast
+    assert float(images["stab+bbhe"].std()) > 1.3 * float(images["none"].std())

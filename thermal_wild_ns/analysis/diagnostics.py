@@ -1,0 +1,89 @@
+"""How wild is a thermal sequence: the paper's dataset diagnostics, as pure functions.
+
+- relative mean change per frame: dI_t = (mu_t - mean(mu)) / mean(mu) (its std summarises drift);
+- radially averaged power spectrum of a frame (and the share of energy above half Nyquist);
+- intensity histogram and the used dynamic range;
+- SIFT features tracked from each frame to the next (ratio test + RANSAC on the fundamental matrix).
+
+Frames are given in the dataset's normalised scale (0..1 over its radiometric range), so numbers
+are comparable between datasets and before/after preprocessing.
+"""
+
+from __future__ import annotations
+
+from typing import Dict, List, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+
+def relative_mean_change(means: Sequence[float]) -> np.ndarray:
+    """dI_t = (mu_t - mu_bar) / mu_bar for per-frame means mu_t (native units, positive)."""
+    means = np.asarray(means, dtype=np.float64)
+    bar = means.mean()
+    if bar == 0:
+        raise ValueError("mean intensity is zero: the relative change is undefined (use native units)")
+    return (means - bar) / bar
+
+
+def radial_power_spectrum(frame: np.ndarray, bins: int = 64) -> Tuple[np.ndarray, np.ndarray]:
+    """Radially averaged power of the mean-removed frame: frequencies [bins] (fraction of
+    Nyquist, bin centres) and mean power per bin [bins]."""
+    f = np.fft.fftshift(np.fft.fft2(frame - frame.mean()))
+    power = np.abs(f) ** 2 / frame.size
+    h, w = frame.shape
+    fy = (np.arange(h) - h // 2) / (h / 2)
+    fx = (np.arange(w) - w // 2) / (w / 2)
+    radius = np.sqrt(fy[:, None] ** 2 + fx[None, :] ** 2)
+    index = np.minimum((radius * bins).astype(np.int64), bins)  # radius 1 = Nyquist; corners beyond are dropped
+    sums = np.bincount(index.ravel(), power.ravel(), minlength=bins + 1)[:bins]
+    counts = np.bincount(index.ravel(), minlength=bins + 1)[:bins]
+    return (np.arange(bins) + 0.5) / bins, sums / np.maximum(counts, 1)
+
+
+def high_frequency_ratio(freqs: np.ndarray, power: np.ndarray, cutoff: float = 0.5) -> float:
+    """Share of the (radially averaged) spectral energy above `cutoff` x Nyquist, weighted by ring area."""
+    energy = power * freqs  # ring area grows with radius
+    total = energy.sum()
+    return float(energy[freqs > cutoff].sum() / total) if total > 0 else 0.0
+
+
+def used_dynamic_range(frames: Sequence[np.ndarray], bins: int = 256) -> Dict[str, float]:
+    """Histogram over all frames (normalised scale) and how much of [0, 1] the p1..p99 span covers,
+    plus the share of the 256 bins that hold at least 0.01 % of the pixels."""
+    values = np.concatenate([f.reshape(-1) for f in frames])
+    hist, edges = np.histogram(np.clip(values, 0.0, 1.0), bins=bins, range=(0.0, 1.0))
+    p1, p99 = np.percentile(values, [1, 99])
+    return {
+        "p1": float(p1),
+        "p99": float(p99),
+        "used_range": float(np.clip(p99, 0, 1) - np.clip(p1, 0, 1)),
+        "occupied_bins": float(np.mean(hist > 1e-4 * values.size)),
+        "histogram": hist.tolist(),
+    }
+
+
+def to_uint8(frame: np.ndarray) -> np.ndarray:
+    return (np.clip(frame, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def tracked_features(frames: Sequence[np.ndarray], max_features: int = 4000, ratio: float = 0.8) -> List[int]:
+    """SIFT matches from frame t to t+1 that survive the ratio test and a RANSAC fundamental
+    matrix (1 px): one count per consecutive pair [T-1]."""
+    sift = cv2.SIFT_create(nfeatures=max_features)
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    features = [sift.detectAndCompute(to_uint8(f), None) for f in frames]
+    counts = []
+    for (kp_a, des_a), (kp_b, des_b) in zip(features[:-1], features[1:]):
+        if des_a is None or des_b is None or len(des_a) < 8 or len(des_b) < 8:
+            counts.append(0)
+            continue
+        good = [m[0] for m in matcher.knnMatch(des_a, des_b, k=2) if len(m) == 2 and m[0].distance < ratio * m[1].distance]
+        if len(good) < 8:
+            counts.append(0)
+            continue
+        a = np.float32([kp_a[m.queryIdx].pt for m in good])
+        b = np.float32([kp_b[m.trainIdx].pt for m in good])
+        _, inliers = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.0, 0.999)
+        counts.append(int(inliers.sum()) if inliers is not None else 0)
+    return counts
