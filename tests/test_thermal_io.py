@@ -146,3 +146,10 @@ def test_wrong_folder_lists_the_layouts_tried(tmp_path):
         _parse(tmp_path / "colmap", layout="msx")
     with pytest.raises(FileNotFoundError, match=r"nowhere: data folder not found"):
         _parse(tmp_path / "nowhere")
+
+
+def test_constant_frames_have_no_range(tmp_path):
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"c{i}.png"), np.full((8, 8), 3700, np.uint16))
+    with pytest.raises(ValueError, match=r"have no contrast: range \[3700.0, 3700.0\] is empty"):
+        scan_frames(sorted(tmp_path.glob("c*.png")))

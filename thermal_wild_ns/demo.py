@@ -70,18 +70,26 @@ def _inferno(x: np.ndarray) -> np.ndarray:
 
 
 def evaluate(pipeline, out_dir: Optional[Path] = None) -> dict:
-    """Test-view metrics (fixed inference embedding), averaged, in the ORIGINAL radiometric space:
-    with preprocessing, each render is mapped back through its frame's inverse LUT and compared
-    with the unprocessed (dataset-normalised) ground truth; the model's own numbers in the
-    preprocessed space are kept as `*_preprocessed`. With `out_dir`, a PNG panel per view."""
+    """Test-view metrics (fixed inference embedding), averaged, in the ORIGINAL radiometric space
+    against the evaluation frame (clean ground truth where the scene has it). With preprocessing
+    the render is mapped back through the test frame's inverse LUT (`psnr`, `ssim`); also reported:
+    through the mean training LUT (`*_mean_lut`, for views no frame was captured at), against the
+    raw captured frame (`*_vs_captured`, where a clean ground truth exists), and the model's own
+    numbers in the preprocessed space (`*_preprocessed`). With `out_dir`, a PNG panel per view."""
     import cv2
 
     from thermal_wild_ns.model.losses import psnr, ssim
+
+    def scores(pred: np.ndarray, gt: np.ndarray, suffix: str = "") -> dict:
+        as_tensor = lambda x: torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[..., None]  # noqa: E731
+        return {f"psnr{suffix}": float(psnr(as_tensor(pred), as_tensor(gt))), f"ssim{suffix}": float(ssim(as_tensor(pred), as_tensor(gt), data_range=1.0))}
 
     pipeline.eval()
     datamanager = pipeline.datamanager
     sequence = datamanager.preprocessed
     dataset = datamanager.eval_dataset
+    train_frames = list(datamanager.train_dataset.metadata["frame_indices"])
+    captured = datamanager.dataparser.capture().frames
     rows = []
     for i, (camera, batch) in enumerate(datamanager.fixed_indices_eval_dataloader):
         with torch.no_grad():
@@ -91,16 +99,14 @@ def evaluate(pipeline, out_dir: Optional[Path] = None) -> dict:
         gt = batch["image"].cpu().numpy()[..., 0]
         row = {"psnr": metrics["psnr"], "ssim": metrics["ssim"]}
         if sequence is not None:
-            index = int(batch["frame_index"])
-            pred = sequence.to_original_normalised(pred, index).astype(np.float32)
-            gt = dataset.thermal_range.read(dataset.image_filenames[int(batch["image_idx"])])
-            as_tensor = lambda x: torch.from_numpy(np.ascontiguousarray(x))[..., None]  # noqa: E731
-            row = {
-                "psnr": float(psnr(as_tensor(pred), as_tensor(gt))),
-                "ssim": float(ssim(as_tensor(pred), as_tensor(gt), data_range=1.0)),
-                "psnr_preprocessed": metrics["psnr"],
-                "ssim_preprocessed": metrics["ssim"],
-            }
+            index, image_idx = int(batch["frame_index"]), int(batch["image_idx"])
+            gt = dataset.thermal_range.read(dataset.image_filenames[image_idx])
+            row = {**scores(sequence.to_original_normalised(pred, index), gt), **scores(sequence.to_original_normalised(pred, train_frames), gt, "_mean_lut")}
+            if dataset.metadata["is_ground_truth"][image_idx]:
+                raw = dataset.thermal_range.read(captured[index].image)
+                row.update(scores(sequence.to_original_normalised(pred, index), raw, "_vs_captured"))
+            row.update({"psnr_preprocessed": metrics["psnr"], "ssim_preprocessed": metrics["ssim"]})
+            pred = sequence.to_original_normalised(pred, index)
         rows.append(row)
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)

@@ -16,7 +16,7 @@ import shutil
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Union
 
 import numpy as np
 from tqdm import tqdm
@@ -45,12 +45,17 @@ class PreprocessedSequence:
     def frame_path(self, index: int, ground_truth: bool = False) -> Path:
         return self.folder / ("ground_truth" if ground_truth else "frames") / f"{index:05d}.npy"
 
-    def to_native(self, normalised: np.ndarray, index: int) -> np.ndarray:
-        """Processed values in the normalised scale -> original native values of frame `index`."""
-        rng = self.radiometric_range
-        return invert_lut(np.asarray(self.luts[index]), rng.low + normalised * (rng.high - rng.low), self.grid)
+    def lut(self, index: Union[int, Sequence[int]]) -> np.ndarray:
+        """Frame `index`'s LUT, or the mean of several frames' LUTs (still strictly increasing): a
+        canonical scale for a view no frame was captured at."""
+        return np.asarray(self.luts[index]) if isinstance(index, int) else np.asarray(self.luts[list(index)]).mean(axis=0)
 
-    def to_original_normalised(self, normalised: np.ndarray, index: int) -> np.ndarray:
+    def to_native(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
+        """Processed values in the normalised scale -> original native values, through `lut(index)`'s inverse."""
+        rng = self.radiometric_range
+        return invert_lut(self.lut(index), rng.low + normalised * (rng.high - rng.low), self.grid)
+
+    def to_original_normalised(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
         """Processed values -> the dataset-normalised ORIGINAL scale (where raw frames live)."""
         return self.radiometric_range.normalize(self.to_native(normalised, index))
 
