@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from thermal_wild_ns.demo import demo_trainer_config, evaluate
+from thermal_wild_ns.analysis.evaluation import evaluate
+from thermal_wild_ns.demo import demo_trainer_config
 
 
 def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
@@ -30,7 +31,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
 
     model.get_loss_dict = record
     trainer.train()
-    after = evaluate(trainer.pipeline, tmp_path / "after")
+    after = evaluate(trainer.pipeline, "fixed", tmp_path / "after")
     first, last = sum(losses[:20]) / 20, sum(losses[-20:]) / 20
     assert last < 0.7 * first, (first, last)
     assert after["psnr"] > before["psnr"] + 5.0, (before["psnr"], after["psnr"])

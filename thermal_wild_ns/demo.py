@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import torch
 import tyro
 
@@ -63,63 +62,10 @@ def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method
     return config
 
 
-def _inferno(x: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.applyColorMap((np.clip(x, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
-
-
-def evaluate(pipeline, out_dir: Optional[Path] = None) -> dict:
-    """Test-view metrics (fixed inference embedding), averaged, in the ORIGINAL radiometric space
-    against the evaluation frame (clean ground truth where the scene has it). With preprocessing
-    the render is mapped back through the test frame's inverse LUT (`psnr`, `ssim`); also reported:
-    through the mean training LUT (`*_mean_lut`, for views no frame was captured at), against the
-    raw captured frame (`*_vs_captured`, where a clean ground truth exists), and the model's own
-    numbers in the preprocessed space (`*_preprocessed`). With `out_dir`, a PNG panel per view."""
-    import cv2
-
-    from thermal_wild_ns.model.losses import psnr, ssim
-
-    def scores(pred: np.ndarray, gt: np.ndarray, suffix: str = "") -> dict:
-        as_tensor = lambda x: torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[..., None]  # noqa: E731
-        return {f"psnr{suffix}": float(psnr(as_tensor(pred), as_tensor(gt))), f"ssim{suffix}": float(ssim(as_tensor(pred), as_tensor(gt), data_range=1.0))}
-
-    pipeline.eval()
-    datamanager = pipeline.datamanager
-    sequence = datamanager.preprocessed
-    dataset = datamanager.eval_dataset
-    train_frames = list(datamanager.train_dataset.metadata["frame_indices"])
-    captured = datamanager.dataparser.capture().frames
-    rows = []
-    for i, (camera, batch) in enumerate(datamanager.fixed_indices_eval_dataloader):
-        with torch.no_grad():
-            outputs = pipeline.model.get_outputs_for_camera(camera)
-            metrics, _ = pipeline.model.get_image_metrics_and_images(outputs, batch)
-        pred = outputs["thermal"].cpu().numpy()[..., 0]
-        gt = batch["image"].cpu().numpy()[..., 0]
-        row = {"psnr": metrics["psnr"], "ssim": metrics["ssim"]}
-        if sequence is not None:
-            index, image_idx = int(batch["frame_index"]), int(batch["image_idx"])
-            gt = dataset.thermal_range.read(dataset.image_filenames[image_idx])
-            row = {**scores(sequence.to_original_normalised(pred, index), gt), **scores(sequence.to_original_normalised(pred, train_frames), gt, "_mean_lut")}
-            if dataset.metadata["is_ground_truth"][image_idx]:
-                raw = dataset.thermal_range.read(captured[index].image)
-                row.update(scores(sequence.to_original_normalised(pred, index), raw, "_vs_captured"))
-            row.update({"psnr_preprocessed": metrics["psnr"], "ssim_preprocessed": metrics["ssim"]})
-            pred = sequence.to_original_normalised(pred, index)
-        rows.append(row)
-        if out_dir is not None:
-            out_dir.mkdir(parents=True, exist_ok=True)
-            err = np.abs(pred - gt) * 5  # x5 so small errors are visible
-            panel = np.concatenate([_inferno(gt), _inferno(pred), _inferno(err)], 1)
-            cv2.imwrite(str(out_dir / f"test_{i:02d}.png"), cv2.resize(panel, None, fx=3, fy=3, interpolation=cv2.INTER_NEAREST))
-    summary = {key: float(np.mean([r[key] for r in rows])) for key in rows[0]}
-    return {**summary, "per_view": rows, "gaussians": int(pipeline.model.num_points)}
-
-
 def main(args: DemoArgs) -> dict:
     from nerfstudio.utils.eval_utils import eval_setup
 
+    from thermal_wild_ns.analysis.evaluation import evaluate
     from thermal_wild_ns.data.demo_scene import generate_demo_scene
 
     device = "cuda" if torch.cuda.is_available() else "cpu"
@@ -135,7 +81,7 @@ def main(args: DemoArgs) -> dict:
     train_seconds = time.time() - start
     # evaluate from the saved checkpoint, the way ns-eval / ns-render load it
     _, pipeline, _, _ = eval_setup(config.get_base_dir() / "config.yml", test_mode="test")
-    results = evaluate(pipeline, args.output_dir / "renders")
+    results = evaluate(pipeline, "fixed", args.output_dir / "renders")
     results.update(
         {
             "device": device,

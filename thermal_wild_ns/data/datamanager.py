@@ -48,7 +48,7 @@ class ThermalDataset(InputDataset):
 
             h, w = image.shape
             image = cv2.resize(image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)
-        return image[..., None]
+        return np.repeat(image[..., None], 3, axis=-1) if self.metadata.get("grey_rgb") else image[..., None]
 
     def get_image_float32(self, image_idx: int) -> torch.Tensor:
         return torch.from_numpy(self.get_numpy_image(image_idx))
@@ -77,6 +77,8 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     """Photometric stabilization / contrast enhancement applied once at setup (variant 'none' to skip)."""
     preprocessing_cache: Path = Path("outputs/.thermal_cache")
     """Where processed frames and LUTs are cached (keyed by data and parameters)."""
+    grey_rgb: bool = False
+    """Give frames as 3 equal channels, for RGB models (stock splatfacto as a baseline)."""
 
 
 class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
@@ -95,6 +97,7 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
 
     def _with_preprocessing(self, outputs: DataparserOutputs) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed
+        outputs.metadata["grey_rgb"] = self.config.grey_rgb
         return outputs
 
     def create_train_dataset(self) -> ThermalDataset:

@@ -54,8 +54,12 @@ def cache_key(frames: Sequence[ThermalFrame], radiometric_range: RadiometricRang
     h = hashlib.sha256()
     h.update(json.dumps({"version": CACHE_VERSION, "config": asdict(config), "range": asdict(radiometric_range)}, sort_keys=True).encode())
     for f in frames:
-        stat = f.image.stat()
-        h.update(f"{f.image.name}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+        # name, size and the file's first and last 64 KiB: stable across copies (mtimes are not)
+        with open(f.image, "rb") as file:
+            head = file.read(1 << 16)
+            file.seek(max(0, f.image.stat().st_size - (1 << 16)))
+            tail = file.read()
+        h.update(f"{f.image.name}:{f.image.stat().st_size}:".encode() + hashlib.sha1(head + tail).digest())
         # rounded: the same poses read from COLMAP text and from transforms.json differ in the last bits
         h.update(np.round(np.asarray([*f.camera_to_world.reshape(-1), f.fx, f.fy, f.cx, f.cy, *f.distortion]), 6).tobytes())
     return h.hexdigest()[:16]

@@ -120,6 +120,8 @@ class WildThermalModel(SplatfactoModel):
 
         num_frames = max(self.num_train_data, 1)
         self.frame_embed = nn.Embedding(num_frames, cfg.frame_embed_dim)
+        self.embedding_override: Optional[Tensor] = None
+        """Frame embedding [Df] to render with outside training, instead of `inference_embedding`."""
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
             EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
@@ -204,6 +206,8 @@ class WildThermalModel(SplatfactoModel):
         weight = self.frame_embed.weight  # [F, Df]
         if self.training and camera.metadata is not None and "cam_idx" in camera.metadata:
             return weight[int(camera.metadata["cam_idx"])]
+        if self.embedding_override is not None:  # set by evaluation protocols (interpolated / optimised)
+            return self.embedding_override
         choice = self.config.inference_embedding
         if choice == "mean":
             return weight.mean(dim=0)

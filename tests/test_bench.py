@@ -1,0 +1,55 @@
+"""The benchmark command end to end on CPU (two variants, a few hundred steps): the files it
+writes, not the numbers. Plus the evaluation protocol's pieces."""
+
+import json
+
+import cv2
+import pytest
+import torch
+
+from thermal_wild_ns.analysis.evaluation import interpolated_embedding
+
+
+def test_interpolated_embedding_is_linear_in_capture_order():
+    weight = torch.tensor([[0.0], [10.0], [20.0]])  # training frames at capture indices 1, 3, 7
+    frames = [1, 3, 7]
+    assert float(interpolated_embedding(weight, frames, 2)) == pytest.approx(5.0)
+    assert float(interpolated_embedding(weight, frames, 6)) == pytest.approx(17.5)
+    assert float(interpolated_embedding(weight, frames, 0)) == 0.0  # before the first: the first
+    assert float(interpolated_embedding(weight, frames, 9)) == 20.0  # after the last: the last
+
+
+def test_bench_runs_end_to_end_on_cpu(tmp_path):
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+
+    out = tmp_path / "bench"
+    main(BenchArgs(methods=("wild-thermal-3dgs", "wild-thermal"), steps=200, eval_at=(100, 200), wild_steps=3, output_dir=out))
+    result = json.loads((out / "bench.json").read_text())
+    assert [r["method"] for r in result["runs"]] == ["wild-thermal-3dgs", "wild-thermal"]
+    for run in result["runs"]:
+        assert [p["step"] for p in run["curve"]] == [100, 200]
+        assert run["curve"][0]["seconds"] < run["curve"][1]["seconds"]
+        assert set(run["final"]) == {"fixed", "interpolate", "wild"}
+        assert run["ms_per_step"] > 0 and run["gaussians"] > 0 and run["model_mb"] > 0
+        assert len(run["final"]["fixed"]["per_view"]) == 5
+    # the full method is preprocessed: its preprocessed-space numbers are reported beside
+    assert "psnr_preprocessed" in result["runs"][1]["final"]["fixed"]
+    table = (out / "bench.md").read_text()
+    assert "| wild-thermal-3dgs | " in table and "| wild-thermal | demo |" in table
+    chart = cv2.imread(str(out / "speed_accuracy.png"))
+    assert chart is not None and chart.shape[1] > 400
+    assert len(list((out / "renders" / "demo" / "wild-thermal").glob("test_*_wild.png"))) == 5
+
+    # runs split over several commands merge into one table
+    merged = main(BenchArgs(merge=(out / "bench.json",), output_dir=tmp_path / "merged"))
+    assert len(merged["runs"]) == 2 and (tmp_path / "merged" / "bench.md").is_file()
+
+
+def test_unknown_method_and_mode_are_refused(tmp_path):
+    from thermal_wild_ns.analysis.evaluation import evaluate
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config
+
+    with pytest.raises(ValueError, match="unknown method 'nerfacto'"):
+        trainer_config("nerfacto", "demo", BenchArgs(output_dir=tmp_path), tmp_path)
+    with pytest.raises(ValueError, match="unknown embedding mode 'best'"):
+        evaluate(None, "best")  # type: ignore[arg-type]

@@ -1,0 +1,314 @@
+"""`wild-thermal-bench`: every ablation variant (and stock splatfacto) on the same scenes, under
+the same schedule and evaluation protocol (`analysis/evaluation.py`).
+
+For each scene x method it trains with nerfstudio's own Trainer components (same callbacks,
+optimisers and strategies as `ns-train`), records test PSNR at the `--eval-at` steps against the
+wall-clock seconds spent training (evaluation time excluded), evaluates the final model in every
+embedding mode, and writes to `--output-dir`:
+- `bench.json`: everything, per run: curve, final metrics per mode, seconds, ms/step, peak GPU
+  memory, Gaussian count, model size;
+- `bench.md`: the paper's Tab. 2 layout (PSNR / SSIM per scene and mean, fixed embedding) and a
+  speed table;
+- `speed_accuracy.png`: test PSNR vs training seconds, one curve per method, one panel per scene.
+
+Stock splatfacto sees the frames as 3 equal channels without preprocessing; its LPIPS metric
+(which downloads AlexNet weights) is replaced by a stub, it is never used here. It needs CUDA
+(splatfacto hard-codes `.cuda()`), so it is skipped with a message on a CPU.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import gc
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+import torch
+import tyro
+
+import thermal_wild_ns.compat  # noqa: F401
+from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate
+
+VARIANTS = (
+    "splatfacto",
+    "wild-thermal-3dgs",
+    "wild-thermal-3dgs-histeq",
+    "wild-thermal-3dgs-bbhe",
+    "wild-thermal-3dgs-stab",
+    "wild-thermal-3dgs-stab-bbhe",
+    "wild-thermal-emission-mlp",
+    "wild-thermal",
+)
+FULL_SCHEDULE = 30_000
+"""Splatfacto's schedule (warm-up, refinement, opacity reset, split stop) is defined for this many
+steps; shorter runs scale it proportionally, the same for every method."""
+
+
+@dataclass
+class BenchArgs:
+    scenes: Tuple[str, ...] = ("demo",)
+    """'demo' (the embedded scene) or dataset folders (any supported layout)."""
+    methods: Tuple[str, ...] = VARIANTS
+    steps: int = 30_000
+    eval_at: Tuple[int, ...] = (1000, 2000, 5000, 10000, 20000, 30000)
+    """Steps at which test PSNR (fixed embedding) is recorded for the speed-accuracy chart."""
+    max_gaussians: Optional[int] = None
+    """Gaussian budget of the wild-thermal variants (default: their config's)."""
+    wild_steps: int = 100
+    """Embedding optimisation steps of the in-the-wild protocol."""
+    output_dir: Path = Path("outputs/bench")
+    cache_dir: Optional[Path] = None
+    """Triangulation / preprocessing cache (default: `output_dir/cache`); point it at a cache made
+    elsewhere to skip triangulation (e.g. on a machine without pycolmap)."""
+    seed: int = 0
+    merge: Tuple[Path, ...] = ()
+    """Instead of training: combine these bench.json files (runs split over several commands or
+    machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
+
+
+class _NoLPIPS(torch.nn.Module):
+    """Stands in for torchmetrics' LPIPS, whose constructor downloads AlexNet weights."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__()
+
+    def forward(self, *args, **kwargs):
+        return torch.tensor(float("nan"))
+
+
+@contextlib.contextmanager
+def no_lpips_download():
+    import torchmetrics.image.lpip as lpip
+
+    original = lpip.LearnedPerceptualImagePatchSimilarity
+    lpip.LearnedPerceptualImagePatchSimilarity = _NoLPIPS
+    try:
+        yield
+    finally:
+        lpip.LearnedPerceptualImagePatchSimilarity = original
+
+
+def scale_schedule(model_config, steps: int) -> None:
+    """Scale the densification schedule (defined for 30k steps) to a run of `steps` steps."""
+    if steps >= FULL_SCHEDULE:
+        return
+    f = steps / FULL_SCHEDULE
+    model_config.warmup_length = max(int(model_config.warmup_length * f), 10)
+    model_config.refine_every = max(int(model_config.refine_every * f), 10)
+    model_config.stop_split_at = int(model_config.stop_split_at * f)
+    model_config.stop_screen_size_at = int(model_config.stop_screen_size_at * f)
+    model_config.sh_degree_interval = max(int(model_config.sh_degree_interval * f), 1)
+    model_config.resolution_schedule = max(int(model_config.resolution_schedule * f), 1)
+
+
+def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
+    """The method's registered config on this scene, with the shared bench schedule."""
+    from method_configs import wild_thermal as methods
+    from nerfstudio.configs.method_configs import method_configs
+
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
+    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
+
+    dataparser = (
+        ThermalDemoDataParserConfig(data=args.output_dir / "demo-scene")
+        if scene == "demo"
+        else ThermalDataParserConfig(data=Path(scene), cache_dir=args.cache_dir or args.output_dir / "cache")
+    )
+    if method == "splatfacto":
+        config = copy.deepcopy(method_configs["splatfacto"])
+        config.pipeline.datamanager = ThermalDatamanagerConfig(dataparser=dataparser, preprocessing=PhotometricConfig("none"), grey_rgb=True)
+    else:
+        specs = {"wild-thermal": methods.wild_thermal, **methods.ablation_methods}
+        if method not in specs:
+            raise ValueError(f"unknown method '{method}' (one of {', '.join(VARIANTS)})")
+        config = copy.deepcopy(specs[method].config)
+        config.pipeline.datamanager.dataparser = dataparser
+        if args.max_gaussians is not None:
+            config.pipeline.model.max_gaussians = args.max_gaussians
+    config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
+    config.output_dir = run_dir
+    config.experiment_name = method
+    config.timestamp = "run"
+    config.vis = "tensorboard"
+    config.max_num_iterations = args.steps
+    config.steps_per_save = args.steps
+    config.steps_per_eval_image = config.steps_per_eval_batch = config.steps_per_eval_all_images = 1 << 30
+    config.save_only_latest_checkpoint = True
+    config.machine.device_type = "cuda" if torch.cuda.is_available() else "cpu"
+    config.machine.seed = args.seed
+    scale_schedule(config.pipeline.model, args.steps)
+    return config
+
+
+def _model_megabytes(model) -> float:
+    return sum(t.numel() * t.element_size() for t in model.state_dict().values()) / 2**20
+
+
+def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
+    from nerfstudio.engine.callbacks import TrainingCallbackLocation
+
+    run_dir = args.output_dir / "runs" / Path(scene).name
+    config = trainer_config(method, scene, args, run_dir)
+    cuda = torch.cuda.is_available()
+    if cuda:
+        torch.cuda.reset_peak_memory_stats()
+    with no_lpips_download():
+        trainer = config.setup(local_rank=0, world_size=1)
+        trainer.setup()
+    pipeline = trainer.pipeline
+    checkpoints = sorted({s for s in args.eval_at if 0 < s <= args.steps} | {args.steps})
+    curve, seconds, step = [], 0.0, 0
+    losses_finite = True
+    for stop in checkpoints:
+        if cuda:
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        for step in range(step, stop):
+            pipeline.train()
+            for callback in trainer.callbacks:
+                callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+            loss, _, _ = trainer.train_iteration(step)
+            for callback in trainer.callbacks:
+                callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+        step = stop
+        if cuda:
+            torch.cuda.synchronize()
+        seconds += time.perf_counter() - start
+        losses_finite = losses_finite and bool(torch.isfinite(loss))
+        result = evaluate(pipeline, "fixed")
+        curve.append({"step": stop, "seconds": round(seconds, 3), "psnr": result["psnr"], "gaussians": result["gaussians"]})
+        print(f"  {method} on {Path(scene).name}: step {stop}, {seconds:.1f} s, test PSNR {result['psnr']:.2f} dB, {result['gaussians']} Gaussians")
+    final = {mode: evaluate(pipeline, mode, args.output_dir / "renders" / Path(scene).name / method, wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
+    trainer.save_checkpoint(args.steps - 1)
+    return {
+        "method": method,
+        "scene": Path(scene).name,
+        "steps": args.steps,
+        "train_seconds": round(seconds, 2),
+        "ms_per_step": round(1000 * seconds / args.steps, 3),
+        "peak_gpu_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
+        "gaussians": int(pipeline.model.num_points),
+        "model_mb": round(_model_megabytes(pipeline.model), 2),
+        "final_loss_finite": losses_finite,
+        "curve": curve,
+        "final": final,
+        "config": str(config.get_base_dir() / "config.yml"),
+    }
+
+
+def markdown(runs: List[Dict], scenes: List[str]) -> str:
+    methods = list(dict.fromkeys(r["method"] for r in runs))
+    by = {(r["method"], r["scene"]): r for r in runs}
+    head = "| method | " + " | ".join(f"{s} PSNR / SSIM" for s in scenes) + " | mean PSNR / SSIM |"
+    lines = ["Test views, original radiometric space, fixed inference embedding:", "", head, "|" + " --- |" * (len(scenes) + 2)]
+    for m in methods:
+        cells, ps, ss = [], [], []
+        for s in scenes:
+            r = by.get((m, s))
+            if r is None or "failed" in r:
+                cells.append("—" if r is None else "failed")
+                continue
+            f = r["final"]["fixed"]
+            ps.append(f["psnr"])
+            ss.append(f["ssim"])
+            cells.append(f"{f['psnr']:.2f} / {f['ssim']:.3f}")
+        mean = f"{np.mean(ps):.2f} / {np.mean(ss):.3f}" if ps else "—"
+        lines.append(f"| {m} | " + " | ".join(cells) + f" | {mean} |")
+    lines += ["", "Embedding modes (PSNR; `wild` scores the right half only):", "", "| method | scene | fixed | interpolate | wild (right half) | preprocessed space (fixed) |", "| --- | --- | --- | --- | --- | --- |"]
+    done = [r for r in runs if "failed" not in r]
+    for r in done:
+        f = r["final"]
+        pre = f["fixed"].get("psnr_preprocessed")
+        lines.append(
+            f"| {r['method']} | {r['scene']} | {f['fixed']['psnr']:.2f} | {f['interpolate']['psnr']:.2f} | {f['wild']['psnr']:.2f} | "
+            + (f"{pre:.2f}" if pre is not None else "—")
+            + " |"
+        )
+    lines += ["", "Cost:", "", "| method | scene | steps | train s | ms/step | peak GPU MB | Gaussians | model MB |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in done:
+        mem = "—" if r["peak_gpu_memory_mb"] is None else f"{r['peak_gpu_memory_mb']:.0f}"
+        lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} |")
+    failed = [r for r in runs if "failed" in r]
+    if failed:
+        lines += ["", "Failed runs:", ""] + [f"- {r['method']} on {r['scene']}: {r['failed']}" for r in failed]
+    return "\n".join(lines) + "\n"
+
+
+def chart(runs: List[Dict], scenes: List[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(scenes), figsize=(6 * len(scenes), 4.5), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        floor = 10.0  # a diverged run (PSNR far below) would squash every other curve
+        for r in (r for r in runs if r["scene"] == scene and "failed" not in r):
+            xs = [p["seconds"] for p in r["curve"]]
+            ys = [p["psnr"] for p in r["curve"]]
+            style = {"lw": 2.5, "color": "black"} if r["method"] == "wild-thermal" else ({"ls": "--"} if r["method"] == "splatfacto" else {})
+            label = r["method"] + (f" (falls to {min(ys):.0f} dB)" if min(ys) < floor else "")
+            ax.plot(xs, np.maximum(ys, floor), marker="o", ms=3, label=label, **style)
+        ax.set(title=f"{scene}: test PSNR vs training time", xlabel="training wall-clock seconds (evaluation excluded)", ylabel="PSNR (dB, original space)")
+        ax.set_xscale("log")
+        ax.set_ylim(bottom=floor)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(args: BenchArgs) -> Dict:
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    if args.merge:
+        merged = [json.loads(Path(p).read_text()) for p in args.merge]
+        devices = {m["device"] for m in merged}
+        if len(devices) > 1:
+            raise ValueError(f"{', '.join(map(str, args.merge))}: runs come from different devices ({devices}); timings would not compare")
+        return _write(args, [r for m in merged for r in m["runs"]], device=devices.pop(), torch_version=merged[0]["torch"])
+    runs = []
+    for scene in args.scenes:
+        for method in args.methods:
+            if method == "splatfacto" and not torch.cuda.is_available():
+                print("  splatfacto skipped: stock splatfacto needs CUDA")
+                continue
+            try:
+                runs.append(run_one(method, scene, args))
+            except (torch.OutOfMemoryError, RuntimeError, ValueError) as err:  # a method failing is a result, not the end of the bench
+                message = str(err).splitlines()[0][:300]
+                print(f"  {method} on {Path(scene).name} FAILED: {type(err).__name__}: {message}")
+                runs.append({"method": method, "scene": Path(scene).name, "steps": args.steps, "failed": f"{type(err).__name__}: {message}"})
+                gc.collect()  # the failed trainer's tensors
+                if torch.cuda.is_available():
+                    torch.cuda.empty_cache()
+            _write(args, runs)  # after every run: a crash later keeps what finished
+    return _write(args, runs)
+
+
+def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torch_version: Optional[str] = None) -> Dict:
+    scenes = list(dict.fromkeys(r["scene"] for r in runs))
+    result = {
+        "args": {k: (str(v) if isinstance(v, Path) else [str(x) for x in v] if k == "merge" else v) for k, v in vars(args).items()},
+        "device": device or (torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu"),
+        "torch": torch_version or torch.__version__,
+        "runs": runs,
+    }
+    (args.output_dir / "bench.json").write_text(json.dumps(result, indent=1))
+    (args.output_dir / "bench.md").write_text(markdown(runs, scenes))
+    chart(runs, scenes, args.output_dir / "speed_accuracy.png")
+    return result
+
+
+def entrypoint():
+    main(tyro.cli(BenchArgs))
+
+
+if __name__ == "__main__":
+    entrypoint()
