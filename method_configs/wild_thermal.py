@@ -6,7 +6,6 @@ from __future__ import annotations
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
-from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
@@ -14,6 +13,7 @@ import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6
 from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
+from thermal_wild_ns.training.guard import GuardedTrainerConfig
 
 # Paper: Adam with weight decay, separate learning rates for geometry, opacity and appearance,
 # no schedule. Weight decay applies to the appearance networks and embeddings, never to geometry.
@@ -39,8 +39,8 @@ def wild_thermal_optimizers() -> dict:
     }
 
 
-def wild_thermal_trainer() -> TrainerConfig:
-    return TrainerConfig(
+def wild_thermal_trainer() -> GuardedTrainerConfig:
+    return GuardedTrainerConfig(
         method_name="wild-thermal",
         steps_per_eval_image=1000,
         steps_per_eval_batch=0,
@@ -61,7 +61,7 @@ def wild_thermal_trainer() -> TrainerConfig:
 
 def ablation_trainer(
     name: str, preprocessing: str, emission_mlp: bool, background_mlp: bool = False, paper_losses: bool = False
-) -> TrainerConfig:
+) -> GuardedTrainerConfig:
     """The same model and datamanager with the paper's ablation switches set."""
     config = wild_thermal_trainer()
     config.method_name = name

@@ -363,7 +363,14 @@ class WildThermalModel(SplatfactoModel):
             )
         if self.training:
             self.camera_optimizer.get_loss_dict(losses)
+            self.last_train_loss = sum(losses.values()).detach()  # read by the divergence guard
         return losses
+
+    def step_post_backward(self, step):
+        if getattr(self, "skip_densification_step", False):  # the guard skipped this step: no statistics from it
+            self.skip_densification_step = False
+            return
+        super().step_post_backward(step)
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         gt, finite = self._ground_truth(outputs, batch)

@@ -1,0 +1,94 @@
+"""Training never silently diverges: NaN/inf losses or gradients and loss spikes skip the step,
+a broken model stops training with a clear error."""
+
+import pytest
+import torch
+
+from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.training.guard import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
+
+
+def _trainer(tmp_path, demo_scene_dir, steps, **guard):
+    config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    for key, value in guard.items():
+        setattr(config.guard, key, value)
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    return trainer
+
+
+def _poison_loss(model, from_step):
+    original = model.get_loss_dict
+
+    def poisoned(outputs, batch, metrics_dict=None):
+        losses = original(outputs, batch, metrics_dict)
+        if model.training and model.step >= from_step:
+            losses["l1_loss"] = losses["l1_loss"] * float("nan")
+            model.last_train_loss = sum(losses.values()).detach()
+        return losses
+
+    model.get_loss_dict = poisoned
+
+
+def test_nan_steps_are_skipped_and_leave_the_model_untouched(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=6, max_consecutive_skips=100)
+    model = trainer.pipeline.model
+    _poison_loss(model, from_step=0)
+    before = {k: v.detach().clone() for k, v in model.named_parameters()}
+    trainer.train()
+    assert trainer.guard.skipped == 6
+    for name, param in model.named_parameters():
+        assert torch.equal(param, before[name]), name  # no update from a NaN step, no NaN anywhere
+
+
+def test_a_single_bad_step_is_skipped_and_training_goes_on(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=10)
+    model = trainer.pipeline.model
+    original = model.get_loss_dict
+
+    def one_bad(outputs, batch, metrics_dict=None):
+        losses = original(outputs, batch, metrics_dict)
+        if model.training and model.step == 4:
+            losses["l1_loss"] = losses["l1_loss"] * float("inf")
+            model.last_train_loss = sum(losses.values()).detach()
+        return losses
+
+    model.get_loss_dict = one_bad
+    trainer.train()
+    assert trainer.guard.skipped == 1
+    assert all(bool(torch.isfinite(p).all()) for p in model.parameters())
+
+
+def test_persistent_divergence_stops_with_a_clear_error(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=20, max_consecutive_skips=3)
+    _poison_loss(trainer.pipeline.model, from_step=5)
+    with pytest.raises(TrainingDiverged, match=r"step 7: 3 steps in a row were skipped \(last: non-finite loss"):
+        trainer.train()
+
+
+def test_loss_spike_and_nan_gradient_detection():
+    guard = DivergenceGuard(DivergenceGuardConfig(spike_window=5, loss_spike_factor=10.0))
+    param = torch.nn.Parameter(torch.ones(3))
+    param.grad = torch.ones(3)
+    for _ in range(5):
+        assert guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"]) is None
+    assert "loss spike" in guard.check_step(torch.tensor(50.0), {"means": [param]}, ["means"])
+    assert guard.check_step(torch.tensor(5.0), {"means": [param]}, ["means"]) is None  # 5x: within the factor
+    param.grad = torch.tensor([1.0, float("nan"), 0.0])
+    assert guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"]) == "non-finite gradients in means"
+
+
+def test_broken_models_are_named(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=1)
+    model = trainer.pipeline.model
+    guard = trainer.guard
+    guard.check_model(model, 0)  # a healthy model passes
+    with torch.no_grad():
+        model.gauss_params["opacities"].fill_(-30.0)
+    with pytest.raises(TrainingDiverged, match="scene has turned transparent"):
+        guard.check_model(model, 100)
+    with torch.no_grad():
+        model.gauss_params["means"][0, 0] = float("nan")
+    with pytest.raises(TrainingDiverged, match=r"step 200: parameter 'gauss_params.means' holds NaN/inf"):
+        guard.check_model(model, 200)

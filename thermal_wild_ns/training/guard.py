@@ -1,0 +1,135 @@
+"""Training that never silently diverges.
+
+`GuardedTrainer` is nerfstudio's Trainer with a check between backward and the optimizer step:
+a step whose loss or gradients are not finite, or whose loss spikes far above the recent
+median, is skipped (no parameter update, no densification statistics) and logged. Every
+`check_every` steps it also checks the model itself; it stops with `TrainingDiverged` (a clear
+message, and a non-zero exit code from `ns-train`) when the parameters hold NaN/inf, when all
+Gaussians are gone or transparent, or when too many steps in a row had to be skipped.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+from typing import Deque, List, Optional, Type
+
+import torch
+from nerfstudio.engine.trainer import Trainer, TrainerConfig
+from nerfstudio.utils.rich_utils import CONSOLE
+
+
+class TrainingDiverged(RuntimeError):
+    """Training cannot go on: the model is broken (NaN/inf, collapsed) or every step fails."""
+
+
+@dataclass
+class DivergenceGuardConfig:
+    enabled: bool = True
+    loss_spike_factor: float = 20.0
+    """Skip a step whose loss exceeds this many times the median loss of the last accepted steps."""
+    spike_window: int = 100
+    """Accepted steps the median is taken over (no spike test before the window is full)."""
+    max_consecutive_skips: int = 50
+    """Stop when this many steps in a row had to be skipped."""
+    check_every: int = 100
+    """Steps between checks of the model itself (finite parameters, Gaussians left, opacity)."""
+    min_mean_opacity: float = 1e-3
+    """Stop when the mean Gaussian opacity falls below this (everything turned transparent)."""
+
+
+@dataclass
+class GuardedTrainerConfig(TrainerConfig):
+    _target: Type = field(default_factory=lambda: GuardedTrainer)
+    guard: DivergenceGuardConfig = field(default_factory=DivergenceGuardConfig)
+    """Divergence and collapse detection."""
+
+
+class DivergenceGuard:
+    """The checks, independent of the trainer (`check_step` before the optimizer step,
+    `check_model` now and then)."""
+
+    def __init__(self, config: DivergenceGuardConfig):
+        self.config = config
+        self.recent: Deque[float] = collections.deque(maxlen=config.spike_window)
+        self.skipped = 0
+        self.consecutive = 0
+
+    def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str]) -> Optional[str]:
+        """Why this step must be skipped, or None."""
+        if loss is not None:
+            value = float(loss)
+            if not torch.isfinite(loss):
+                return f"non-finite loss ({value})"
+            if len(self.recent) == self.recent.maxlen:
+                median = sorted(self.recent)[len(self.recent) // 2]
+                if value > self.config.loss_spike_factor * median:
+                    return f"loss spike ({value:.4g} > {self.config.loss_spike_factor:g} x recent median {median:.4g})"
+        grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
+        if grads:
+            finite = torch.stack([torch.isfinite(grad).all() for _, grad in grads])
+            if not bool(finite.all()):
+                bad = sorted({g for (g, _), ok in zip(grads, finite.tolist()) if not ok})
+                return f"non-finite gradients in {', '.join(bad)}"
+        if loss is not None:
+            self.recent.append(float(loss))
+        return None
+
+    def record(self, step: int, reason: Optional[str]) -> None:
+        if reason is None:
+            self.consecutive = 0
+            return
+        self.skipped += 1
+        self.consecutive += 1
+        CONSOLE.log(f"[yellow]step {step}: {reason}; step skipped ({self.skipped} so far)")
+        if self.consecutive >= self.config.max_consecutive_skips:
+            raise TrainingDiverged(
+                f"step {step}: {self.consecutive} steps in a row were skipped (last: {reason}). Training has diverged; "
+                "lower the learning rates or check the data (diagnose it with wild-thermal-diagnose)."
+            )
+
+    def check_model(self, model, step: int) -> None:
+        for name, param in model.named_parameters():
+            if not bool(torch.isfinite(param).all()):
+                raise TrainingDiverged(f"step {step}: parameter '{name}' holds NaN/inf values; training has diverged")
+        if hasattr(model, "num_points"):
+            if model.num_points == 0:
+                raise TrainingDiverged(f"step {step}: every Gaussian was pruned; the model collapsed to an empty scene")
+            opacity = float(torch.sigmoid(model.opacities).mean())
+            if opacity < self.config.min_mean_opacity:
+                raise TrainingDiverged(
+                    f"step {step}: mean Gaussian opacity {opacity:.2e} < {self.config.min_mean_opacity:g}; the scene has turned "
+                    "transparent (the background explains every pixel)"
+                )
+
+
+class GuardedTrainer(Trainer):
+    """nerfstudio's Trainer with `DivergenceGuard` between backward and the optimizer step."""
+
+    config: GuardedTrainerConfig
+
+    def setup(self, test_mode="val"):
+        super().setup(test_mode=test_mode)
+        self.guard = DivergenceGuard(self.config.guard)
+        self._step = 0
+        if not self.config.guard.enabled:
+            return
+        step_some = self.optimizers.optimizer_scaler_step_some
+
+        def guarded_step_some(grad_scaler, param_groups):
+            model = self.pipeline.model
+            reason = self.guard.check_step(getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups)
+            skip = reason is not None
+            model.skip_densification_step = skip  # the strategy must not record this step's gradients either
+            self.guard.record(self._step, reason)
+            if not skip:
+                step_some(grad_scaler, param_groups)
+
+        self.optimizers.optimizer_scaler_step_some = guarded_step_some
+
+    def train_iteration(self, step: int):
+        self._step = step
+        result = super().train_iteration(step)
+        if self.config.guard.enabled and step % self.config.guard.check_every == 0:
+            self.guard.check_model(self.pipeline.model, step)
+        return result
