@@ -28,7 +28,7 @@ from typing import Dict, Tuple
 import cv2
 import numpy as np
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -51,6 +51,22 @@ class DemoSceneConfig:
     column_noise_counts: float = 2.0
     num_points: int = 3000
     seed: int = 0
+    # stress faults (off in the demo scene; see STRESS_FAULTS)
+    outlier_frame: int = -1
+    """Index of a frame recorded with `outlier_gain` on its whole signal (-1: none)."""
+    outlier_gain: float = 1.3
+    ffc_period: int = 0
+    """Flat-field-correction sawtooth: the offset climbs `ffc_step_counts` per frame and drops back
+    every `ffc_period` frames (0: off). DUNR's facade climbs ~15 counts per frame for ~18 frames."""
+    ffc_step_counts: float = 15.0
+    row_noise_counts: float = 0.0
+    """Fixed-pattern noise per sensor row (column noise: `column_noise_counts`)."""
+    contrast: float = 1.0
+    """Scale of temperature differences about 12 degC (low texture / low contrast below 1)."""
+    look_up: float = 0.0
+    """Raise the cameras' aim (metres at the target): more of every frame is uniform sky."""
+    path_views: int = 0
+    """Clean views (with depth) on the smooth camera path through the capture, for flicker and floater measures."""
 
 
 # Sensor model: counts = COUNTS_AT_0C + COUNTS_PER_C * temperature (degC).
@@ -115,12 +131,13 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray) -> Tuple[np.ndarray, np.nda
     return temp, t_best, points
 
 
-def camera_to_world(index: int, cfg: DemoSceneConfig) -> np.ndarray:
-    """OpenGL-convention (nerfstudio) camera-to-world 4x4 on an arc in front of the facade."""
+def camera_to_world(index: float, cfg: DemoSceneConfig) -> np.ndarray:
+    """OpenGL-convention (nerfstudio) camera-to-world 4x4 on an arc in front of the facade;
+    fractional indices lie on the same smooth path between frames."""
     s = index / max(cfg.num_frames - 1, 1)
     angle = np.deg2rad(-55.0 + 110.0 * s)
     eye = np.array([6.0 * np.sin(angle), -6.0 * np.cos(angle) + 0.5, 1.6 + 0.3 * np.sin(2 * np.pi * s)])
-    target = np.array([0.0, 0.8, 0.9])
+    target = np.array([0.0, 0.8, 0.9 + cfg.look_up])
     back = eye - target
     back /= np.linalg.norm(back)
     right = np.cross(np.array([0.0, 0.0, 1.0]), back)
@@ -153,12 +170,42 @@ def sensor_faults(cfg: DemoSceneConfig) -> Dict[str, np.ndarray]:
     s = np.linspace(0.0, 1.0, cfg.num_frames)
     v, u = np.meshgrid(np.arange(cfg.height) + 0.5, np.arange(cfg.width) + 0.5, indexing="ij")
     r2 = ((u - cfg.width / 2) ** 2 + (v - cfg.height / 2) ** 2) / ((cfg.width / 2) ** 2 + (cfg.height / 2) ** 2)
+    frames = np.arange(cfg.num_frames)
+    sawtooth = cfg.ffc_step_counts * (frames % cfg.ffc_period) if cfg.ffc_period > 0 else np.zeros(cfg.num_frames)
     return {
         "gain": 1.0 + cfg.drift_gain * s + cfg.jitter_gain * rng.standard_normal(cfg.num_frames),
-        "offset": cfg.drift_counts * s + cfg.jitter_counts * rng.standard_normal(cfg.num_frames),
+        "offset": cfg.drift_counts * s + cfg.jitter_counts * rng.standard_normal(cfg.num_frames) + sawtooth,
         "vignetting": 1.0 - cfg.vignetting * r2,
-        "columns": cfg.column_noise_counts * rng.standard_normal(cfg.width)[None, :],
+        "columns": cfg.column_noise_counts * rng.standard_normal(cfg.width)[None, :]
+        + cfg.row_noise_counts * rng.standard_normal(cfg.height)[:, None],
+        "outlier": np.where(frames == cfg.outlier_frame, cfg.outlier_gain, 1.0),
     }
+
+
+STRESS_FAULTS: Dict[str, Dict] = {
+    "clean": {},
+    "outlier": {"outlier_frame": 13},
+    "drift": {"drift_counts": 200.0, "drift_gain": 0.1, "jitter_counts": 15.0, "jitter_gain": 0.02},
+    "ffc": {"ffc_period": 18, "ffc_step_counts": 15.0},
+    "vignetting": {"vignetting": 0.35},
+    "fixed-pattern": {"column_noise_counts": 6.0, "row_noise_counts": 6.0},
+    "low-contrast": {"contrast": 0.15},
+    "sky": {"look_up": 2.5},
+}
+"""The stress scenes: the demo's content with one fault at a time (and "all" of them together).
+"clean" has no fault at all, not even sensor noise: the reference the others are compared with."""
+_NO_FAULTS = dict(drift_counts=0.0, drift_gain=0.0, jitter_counts=0.0, jitter_gain=0.0, vignetting=0.0, noise_counts=0.0, column_noise_counts=0.0)
+
+
+def stress_scene_config(fault: str, path_views: int = 60) -> DemoSceneConfig:
+    """The demo scene with exactly this fault ('all': every fault), plus smooth-path views."""
+    if fault == "all":
+        changes = {k: v for preset in STRESS_FAULTS.values() for k, v in preset.items()}
+    elif fault in STRESS_FAULTS:
+        changes = STRESS_FAULTS[fault]
+    else:
+        raise ValueError(f"unknown stress fault '{fault}' (one of {', '.join([*STRESS_FAULTS, 'all'])})")
+    return DemoSceneConfig(**{**_NO_FAULTS, **changes, "path_views": path_views})
 
 
 def scene_key(cfg: DemoSceneConfig) -> str:
@@ -189,11 +236,10 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
     frames, point_sets = [], []
     for i in range(cfg.num_frames):
         c2w = camera_to_world(i, cfg)
-        temp, depth = render_view(c2w, cfg)
-        clean = COUNTS_AT_0C + COUNTS_PER_C * temp
+        clean, depth = _clean_counts(c2w, cfg)
         signal = (clean - COUNTS_AT_0C) * faults["vignetting"]
         observed = COUNTS_AT_0C + faults["offset"][i] + faults["gain"][i] * signal + faults["columns"]
-        observed = observed + cfg.noise_counts * rng.standard_normal(observed.shape)
+        observed = faults["outlier"][i] * (observed + cfg.noise_counts * rng.standard_normal(observed.shape))
         name = f"frame_{i:05d}.png"
         cv2.imwrite(str(tmp / "images" / name), np.clip(np.round(observed), 0, 65535).astype(np.uint16))
         cv2.imwrite(str(tmp / "ground_truth" / name), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
@@ -208,6 +254,15 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
         )
         if i % cfg.eval_every != 0:  # SfM-like points only from training views
             point_sets.append(_surface_points(c2w, cfg, rng, cfg.num_points // cfg.num_frames + 1))
+    path = []
+    if cfg.path_views > 0:
+        (tmp / "path").mkdir()
+        for k, index in enumerate(np.linspace(0, cfg.num_frames - 1, cfg.path_views)):
+            c2w = camera_to_world(index, cfg)
+            clean, depth = _clean_counts(c2w, cfg)
+            cv2.imwrite(str(tmp / "path" / f"path_{k:05d}.png"), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
+            np.save(tmp / "path" / f"path_{k:05d}_depth.npy", depth.astype(np.float32))
+            path.append({"file_path": f"path/path_{k:05d}.png", "depth_npy_path": f"path/path_{k:05d}_depth.npy", "frame": float(index), "transform_matrix": c2w.tolist()})
     points = np.concatenate(point_sets)[: cfg.num_points]
     _write_points_ply(tmp / "sparse_pc.ply", points)
     names = [f["file_path"] for f in frames]
@@ -231,7 +286,8 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
             "high": COUNTS_AT_0C + 40.0 * COUNTS_PER_C,
             "dtype": "uint16",
         },
-        "thermal_demo": {"key": key, "config": asdict(cfg), "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset")}},
+        "path": path,
+        "thermal_demo": {"key": key, "config": asdict(cfg), "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset", "outlier")}},
     }
     with open(tmp / "transforms.json", "w") as f:
         json.dump(meta, f, indent=1)
@@ -239,6 +295,13 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
         shutil.rmtree(out_dir)
     tmp.rename(out_dir)
     return out_dir
+
+
+def _clean_counts(c2w: np.ndarray, cfg: DemoSceneConfig) -> Tuple[np.ndarray, np.ndarray]:
+    """Fault-free counts [H, W] (contrast applied) and depth [H, W] of a view."""
+    temp, depth = render_view(c2w, cfg)
+    temp = 12.0 + cfg.contrast * (temp - 12.0)
+    return COUNTS_AT_0C + COUNTS_PER_C * temp, depth
 
 
 def _surface_points(c2w: np.ndarray, cfg: DemoSceneConfig, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -249,6 +312,7 @@ def _surface_points(c2w: np.ndarray, cfg: DemoSceneConfig, rng: np.random.Genera
     dirs = d_cam @ c2w[:3, :3].T
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
     temp, dist, pts = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
+    temp = 12.0 + cfg.contrast * (temp - 12.0)
     keep = np.isfinite(dist)
     pts = pts[keep] + 0.02 * rng.standard_normal((int(keep.sum()), 3))
     return np.concatenate([pts, (COUNTS_AT_0C + COUNTS_PER_C * temp[keep])[:, None]], -1)
