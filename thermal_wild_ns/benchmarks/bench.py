@@ -147,7 +147,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
 
 
 def _model_megabytes(model) -> float:
-    return sum(t.numel() * t.element_size() for t in model.state_dict().values()) / 2**20
+    return sum(t.numel() * t.element_size() for t in model.state_dict().values() if isinstance(t, torch.Tensor)) / 2**20
 
 
 def run_one(method: str, scene: str, args: BenchArgs) -> Dict:

@@ -79,6 +79,9 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     """Where processed frames and LUTs are cached (keyed by data and parameters)."""
     grey_rgb: bool = False
     """Give frames as 3 equal channels, for RGB models (stock splatfacto as a baseline)."""
+    train_order_seed: int = 0
+    """Training frames are visited in a fresh permutation per pass, drawn from (this seed, pass
+    number): the order is a function of the step, so a resumed run sees what the uninterrupted one would."""
 
 
 class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
@@ -99,6 +102,16 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
         outputs.metadata["preprocessed"] = self.preprocessed
         outputs.metadata["grey_rgb"] = self.config.grey_rgb
         return outputs
+
+    def train_index_at(self, step: int) -> int:
+        """The training image of `step` (no state: the same after a resume)."""
+        count = len(self.train_dataset)
+        epoch, position = divmod(step, count)
+        return int(np.random.default_rng([self.config.train_order_seed, epoch]).permutation(count)[position])
+
+    def next_train(self, step: int):
+        self.train_unseen_cameras = [self.train_index_at(step)]  # what nerfstudio's next_train pops
+        return super().next_train(step)
 
     def create_train_dataset(self) -> ThermalDataset:
         return ThermalDataset(self._with_preprocessing(self.train_dataparser_outputs), scale_factor=self.config.camera_res_scale_factor)

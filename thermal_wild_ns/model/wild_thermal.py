@@ -366,6 +366,20 @@ class WildThermalModel(SplatfactoModel):
             self.last_train_loss = sum(losses.values()).detach()  # read by the divergence guard
         return losses
 
+    # The densification statistics and the global torch RNG (gsplat's splits sample from it) go into
+    # the checkpoint with the parameters, so a resumed run continues the same run.
+    def get_extra_state(self) -> dict:
+        state = {k: v for k, v in self.strategy_state.items() if v is not None}
+        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state()}
+
+    def set_extra_state(self, state: dict) -> None:
+        if not state:
+            return
+        for key, value in state.get("strategy_state", {}).items():
+            self.strategy_state[key] = value.to(self.device) if isinstance(value, Tensor) else value
+        if "torch_rng_state" in state:
+            torch.set_rng_state(state["torch_rng_state"])
+
     def step_post_backward(self, step):
         if getattr(self, "skip_densification_step", False):  # the guard skipped this step: no statistics from it
             self.skip_densification_step = False

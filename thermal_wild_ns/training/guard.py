@@ -127,6 +127,28 @@ class GuardedTrainer(Trainer):
 
         self.optimizers.optimizer_scaler_step_some = guarded_step_some
 
+    def _load_checkpoint(self) -> None:
+        super()._load_checkpoint()
+        self._rebind_optimizers()
+
+    def _rebind_optimizers(self) -> None:
+        """Point every optimizer at the model's current parameters.
+
+        Splatfacto's `load_state_dict` replaces each Gaussian parameter with a new tensor of the
+        checkpoint's size, after the optimizers were built on the old ones: without this, a resumed
+        run steps orphaned tensors (nerfstudio 1.1.5). The loaded optimizer state moves along."""
+        groups = self.pipeline.get_param_groups()
+        for name, optimizer in self.optimizers.optimizers.items():
+            if name not in groups:
+                continue
+            for group, new_params in zip(optimizer.param_groups, [groups[name]]):
+                for i, (old, new) in enumerate(zip(list(group["params"]), new_params)):
+                    if old is not new:
+                        if old in optimizer.state:
+                            optimizer.state[new] = optimizer.state.pop(old)
+                        group["params"][i] = new
+            self.optimizers.parameters[name] = groups[name]
+
     def train_iteration(self, step: int):
         self._step = step
         result = super().train_iteration(step)
