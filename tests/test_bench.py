@@ -53,3 +53,15 @@ def test_unknown_method_and_mode_are_refused(tmp_path):
         trainer_config("nerfacto", "demo", BenchArgs(output_dir=tmp_path), tmp_path)
     with pytest.raises(ValueError, match="unknown embedding mode 'best'"):
         evaluate(None, "best")  # type: ignore[arg-type]
+
+
+def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+
+    out = tmp_path / "bench"
+    result = main(BenchArgs(scenes=("stress:outlier",), methods=("wild-thermal-3dgs",), steps=30, eval_at=(30,), wild_steps=2, output_dir=out))
+    path = result["runs"][0]["path"]
+    assert path["views"] == 60 and 0.0 <= path["floater_fraction"] <= 1.0 and path["flicker_pixel_excess"] >= 0.0
+    assert "| wild-thermal-3dgs | " in (out / "bench.md").read_text().split("Stress scenes")[1]
+    strip = cv2.imread(str(out / "stress-outlier_path_strip.png"))
+    assert strip is not None and strip.shape[0] == 2 * 2 * 96  # ground truth + one method, each 2x 96 rows

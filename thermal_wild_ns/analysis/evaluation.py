@@ -127,3 +127,59 @@ def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     panel = np.concatenate([inferno(gt), inferno(pred), inferno(np.abs(pred - gt) * 5)], 1)  # x5: small errors visible
     scale = max(1, 384 // gt.shape[0])
     cv2.imwrite(str(path), cv2.resize(panel, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
+
+
+def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -> Dict:
+    """Renders along a generated scene's smooth camera path (`transforms.json` "path": clean views
+    with true depth) with the fixed embedding, scored with the stability measures. Preprocessed
+    renders are mapped back through the mean training LUT (no frame was captured there).
+    Returns the means, the flicker measures, and the renders and ground truth at `keep_frames`
+    (original space; `kept`, `kept_truth`)."""
+    import json
+
+    from nerfstudio.cameras.cameras import Cameras, CameraType
+
+    from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction
+
+    meta = json.loads((Path(scene_root) / "transforms.json").read_text())
+    if not meta.get("path"):
+        raise ValueError(f"{scene_root}/transforms.json: no 'path' views (generate the scene with path_views > 0)")
+    model, datamanager = pipeline.model, pipeline.datamanager
+    outputs_meta = datamanager.train_dataparser_outputs
+    transform, scale = outputs_meta.dataparser_transform.float(), float(outputs_meta.dataparser_scale)
+    reference = datamanager.train_dataset.cameras[0]
+    sequence = getattr(datamanager, "preprocessed", None)
+    train_frames = list(datamanager.train_dataset.metadata["frame_indices"])
+    rng = datamanager.train_dataset.thermal_range
+    pipeline.eval()
+    preds, gts, rows, kept, kept_truth = [], [], [], {}, {}
+    for k, view in enumerate(meta["path"]):
+        c2w = torch.tensor(view["transform_matrix"], dtype=torch.float32)
+        c2w = transform @ c2w  # [3, 4]
+        c2w[:3, 3] *= scale
+        camera = Cameras(
+            camera_to_worlds=c2w[None], fx=reference.fx[None], fy=reference.fy[None], cx=reference.cx[None], cy=reference.cy[None],
+            width=reference.width[None], height=reference.height[None], camera_type=CameraType.PERSPECTIVE,
+        ).to(model.device)
+        with torch.no_grad():
+            outputs = model.get_outputs_for_camera(camera)
+        pred = (outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(-1, keepdim=True))[..., 0].float().cpu().numpy()
+        if sequence is not None:
+            pred = sequence.to_original_normalised(pred, train_frames).astype(np.float32)
+        gt = rng.read(Path(scene_root) / view["file_path"])
+        true_depth = np.load(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's
+        depth = outputs["depth"][..., 0].float().cpu().numpy()
+        alpha = outputs["accumulation"][..., 0].float().cpu().numpy()
+        rows.append({
+            **_scores(pred, gt),
+            "floater_fraction": floater_fraction(depth, alpha, true_depth),
+            "error_exceedance": error_exceedance(pred, gt, 0.1),
+            "background_error": background_error(pred, gt, true_depth),
+        })
+        preds.append(pred)
+        gts.append(gt)
+        if k in keep_frames:
+            kept[k], kept_truth[k] = pred, gt
+    summary = {key: float(np.nanmean([r[key] for r in rows])) for key in rows[0]}
+    flickers = {f"flicker_{k}": v for k, v in flicker(preds, gts).items()}
+    return {**summary, **flickers, "views": len(rows), "kept": kept, "kept_truth": kept_truth}

@@ -32,7 +32,7 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401
-from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate
+from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
 
 VARIANTS = (
     "splatfacto",
@@ -44,6 +44,8 @@ VARIANTS = (
     "wild-thermal-emission-mlp",
     "wild-thermal",
 )
+STRIP_FRAMES = (10, 20, 30, 40, 50)
+"""Path views shown in the stress scenes' PNG strips (of 60)."""
 FULL_SCHEDULE = 30_000
 """Splatfacto's schedule (warm-up, refinement, opacity reset, split stop) is defined for this many
 steps; shorter runs scale it proportionally, the same for every method."""
@@ -52,7 +54,8 @@ steps; shorter runs scale it proportionally, the same for every method."""
 @dataclass
 class BenchArgs:
     scenes: Tuple[str, ...] = ("demo",)
-    """'demo' (the embedded scene) or dataset folders (any supported layout)."""
+    """'demo' (the embedded scene), 'stress:FAULT' (a stress scene, e.g. stress:outlier, stress:all;
+    these are also scored along their smooth camera path) or dataset folders (any supported layout)."""
     methods: Tuple[str, ...] = VARIANTS
     steps: int = 30_000
     eval_at: Tuple[int, ...] = (1000, 2000, 5000, 10000, 20000, 30000)
@@ -115,11 +118,12 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
-    dataparser = (
-        ThermalDemoDataParserConfig(data=args.output_dir / "demo-scene")
-        if scene == "demo"
-        else ThermalDataParserConfig(data=Path(scene), cache_dir=args.cache_dir or args.output_dir / "cache")
-    )
+    if scene == "demo":
+        dataparser = ThermalDemoDataParserConfig(data=args.output_dir / "demo-scene")
+    elif scene.startswith("stress:"):
+        dataparser = ThermalDemoDataParserConfig(data=args.output_dir / scene_name(scene), scene=scene.split(":", 1)[1])  # type: ignore[arg-type]
+    else:
+        dataparser = ThermalDataParserConfig(data=Path(scene), cache_dir=args.cache_dir or args.output_dir / "cache")
     if method == "splatfacto":
         config = copy.deepcopy(method_configs["splatfacto"])
         config.pipeline.datamanager = ThermalDatamanagerConfig(dataparser=dataparser, preprocessing=PhotometricConfig("none"), grey_rgb=True)
@@ -146,6 +150,10 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     return config
 
 
+def scene_name(scene: str) -> str:
+    return scene.replace(":", "-") if scene.startswith("stress:") else Path(scene).name
+
+
 def _model_megabytes(model) -> float:
     return sum(t.numel() * t.element_size() for t in model.state_dict().values() if isinstance(t, torch.Tensor)) / 2**20
 
@@ -153,7 +161,7 @@ def _model_megabytes(model) -> float:
 def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
     from nerfstudio.engine.callbacks import TrainingCallbackLocation
 
-    run_dir = args.output_dir / "runs" / Path(scene).name
+    run_dir = args.output_dir / "runs" / scene_name(scene)
     config = trainer_config(method, scene, args, run_dir)
     cuda = torch.cuda.is_available()
     if cuda:
@@ -183,12 +191,20 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         losses_finite = losses_finite and bool(torch.isfinite(loss))
         result = evaluate(pipeline, "fixed")
         curve.append({"step": stop, "seconds": round(seconds, 3), "psnr": result["psnr"], "gaussians": result["gaussians"]})
-        print(f"  {method} on {Path(scene).name}: step {stop}, {seconds:.1f} s, test PSNR {result['psnr']:.2f} dB, {result['gaussians']} Gaussians")
-    final = {mode: evaluate(pipeline, mode, args.output_dir / "renders" / Path(scene).name / method, wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
+        print(f"  {method} on {scene_name(scene)}: step {stop}, {seconds:.1f} s, test PSNR {result['psnr']:.2f} dB, {result['gaussians']} Gaussians")
+    final = {mode: evaluate(pipeline, mode, args.output_dir / "renders" / scene_name(scene), wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
+    path = None
+    if scene.startswith("stress:"):
+        path = evaluate_path(pipeline, config.pipeline.datamanager.dataparser.data, keep_frames=STRIP_FRAMES)
+        strips = args.output_dir / "strips" / scene_name(scene)
+        strips.mkdir(parents=True, exist_ok=True)
+        for name, frames in ((method, path.pop("kept")), ("0-ground-truth", path.pop("kept_truth"))):
+            np.save(strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16))
     trainer.save_checkpoint(args.steps - 1)
     return {
         "method": method,
-        "scene": Path(scene).name,
+        "scene": scene_name(scene),
+        "path": path,
         "steps": args.steps,
         "train_seconds": round(seconds, 2),
         "ms_per_step": round(1000 * seconds / args.steps, 3),
@@ -234,6 +250,23 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
     for r in done:
         mem = "—" if r["peak_gpu_memory_mb"] is None else f"{r['peak_gpu_memory_mb']:.0f}"
         lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} |")
+    stress = [r for r in runs if r["scene"].startswith("stress-")]
+    if stress:
+        faults = list(dict.fromkeys(r["scene"] for r in stress))
+        lines += ["", "Stress scenes along the smooth camera path (fixed embedding): PSNR dB / floater pixels % / excess flicker x1e3 (per pixel):", ""]
+        lines += ["| method | " + " | ".join(f[len("stress-"):] for f in faults) + " |", "|" + " --- |" * (len(faults) + 1)]
+        for m in dict.fromkeys(r["method"] for r in stress):
+            cells = []
+            for f in faults:
+                r = by.get((m, f))
+                if r is None:
+                    cells.append("—")
+                elif "failed" in r:
+                    cells.append("diverged" if "Diverged" in r["failed"] else "failed")
+                else:
+                    p = r["path"]
+                    cells.append(f"{p['psnr']:.2f} / {100 * p['floater_fraction']:.1f} / {1000 * p['flicker_pixel_excess']:.2f}")
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
     failed = [r for r in runs if "failed" in r]
     if failed:
         lines += ["", "Failed runs:", ""] + [f"- {r['method']} on {r['scene']}: {r['failed']}" for r in failed]
@@ -284,7 +317,7 @@ def main(args: BenchArgs) -> Dict:
             except (torch.OutOfMemoryError, RuntimeError, ValueError) as err:  # a method failing is a result, not the end of the bench
                 message = str(err).splitlines()[0][:300]
                 print(f"  {method} on {Path(scene).name} FAILED: {type(err).__name__}: {message}")
-                runs.append({"method": method, "scene": Path(scene).name, "steps": args.steps, "failed": f"{type(err).__name__}: {message}"})
+                runs.append({"method": method, "scene": scene_name(scene), "steps": args.steps, "failed": f"{type(err).__name__}: {message}"})
                 gc.collect()  # the failed trainer's tensors
                 if torch.cuda.is_available():
                     torch.cuda.empty_cache()
@@ -303,7 +336,25 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     (args.output_dir / "bench.json").write_text(json.dumps(result, indent=1))
     (args.output_dir / "bench.md").write_text(markdown(runs, scenes))
     chart(runs, scenes, args.output_dir / "speed_accuracy.png")
+    for folder in sorted((args.output_dir / "strips").glob("stress-*")) if (args.output_dir / "strips").is_dir() else []:
+        strip_png(folder, args.output_dir / f"{folder.name}_path_strip.png")
     return result
+
+
+def strip_png(folder: Path, path: Path) -> None:
+    """The ground truth, then one row per method: renders at STRIP_FRAMES along the path (inferno, original space)."""
+    import cv2
+
+    rows = []
+    for npy in sorted(folder.glob("*.npy")):
+        strip = np.load(npy).astype(np.float32)
+        row = cv2.applyColorMap((np.clip(strip, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
+        row = cv2.resize(row, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+        label = np.zeros((row.shape[0], 260, 3), np.uint8)
+        cv2.putText(label, npy.stem, (6, row.shape[0] // 2 + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+        rows.append(np.concatenate([label, row], axis=1))
+    if rows:
+        cv2.imwrite(str(path), np.concatenate(rows, axis=0))
 
 
 def entrypoint():

@@ -34,7 +34,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.data import layouts
 from thermal_wild_ns.data.capture import SeedPoints, ThermalCapture, ThermalFrame, fraction_split, interval_split, opencv_to_opengl, validate
-from thermal_wild_ns.data.demo_scene import generate_demo_scene
+from thermal_wild_ns.data.demo_scene import DemoSceneConfig, generate_demo_scene, stress_scene_config
 from thermal_wild_ns.data.thermal_io import RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
 
@@ -269,13 +269,16 @@ class ThermalDemoDataParserConfig(ThermalDataParserConfig):
     data: Path = DEMO_SCENE_DIR
     """Where the demo scene is generated (and read from)."""
     layout: LayoutName = "nerfstudio"
+    scene: Literal["demo", "clean", "outlier", "drift", "ffc", "vignetting", "fixed-pattern", "low-contrast", "sky", "all"] = "demo"
+    """'demo', or a stress scene: the same content with one fault ('all': every fault; 'clean': none)."""
 
 
 class ThermalDemo(ThermalDataParser):
     config: ThermalDemoDataParserConfig
 
     def capture(self) -> ThermalCapture:
-        generate_demo_scene(self.config.data)
+        scene = self.config.scene
+        generate_demo_scene(self.config.data, DemoSceneConfig() if scene == "demo" else stress_scene_config(scene))
         return super().capture()
 
 
