@@ -192,7 +192,8 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         result = evaluate(pipeline, "fixed")
         curve.append({"step": stop, "seconds": round(seconds, 3), "psnr": result["psnr"], "gaussians": result["gaussians"]})
         print(f"  {method} on {scene_name(scene)}: step {stop}, {seconds:.1f} s, test PSNR {result['psnr']:.2f} dB, {result['gaussians']} Gaussians")
-    final = {mode: evaluate(pipeline, mode, args.output_dir / "renders" / scene_name(scene), wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
+    renders = args.output_dir / "renders" / scene_name(scene) / method
+    final = {mode: evaluate(pipeline, mode, renders, wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
     path = None
     if scene.startswith("stress:"):
         path = evaluate_path(pipeline, config.pipeline.datamanager.dataparser.data, keep_frames=STRIP_FRAMES)
