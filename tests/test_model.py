@@ -147,3 +147,26 @@ def test_every_attribute_nerfstudio_tools_read_is_available():
     for name in dir(model):
         getattr(model, name)
     assert model.features_dc.shape == (model.num_points, 3) and model.shs_rest.shape == (model.num_points, 0, 3)
+
+
+def test_baked_emission_matches_and_is_invalidated():
+    """Outside training the emission MLP runs once per embedding and parameter state; the baked
+    render equals the unbaked one and follows any change of either."""
+    model, camera = make_model(), make_camera()
+    perturb_output_layers(model)  # a zero output layer would make every embedding render alike
+    model.eval()
+    with torch.enable_grad():  # autograd on: no baking, the MLP runs on every render
+        unbaked = model.get_outputs(camera)["thermal"].detach()
+    with torch.no_grad():
+        baked = model.get_outputs(camera)["thermal"]
+        first = model._baked[2]
+        assert model.get_outputs(camera)["thermal"].equal(baked) and model._baked[2] is first  # reused
+    torch.testing.assert_close(baked, unbaked, atol=1e-5, rtol=0)
+    with torch.no_grad():
+        model.emission_mlp.net[0].weight.add_(0.01)  # an optimizer step changes parameters in place
+        changed = model.get_outputs(camera)["thermal"]
+        assert model._baked[2] is not first and not changed.equal(baked)
+        second = model._baked[2]
+        model.embedding_override = torch.ones_like(model.frame_embed.weight[0])  # another embedding
+        model.get_outputs(camera)
+        assert model._baked[2] is not second

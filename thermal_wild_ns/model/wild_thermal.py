@@ -221,12 +221,31 @@ class WildThermalModel(SplatfactoModel):
         )
 
     def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
-        """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]."""
-        base = self.emission if ids is None else self.emission[ids]
+        """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]. Outside
+        training and autograd the MLP's output is baked: computed once per (frame embedding,
+        parameter state) and reused, so viewing costs what plain splatting costs."""
         if self.emission_mlp is None:
-            return base
+            return self.emission if ids is None else self.emission[ids]
+        if not self.training and not torch.is_grad_enabled():
+            emission = self.baked_emission(frame_embed)
+            return emission if ids is None else emission[ids]
+        base = self.emission if ids is None else self.emission[ids]
         embed = self.gauss_params["gauss_embed"]
         return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
+
+    def baked_emission(self, frame_embed: Tensor) -> Tensor:
+        """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], cached until
+        the embedding or any parameter it depends on changes (optimizer steps and densification
+        change the tensors' versions or identities)."""
+        tensors = [self.gauss_params["emission"], self.gauss_params["gauss_embed"], *self.emission_mlp.parameters()]
+        key = tuple((id(t), t._version) for t in tensors)
+        cached = getattr(self, "_baked", None)
+        if cached is not None and cached[0] == key and torch.equal(cached[1], frame_embed):
+            return cached[2]
+        with torch.no_grad():
+            emission = self.emission_mlp(self.emission, self.gauss_params["gauss_embed"], frame_embed)
+        self._baked = (key, frame_embed.detach().clone(), emission)
+        return emission
 
     @staticmethod
     def ray_directions(camera: Cameras, camera_to_world: Tensor, width: int, height: int) -> Tensor:
