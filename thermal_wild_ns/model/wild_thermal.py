@@ -163,8 +163,11 @@ class WildThermalModel(SplatfactoModel):
 
     @property
     def colors(self) -> Tensor:
-        """Grey RGB in [0, 1] per Gaussian (for nerfstudio's exporters and viewers)."""
-        return self.emission.clamp(0.0, 1.0).expand(-1, 3)
+        """Grey RGB in [0, 1] per Gaussian, for nerfstudio's exporters and viewers: the emission as
+        rendered outside training (MLP included, under the inference embedding)."""
+        with torch.no_grad():
+            emission = self.gaussian_emission(self.inference_embedding())
+        return emission.clamp(0.0, 1.0).expand(-1, 3)
 
     # splatfacto's SH accessors, which nerfstudio's viewer and exporters read: the grey emission
     # as the DC band and no higher bands (the model has no spherical harmonics)
@@ -206,6 +209,12 @@ class WildThermalModel(SplatfactoModel):
         weight = self.frame_embed.weight  # [F, Df]
         if self.training and camera.metadata is not None and "cam_idx" in camera.metadata:
             return weight[int(camera.metadata["cam_idx"])]
+        return self.inference_embedding()
+
+    def inference_embedding(self) -> Tensor:
+        """The frame embedding [Df] used outside training: `embedding_override` when set (evaluation
+        protocols), otherwise the configured `inference_embedding`."""
+        weight = self.frame_embed.weight  # [F, Df]
         if self.embedding_override is not None:  # set by evaluation protocols (interpolated / optimised)
             return self.embedding_override
         choice = self.config.inference_embedding
