@@ -170,3 +170,14 @@ def test_baked_emission_matches_and_is_invalidated():
         model.embedding_override = torch.ones_like(model.frame_embed.weight[0])  # another embedding
         model.get_outputs(camera)
         assert model._baked[2] is not second
+
+
+def test_mismatched_checkpoints_are_refused_with_the_reason():
+    state = make_model().state_dict()
+    with pytest.raises(ValueError, match=r"checkpoint has the emission MLP \(use_emission_mlp\) but this config disables it"):
+        make_model(use_emission_mlp=False).load_state_dict(dict(state))
+    with pytest.raises(ValueError, match=r"checkpoint lacks the background MLP"):
+        make_model().load_state_dict({k: v for k, v in state.items() if not k.startswith("background_mlp.")})
+    with pytest.raises(ValueError, match=r"checkpoint has 5 frame embeddings of size 16, this config 7 of size 16"):
+        make_model(frames=7).load_state_dict(dict(state))
+    make_model().load_state_dict(dict(state))  # a matching one loads

@@ -394,6 +394,29 @@ class WildThermalModel(SplatfactoModel):
             self.last_train_loss = sum(losses.values()).detach()  # read by the divergence guard
         return losses
 
+    def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
+        """Refuse checkpoints that do not fit this config, with the reason, before nerfstudio's
+        loader falls back to a non-strict load that would silently drop the MLPs or embeddings."""
+        parts = {
+            "emission MLP (use_emission_mlp)": ("emission_mlp.", self.emission_mlp is not None),
+            "per-Gaussian embeddings (use_emission_mlp)": ("gauss_params.gauss_embed", self.emission_mlp is not None),
+            "background MLP (use_background_mlp)": ("background_mlp.", self.background_mlp is not None),
+        }
+        for what, (prefix, wanted) in parts.items():
+            present = any(k.startswith(prefix) for k in state_dict)
+            if present != wanted:
+                raise ValueError(
+                    f"checkpoint {'has' if present else 'lacks'} the {what} but this config {'disables' if present else 'enables'} it: "
+                    "load it with the config it was trained with (its config.yml)"
+                )
+        frames = state_dict.get("frame_embed.weight")
+        if frames is not None and tuple(frames.shape) != tuple(self.frame_embed.weight.shape):
+            raise ValueError(
+                f"checkpoint has {frames.shape[0]} frame embeddings of size {frames.shape[1]}, this config "
+                f"{self.frame_embed.weight.shape[0]} of size {self.frame_embed.weight.shape[1]}: it was trained on other data or settings"
+            )
+        return super().load_state_dict(state_dict, strict=strict, **kwargs)
+
     # The densification statistics and the global torch RNG (gsplat's splits sample from it) go into
     # the checkpoint with the parameters, so a resumed run continues the same run.
     def get_extra_state(self) -> dict:
