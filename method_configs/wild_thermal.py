@@ -6,12 +6,12 @@ from __future__ import annotations
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
-from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
 from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.training.guard import GuardedTrainerConfig
 
@@ -49,7 +49,7 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
         max_num_iterations=30000,
         mixed_precision=False,
         machine=MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu"),
-        pipeline=VanillaPipelineConfig(
+        pipeline=ThermalPipelineConfig(
             datamanager=ThermalDatamanagerConfig(),
             model=WildThermalModelConfig(),
         ),

@@ -49,6 +49,14 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     state = torch.load(ckpt, map_location="cpu")  # weights_only default of torch >= 2.6
     assert "pipeline" in state
 
+    # ns-eval: the benchmark's protocol, saying which embedding mode it used
+    from nerfstudio.scripts.eval import ComputePSNR
+
+    ComputePSNR(load_config=config.get_base_dir() / "config.yml", output_path=tmp_path / "eval.json").main()
+    results = json.loads((tmp_path / "eval.json").read_text())["results"]
+    assert results["embedding_mode"] == "fixed" and results["views"] == 5 and "psnr_preprocessed" in results
+    assert results["psnr"] == pytest.approx(after["psnr"], abs=1e-4)  # what the protocol gives
+
     # ns-export gaussian-splat: every Gaussian, grey DC colour = the emission as rendered (MLP included)
     from nerfstudio.models.splatfacto import RGB2SH
     from nerfstudio.scripts.exporter import ExportGaussianSplat
