@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
@@ -59,18 +61,17 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
     )
 
 
-def ablation_trainer(
-    name: str, preprocessing: str, emission_mlp: bool, background_mlp: bool = False, paper_losses: bool = False
-) -> GuardedTrainerConfig:
-    """The same model and datamanager with the paper's ablation switches set."""
+def ablation_trainer(name: str, preprocessing: str, emission_mlp: bool) -> GuardedTrainerConfig:
+    """The same model and datamanager with the paper's ablation switches set: no background MLP,
+    L1 + plain SSIM, no alpha regulariser (those belong to the full method)."""
     config = wild_thermal_trainer()
     config.method_name = name
     config.pipeline.datamanager.preprocessing = PhotometricConfig(variant=preprocessing)  # type: ignore[arg-type]
     model = config.pipeline.model
     model.use_emission_mlp = emission_mlp
-    model.use_background_mlp = background_mlp
-    model.heat_aware_ssim = paper_losses
-    model.alpha_lambda = model.alpha_lambda if paper_losses else 0.0
+    model.use_background_mlp = False
+    model.heat_aware_ssim = False
+    model.alpha_lambda = 0.0
     return config
 
 
@@ -100,3 +101,13 @@ wild_thermal_3dgs_bbhe = ablation_methods["wild-thermal-3dgs-bbhe"]
 wild_thermal_3dgs_stab = ablation_methods["wild-thermal-3dgs-stab"]
 wild_thermal_3dgs_stab_bbhe = ablation_methods["wild-thermal-3dgs-stab-bbhe"]
 wild_thermal_emission_mlp = ablation_methods["wild-thermal-emission-mlp"]
+
+METHODS = {"wild-thermal": wild_thermal, **ablation_methods}
+"""Every method this plugin registers, by its `ns-train` name."""
+
+
+def method_trainer(name: str) -> GuardedTrainerConfig:
+    """A fresh copy of a registered method's config (to adapt without touching the registered one)."""
+    if name not in METHODS:
+        raise ValueError(f"unknown method '{name}' (one of {', '.join(METHODS)})")
+    return copy.deepcopy(METHODS[name].config)

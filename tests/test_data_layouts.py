@@ -5,7 +5,6 @@ same known cameras in its layout's convention; after parsing, a known 3D point m
 the pixel the true camera sees it at, in every layout and split.
 """
 
-from pathlib import Path
 
 import numpy as np
 import pytest

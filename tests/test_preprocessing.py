@@ -1,7 +1,6 @@
 """Photometric stabilization + BBHE: properties of the LUTs, the cached stage, the datamanager."""
 
 import itertools
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -9,7 +9,6 @@ a GPU, gsplat and a longer one. Outputs (under --output-dir):
 
 from __future__ import annotations
 
-import copy
 import json
 import time
 from dataclasses import dataclass
@@ -34,13 +33,10 @@ class DemoArgs:
 
 def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method: str = "wild-thermal"):
     """A registered method's config (`wild-thermal` or one of its ablations), scheduled for the small demo scene."""
-    from method_configs import wild_thermal as methods
+    from method_configs.wild_thermal import method_trainer
     from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 
-    specs = {"wild-thermal": methods.wild_thermal, **methods.ablation_methods}
-    if method not in specs:
-        raise ValueError(f"unknown method '{method}' (one of {', '.join(specs)})")
-    config = copy.deepcopy(specs[method].config)
+    config = method_trainer(method)
     config.output_dir = output_dir
     config.experiment_name = "demo"
     config.timestamp = "run"

@@ -4,7 +4,8 @@ preprocessing (the paper's Fig. 2/3 diagnostics).
 Reads any supported layout, runs the chosen preprocessing variant over the capture (capture
 order) and writes to `--output-dir`:
 - `diagnostics.json`: per-frame dI_t, tracked SIFT features per consecutive pair, the mean radial
-  power spectrum, the histogram, and a summary, each before and after;
+  power spectrum, the histogram, and a summary, each before and after; and the largest error (in
+  native levels) of mapping the processed frames back through their inverse LUTs;
 - `diagnostics.png`: the four panels (dI_t per frame, tracked features per frame pair, mean radial
   power spectrum, histogram), before vs after;
 - `frames.png`: a few frames before and after, on the dataset's one radiometric range.
@@ -15,7 +16,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Literal
+from typing import Dict, List
 
 import numpy as np
 import tyro
@@ -29,6 +30,7 @@ from thermal_wild_ns.analysis.diagnostics import (
     used_dynamic_range,
 )
 from thermal_wild_ns.data.dataparsers import LayoutName, ThermalDataParserConfig
+from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import preprocess
 
@@ -120,7 +122,7 @@ def _frames_png(raw: List[np.ndarray], processed: List[np.ndarray], path: Path, 
         for i in picks:
             h, w = frames[i].shape
             small = cv2.resize(frames[i], (tile_width, max(1, round(h * tile_width / w))), interpolation=cv2.INTER_AREA)
-            tiles.append(cv2.applyColorMap((np.clip(small, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO))
+            tiles.append(false_colour(small))
         return np.concatenate(tiles, 1)
 
     cv2.imwrite(str(path), np.concatenate([tile(raw), tile(processed)], 0))
@@ -140,6 +142,11 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         "frames": len(capture.frames),
         "radiometric_range": {"low": rng.low, "high": rng.high, "dtype": rng.dtype},
         "preprocessing": {"variant": args.preprocessing.variant, "alpha": args.preprocessing.alpha, "beta": args.preprocessing.beta},
+        # the stored processed frames mapped back through their inverse LUTs, against the raw frames
+        "lut_round_trip_max_levels": max(
+            float(np.abs(sequence.to_original_normalised(p, t) - r).max()) * (rng.high - rng.low) / sequence.grid.step
+            for t, (p, r) in enumerate(zip(processed, raw))
+        ),
         "before": _frames_stats(raw, native(raw), args.spectrum_frames),
         "after": _frames_stats(processed, native(processed), args.spectrum_frames),
     }

@@ -18,7 +18,7 @@ Models without frame embeddings render the same image in every mode.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Dict, List, Literal, Optional, Sequence
+from typing import Dict, List, Literal, Optional, Sequence, get_args
 
 import numpy as np
 import torch
@@ -26,7 +26,7 @@ import torch
 from thermal_wild_ns.model.losses import psnr, ssim
 
 EmbeddingMode = Literal["fixed", "interpolate", "wild"]
-EMBEDDING_MODES = ("fixed", "interpolate", "wild")
+EMBEDDING_MODES = get_args(EmbeddingMode)
 
 
 def interpolated_embedding(weight: torch.Tensor, train_frames: Sequence[int], frame: int) -> torch.Tensor:
@@ -101,8 +101,9 @@ def evaluate(
             if has_embedding:
                 model.embedding_override = None
         training_space_gt = batch["image"].float().mean(dim=-1).cpu().numpy()  # what the model was trained on
-        gt = dataset.thermal_range.read(dataset.image_filenames[image_idx])
-        pred = rendered if sequence is None else sequence.to_original_normalised(rendered, frame).astype(np.float32)
+        # the evaluation frame as cached (undistorted like the render), back in the original space
+        to_original = (lambda x: x) if sequence is None else (lambda x: sequence.to_original_normalised(x, frame).astype(np.float32))
+        gt, pred = to_original(training_space_gt), to_original(rendered)
         if mode == "wild":  # score only what the embedding did not see
             half = gt.shape[1] // 2
             pred, gt, rendered, training_space_gt = (x[:, half:] for x in (pred, gt, rendered, training_space_gt))
@@ -120,11 +121,10 @@ def evaluate(
 def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     import cv2
 
-    def inferno(x):
-        return cv2.applyColorMap((np.clip(x, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
+    from thermal_wild_ns.data.palettes import false_colour
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    panel = np.concatenate([inferno(gt), inferno(pred), inferno(np.abs(pred - gt) * 5)], 1)  # x5: small errors visible
+    panel = np.concatenate([false_colour(gt), false_colour(pred), false_colour(np.abs(pred - gt) * 5)], 1)  # x5: small errors visible
     scale = max(1, 384 // gt.shape[0])
     cv2.imwrite(str(path), cv2.resize(panel, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
 

@@ -23,7 +23,7 @@ import copy
 import gc
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
@@ -32,18 +32,11 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401
+from method_configs.wild_thermal import METHODS, method_trainer
 from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
 
-VARIANTS = (
-    "splatfacto",
-    "wild-thermal-3dgs",
-    "wild-thermal-3dgs-histeq",
-    "wild-thermal-3dgs-bbhe",
-    "wild-thermal-3dgs-stab",
-    "wild-thermal-3dgs-stab-bbhe",
-    "wild-thermal-emission-mlp",
-    "wild-thermal",
-)
+VARIANTS = ("splatfacto", *METHODS)
+"""Stock splatfacto and every method this plugin registers."""
 STRIP_FRAMES = (10, 20, 30, 40, 50)
 """Path views shown in the stress scenes' PNG strips (of 60)."""
 FULL_SCHEDULE = 30_000
@@ -111,7 +104,6 @@ def scale_schedule(model_config, steps: int) -> None:
 
 def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     """The method's registered config on this scene, with the shared bench schedule."""
-    from method_configs import wild_thermal as methods
     from nerfstudio.configs.method_configs import method_configs
 
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
@@ -128,10 +120,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
         config = copy.deepcopy(method_configs["splatfacto"])
         config.pipeline.datamanager = ThermalDatamanagerConfig(dataparser=dataparser, preprocessing=PhotometricConfig("none"), grey_rgb=True)
     else:
-        specs = {"wild-thermal": methods.wild_thermal, **methods.ablation_methods}
-        if method not in specs:
-            raise ValueError(f"unknown method '{method}' (one of {', '.join(VARIANTS)})")
-        config = copy.deepcopy(specs[method].config)
+        config = method_trainer(method)
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
             config.pipeline.model.max_gaussians = args.max_gaussians
@@ -346,10 +335,12 @@ def strip_png(folder: Path, path: Path) -> None:
     """The ground truth, then one row per method: renders at STRIP_FRAMES along the path (inferno, original space)."""
     import cv2
 
+    from thermal_wild_ns.data.palettes import false_colour
+
     rows = []
     for npy in sorted(folder.glob("*.npy")):
         strip = np.load(npy).astype(np.float32)
-        row = cv2.applyColorMap((np.clip(strip, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
+        row = false_colour(strip)
         row = cv2.resize(row, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
         label = np.zeros((row.shape[0], 260, 3), np.uint8)
         cv2.putText(label, npy.stem, (6, row.shape[0] // 2 + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)

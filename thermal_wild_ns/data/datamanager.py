@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Dict, Optional, Type
+from typing import Dict, List, Optional, Type
 
 import numpy as np
 import torch
@@ -103,14 +103,19 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
         outputs.metadata["grey_rgb"] = self.config.grey_rgb
         return outputs
 
-    def train_index_at(self, step: int) -> int:
-        """The training image of `step` (no state: the same after a resume)."""
-        count = len(self.train_dataset)
-        epoch, position = divmod(step, count)
-        return int(np.random.default_rng([self.config.train_order_seed, epoch]).permutation(count)[position])
+    def train_order(self, epoch: int) -> List[int]:
+        """The permutation of training images for pass `epoch` (a function of the seed and the pass only)."""
+        if getattr(self, "_order", (None,))[0] != epoch:
+            count = len(self.train_dataset)
+            self._order = (epoch, np.random.default_rng([self.config.train_order_seed, epoch]).permutation(count).tolist())
+        return self._order[1]
 
     def next_train(self, step: int):
-        self.train_unseen_cameras = [self.train_index_at(step)]  # what nerfstudio's next_train pops
+        # nerfstudio's next_train pops the head of `train_unseen_cameras`: make that the rest of this
+        # pass from `step` on, so the image is a function of the step and a resumed run sees what the
+        # uninterrupted one would (no per-step reshuffle: the list only refills at a pass's end)
+        epoch, position = divmod(step, len(self.train_dataset))
+        self.train_unseen_cameras = self.train_order(epoch)[position:]
         return super().next_train(step)
 
     def create_train_dataset(self) -> ThermalDataset:

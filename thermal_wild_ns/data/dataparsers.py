@@ -34,12 +34,16 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.data import layouts
 from thermal_wild_ns.data.capture import SeedPoints, ThermalCapture, ThermalFrame, fraction_split, interval_split, opencv_to_opengl, validate
-from thermal_wild_ns.data.demo_scene import DemoSceneConfig, generate_demo_scene, stress_scene_config
+from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, generate_demo_scene, stress_scene_config
+from thermal_wild_ns.data.palettes import PALETTE_NAMES
 from thermal_wild_ns.data.thermal_io import RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
 
 DEMO_SCENE_DIR = Path("outputs/thermal-demo-scene")
-LayoutName = Literal["auto", "thermalnerf", "nerfstudio", "ye", "msx", "thermalmix", "mvtv", "llff", "colmap", "ti-nsd"]
+# Choices derived from the registries they name (tyro turns them into --help choices)
+LayoutName = Literal[("auto", *layouts.LAYOUTS)]  # type: ignore[valid-type]
+PaletteName = Literal[("auto", *PALETTE_NAMES)]  # type: ignore[valid-type]
+SceneName = Literal[("demo", *STRESS_FAULTS, "all")]  # type: ignore[valid-type]
 
 
 @dataclass
@@ -56,7 +60,7 @@ class ThermalDataParserConfig(DataParserConfig):
     an evenly spaced `train_split_fraction`, or none held out ('all')."""
     eval_interval: int = 8
     train_split_fraction: float = 0.9
-    palette: Literal["auto", "grey", "iron", "inferno", "jet"] = "auto"
+    palette: PaletteName = "auto"
     """Palette of colour-mapped frames; 'auto' uses the layout's or detects it."""
     range_percentiles: Tuple[float, float] = (0.1, 99.9)
     """Percentiles of all pixels of all frames mapped to 0 and 1 when the dataset declares no range."""
@@ -135,6 +139,8 @@ class ThermalDataParser(DataParser):
         return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "thermal_wild_ns" / f"{root.name}-{digest}"
 
     def seed_points(self) -> SeedPoints:
+        """Gaussian seeds in the capture's world frame, each with a value in native units (from the
+        seeds' source, or sampled from the training frames that see it), computed once."""
         if self._seeds is None:
             capture, route = self.capture(), self.config.seed_points
             train = [f for f in capture.frames if f.split == "train"]
@@ -148,7 +154,8 @@ class ThermalDataParser(DataParser):
                 xyz, report = cached_triangulation(train, self.radiometric_range(), cache, self.config.triangulation)
                 CONSOLE.log(
                     f"triangulated {report['points']} points from {report['frames']} training frames with the known "
-                    f"poses: median reprojection error {report['reprojection_error_px_median']} px (cache: {cache})"
+                    f"poses: median reprojection error {report['reprojection_error_px_median']} px, "
+                    f"{report.get('seconds', '?')} s (cache: {cache})"
                 )
                 if len(xyz) >= 4:
                     seeds = SeedPoints(xyz=xyz, source="triangulated")
@@ -156,6 +163,10 @@ class ThermalDataParser(DataParser):
                     raise ValueError(f"{capture.root}: triangulation found only {len(xyz)} points (SIFT finds too little texture)")
             if seeds is None:
                 seeds = SeedPoints(xyz=random_view_volume_points(train, self.config.num_random_points), source="random")
+            if seeds.values is None:  # sample the frames once; train and eval outputs share the seeds
+                rng = self.radiometric_range()
+                values = sample_point_values(seeds.xyz, train, rng)
+                seeds = SeedPoints(xyz=seeds.xyz, source=seeds.source, values=rng.low + values * (rng.high - rng.low))
             CONSOLE.log(f"Gaussian seeds: {len(seeds.xyz)} points ({seeds.source})")
             self._seeds = seeds
         return self._seeds
@@ -203,7 +214,7 @@ class ThermalDataParser(DataParser):
         seeds = self.seed_points()
         xyz = torch.from_numpy(seeds.xyz).float()
         xyz = (torch.cat([xyz, torch.ones_like(xyz[:, :1])], -1) @ transform.T) * scale
-        values = rng.normalize(seeds.values) if seeds.values is not None else sample_point_values(seeds.xyz, [f for f in frames if f.split == "train"], rng)
+        values = rng.normalize(seeds.values)
         metadata["points3D_xyz"] = xyz
         metadata["points3D_rgb"] = torch.from_numpy((np.clip(values, 0.0, 1.0) * 255).astype(np.uint8))[:, None].repeat(1, 3)
         metadata["seed_points"] = {"source": seeds.source, "count": len(seeds.xyz)}
@@ -269,7 +280,7 @@ class ThermalDemoDataParserConfig(ThermalDataParserConfig):
     data: Path = DEMO_SCENE_DIR
     """Where the demo scene is generated (and read from)."""
     layout: LayoutName = "nerfstudio"
-    scene: Literal["demo", "clean", "outlier", "drift", "ffc", "vignetting", "fixed-pattern", "low-contrast", "sky", "all"] = "demo"
+    scene: SceneName = "demo"
     """'demo', or a stress scene: the same content with one fault ('all': every fault; 'clean': none)."""
 
 

@@ -68,6 +68,11 @@ def apply_palette(levels: np.ndarray, name: str) -> np.ndarray:
     return palette_rgb(name)[levels]
 
 
+def false_colour(values: np.ndarray, name: str = "inferno") -> np.ndarray:
+    """Normalised values [H, W] (clipped to [0, 1]) -> BGR uint8 [H, W, 3] in a palette, ready for cv2.imwrite."""
+    return np.ascontiguousarray(apply_palette((np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8), name)[..., ::-1])
+
+
 def invert_palette(rgb: np.ndarray, name: str) -> Tuple[np.ndarray, np.ndarray]:
     """Nearest palette level of every pixel: levels uint8 [H, W] and RGB distances float32 [H, W]."""
     distance, index = _tree(name).query(rgb.reshape(-1, 3).astype(np.float32))

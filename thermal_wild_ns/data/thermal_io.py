@@ -20,13 +20,9 @@ from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 
 
-def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
-    """One thermal frame as a 2D array in its native units and dtype ([H, W]).
-
-    8/16-bit PNG/TIFF/JPG and float `.npy` arrays. A 3-channel grey image (all channels equal) is
-    read as grey; a colour-mapped one is inverted to its palette levels (uint8) with `palette`,
-    or with the detected palette when `palette` is None (see `palettes.py`).
-    """
+def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
+    """The file's pixels, a grey 3-channel image collapsed to [H, W]; and whether it is a
+    colour-mapped frame (then RGB uint8 [H, W, 3])."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: thermal frame not found")
@@ -44,11 +40,23 @@ def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
     if image.ndim == 3 and image.shape[2] in (1, 3, 4):
         image = image[..., :3]
         if np.all(image[..., :1] == image):
-            image = image[..., 0]
-        elif image.dtype != np.uint8:
+            return image[..., 0], False
+        if image.dtype != np.uint8:
             raise ValueError(f"{path}: {image.dtype} colour image; colour-mapped frames must be 8-bit")
-        else:
-            image = decode_colour_frame(image[..., ::-1], path, palette)  # OpenCV reads BGR
+        return image[..., ::-1], True  # OpenCV reads BGR
+    return image, False
+
+
+def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
+    """One thermal frame as a 2D array in its native units and dtype ([H, W]).
+
+    8/16-bit PNG/TIFF/JPG and float `.npy` arrays. A 3-channel grey image (all channels equal) is
+    read as grey; a colour-mapped one is inverted to its palette levels (uint8) with `palette`,
+    or with the detected palette when `palette` is None (see `palettes.py`).
+    """
+    image, colour = _stored_frame(path)
+    if colour:
+        image = decode_colour_frame(image, Path(path), palette)
     if image.ndim != 2:
         raise ValueError(f"{path}: expected a 2D thermal frame, got shape {image.shape}")
     if image.dtype not in (np.uint8, np.uint16) and not np.issubdtype(image.dtype, np.floating):
@@ -58,10 +66,8 @@ def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
 
 def frame_palette(path: Path) -> Optional[str]:
     """The palette of a colour-mapped frame (detected), or None for a scalar frame."""
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if Path(path).suffix.lower() in IMAGE_SUFFIXES else None
-    if image is None or image.ndim != 3 or image.dtype != np.uint8 or np.all(image[..., :1] == image[..., :3]):
-        return None
-    return detect_palette(image[..., 2::-1], Path(path))
+    image, colour = _stored_frame(path)
+    return detect_palette(image, Path(path)) if colour else None
 
 
 @dataclass(frozen=True)

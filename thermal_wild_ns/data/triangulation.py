@@ -18,6 +18,7 @@ import hashlib
 import json
 import shutil
 import tempfile
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, Sequence, Tuple
@@ -187,7 +188,9 @@ def cached_triangulation(
     Path(cache_root).mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=".triangulation-", dir=cache_root))
     try:
+        start = time.perf_counter()
         xyz, errors, report = triangulate(frames, radiometric_range, work, config)
+        report["seconds"] = round(time.perf_counter() - start, 1)
         np.save(work / "points.npy", xyz)
         np.save(work / "reprojection_errors.npy", errors)
         (work / "report.json").write_text(json.dumps(report, indent=1))

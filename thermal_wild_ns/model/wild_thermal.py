@@ -14,7 +14,6 @@ Outside training the frame embedding is fixed (`inference_embedding`), so render
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple, Type, Union
 
@@ -122,6 +121,8 @@ class WildThermalModel(SplatfactoModel):
         self.frame_embed = nn.Embedding(num_frames, cfg.frame_embed_dim)
         self.embedding_override: Optional[Tensor] = None
         """Frame embedding [Df] to render with outside training, instead of `inference_embedding`."""
+        self.last_train_loss: Optional[Tensor] = None  # read by the divergence guard (training/guard.py) ...
+        self.skip_densification_step = False  # ... which sets this when it skips a step
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
             EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
@@ -432,7 +433,7 @@ class WildThermalModel(SplatfactoModel):
             torch.set_rng_state(state["torch_rng_state"])
 
     def step_post_backward(self, step):
-        if getattr(self, "skip_densification_step", False):  # the guard skipped this step: no statistics from it
+        if self.skip_densification_step:  # the guard skipped this step: no statistics from it
             self.skip_densification_step = False
             return
         super().step_post_backward(step)

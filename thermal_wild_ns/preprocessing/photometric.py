@@ -24,12 +24,12 @@ sequence beyond the LUTs themselves.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Iterator, Literal, Optional
+from typing import Iterable, Iterator, Literal, Optional, get_args
 
 import numpy as np
 
 Variant = Literal["none", "histeq", "bbhe", "stab", "stab+bbhe"]
-VARIANTS = ("none", "histeq", "bbhe", "stab", "stab+bbhe")
+VARIANTS = get_args(Variant)
 MIN_STEP = 0.05
 """Smallest rise of a LUT from one level to the next, in levels (ties of empty levels are broken by it).
 Large enough that processed frames stored as float32 still resolve every level (float data sits

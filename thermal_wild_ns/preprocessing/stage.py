@@ -14,9 +14,9 @@ import hashlib
 import json
 import shutil
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import List, Optional, Sequence, Union
+from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 from tqdm import tqdm
@@ -36,6 +36,7 @@ class PreprocessedSequence:
     grid: LevelGrid
     radiometric_range: RadiometricRange
     config: PhotometricConfig
+    _mean_luts: Dict[tuple, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def luts(self) -> np.ndarray:
@@ -47,8 +48,13 @@ class PreprocessedSequence:
 
     def lut(self, index: Union[int, Sequence[int]]) -> np.ndarray:
         """Frame `index`'s LUT, or the mean of several frames' LUTs (still strictly increasing): a
-        canonical scale for a view no frame was captured at."""
-        return np.asarray(self.luts[index]) if isinstance(index, int) else np.asarray(self.luts[list(index)]).mean(axis=0)
+        canonical scale for a view no frame was captured at. Means are computed once per set."""
+        if isinstance(index, int):
+            return np.asarray(self.luts[index])
+        key = tuple(index)
+        if key not in self._mean_luts:
+            self._mean_luts[key] = np.asarray(self.luts[list(key)]).mean(axis=0)
+        return self._mean_luts[key]
 
     def to_native(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
         """Processed values in the normalised scale -> original native values, through `lut(index)`'s inverse."""

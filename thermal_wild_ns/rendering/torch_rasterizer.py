@@ -26,7 +26,6 @@ import math
 from typing import Dict, Literal, Optional, Tuple
 
 import torch
-import torch.nn.functional as F
 from gsplat.cuda._torch_impl import (
     _fisheye_proj,
     _ortho_proj,

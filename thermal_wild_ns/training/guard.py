@@ -11,6 +11,7 @@ Gaussians are gone or transparent, or when too many steps in a row had to be ski
 from __future__ import annotations
 
 import collections
+import math
 from dataclasses import dataclass, field
 from typing import Deque, List, Optional, Type
 
@@ -56,23 +57,27 @@ class DivergenceGuard:
         self.consecutive = 0
 
     def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str]) -> Optional[str]:
-        """Why this step must be skipped, or None."""
+        """Why this step must be skipped, or None. One host sync for the whole check."""
+        grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
+        checks = ([loss.detach().float().reshape(1)] if loss is not None else []) + [
+            torch.isfinite(grad).all().float().reshape(1) for _, grad in grads
+        ]
+        if not checks:
+            return None
+        values = torch.cat([c.to(checks[0].device) for c in checks]).tolist()
         if loss is not None:
-            value = float(loss)
-            if not torch.isfinite(loss):
+            value = values.pop(0)
+            if not math.isfinite(value):
                 return f"non-finite loss ({value})"
             if len(self.recent) == self.recent.maxlen:
                 median = sorted(self.recent)[len(self.recent) // 2]
                 if value > self.config.loss_spike_factor * median:
                     return f"loss spike ({value:.4g} > {self.config.loss_spike_factor:g} x recent median {median:.4g})"
-        grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
-        if grads:
-            finite = torch.stack([torch.isfinite(grad).all() for _, grad in grads])
-            if not bool(finite.all()):
-                bad = sorted({g for (g, _), ok in zip(grads, finite.tolist()) if not ok})
-                return f"non-finite gradients in {', '.join(bad)}"
+        bad = sorted({g for (g, _), ok in zip(grads, values) if not ok})
+        if bad:
+            return f"non-finite gradients in {', '.join(bad)}"
         if loss is not None:
-            self.recent.append(float(loss))
+            self.recent.append(value)
         return None
 
     def record(self, step: int, reason: Optional[str]) -> None:
@@ -89,8 +94,10 @@ class DivergenceGuard:
             )
 
     def check_model(self, model, step: int) -> None:
-        for name, param in model.named_parameters():
-            if not bool(torch.isfinite(param).all()):
+        named = [(name, param) for name, param in model.named_parameters() if param.numel() > 0]
+        finite = torch.stack([torch.isfinite(param).all() for _, param in named]).tolist()  # one host sync
+        for (name, _), ok in zip(named, finite):
+            if not ok:
                 raise TrainingDiverged(f"step {step}: parameter '{name}' holds NaN/inf values; training has diverged")
         if hasattr(model, "num_points"):
             if model.num_points == 0:
@@ -141,12 +148,12 @@ class GuardedTrainer(Trainer):
         for name, optimizer in self.optimizers.optimizers.items():
             if name not in groups:
                 continue
-            for group, new_params in zip(optimizer.param_groups, [groups[name]]):
-                for i, (old, new) in enumerate(zip(list(group["params"]), new_params)):
-                    if old is not new:
-                        if old in optimizer.state:
-                            optimizer.state[new] = optimizer.state.pop(old)
-                        group["params"][i] = new
+            params = optimizer.param_groups[0]["params"]  # nerfstudio: one param group per optimizer
+            for i, (old, new) in enumerate(zip(list(params), groups[name])):
+                if old is not new:
+                    if old in optimizer.state:
+                        optimizer.state[new] = optimizer.state.pop(old)
+                    params[i] = new
             self.optimizers.parameters[name] = groups[name]
 
     def train_iteration(self, step: int):
