@@ -7,7 +7,6 @@ import copy
 
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
-from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
@@ -16,6 +15,7 @@ from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.training.guard import GuardedTrainerConfig
+from thermal_wild_ns.training.optimizers import FusedAdamOptimizerConfig
 
 # Paper: Adam with weight decay, separate learning rates for geometry, opacity and appearance,
 # no schedule. Weight decay applies to the appearance networks and embeddings, never to geometry.
@@ -23,7 +23,7 @@ _APPEARANCE_WEIGHT_DECAY = 1e-6
 
 
 def _adam(lr: float, weight_decay: float = 0.0) -> dict:
-    return {"optimizer": AdamOptimizerConfig(lr=lr, eps=1e-15, weight_decay=weight_decay), "scheduler": None}
+    return {"optimizer": FusedAdamOptimizerConfig(lr=lr, eps=1e-15, weight_decay=weight_decay), "scheduler": None}
 
 
 def wild_thermal_optimizers() -> dict:

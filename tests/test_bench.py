@@ -2,6 +2,7 @@
 writes, not the numbers. Plus the evaluation protocol's pieces."""
 
 import json
+from pathlib import Path
 
 import cv2
 import pytest
@@ -23,7 +24,7 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     from thermal_wild_ns.benchmarks.bench import BenchArgs, main
 
     out = tmp_path / "bench"
-    main(BenchArgs(methods=("wild-thermal-3dgs", "wild-thermal"), steps=200, eval_at=(100, 200), wild_steps=3, output_dir=out))
+    main(BenchArgs(methods=("wild-thermal-3dgs", "wild-thermal"), steps=200, eval_at=(100, 200), wild_steps=3, fps_frames=2, output_dir=out))
     result = json.loads((out / "bench.json").read_text())
     assert [r["method"] for r in result["runs"]] == ["wild-thermal-3dgs", "wild-thermal"]
     for run in result["runs"]:
@@ -32,6 +33,11 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
         assert set(run["final"]) == {"fixed", "interpolate", "wild"}
         assert run["ms_per_step"] > 0 and run["gaussians"] > 0 and run["model_mb"] > 0
         assert len(run["final"]["fixed"]["per_view"]) == 5
+        assert Path(run["config"]).is_file()  # ns-eval / ns-render can load the trained run
+    # render speed: baked vs unbaked only where there is an emission MLP to bake
+    assert set(result["runs"][0]["render_fps"]) == {"baked", "splat_only"}
+    assert set(result["runs"][1]["render_fps"]) == {"baked", "unbaked", "splat_only"}
+    assert all(v > 0 for v in result["runs"][1]["render_fps"].values())
     # the full method is preprocessed: its preprocessed-space numbers are reported beside
     assert "psnr_preprocessed" in result["runs"][1]["final"]["fixed"]
     table = (out / "bench.md").read_text()
@@ -59,7 +65,7 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
     from thermal_wild_ns.benchmarks.bench import BenchArgs, main
 
     out = tmp_path / "bench"
-    result = main(BenchArgs(scenes=("stress:outlier",), methods=("wild-thermal-3dgs",), steps=30, eval_at=(30,), wild_steps=2, output_dir=out))
+    result = main(BenchArgs(scenes=("stress:outlier",), methods=("wild-thermal-3dgs",), steps=30, eval_at=(30,), wild_steps=2, fps_frames=0, output_dir=out))
     path = result["runs"][0]["path"]
     assert path["views"] == 60 and 0.0 <= path["floater_fraction"] <= 1.0 and path["flicker_pixel_excess"] >= 0.0
     assert "| wild-thermal-3dgs | " in (out / "bench.md").read_text().split("Stress scenes")[1]

@@ -181,3 +181,58 @@ def test_mismatched_checkpoints_are_refused_with_the_reason():
     with pytest.raises(ValueError, match=r"checkpoint has 5 frame embeddings of size 16, this config 7 of size 16"):
         make_model(frames=7).load_state_dict(dict(state))
     make_model().load_state_dict(dict(state))  # a matching one loads
+
+
+def test_background_is_cached_per_training_camera_and_smooth_enough_for_its_grid():
+    model = make_model()
+    perturb_output_layers(model)
+    model.train()
+    camera = make_camera(2, width=160, height=128)
+    camera.fx[:] = camera.fy[:] = 200.0  # a 44 degree field of view, like DUNR's
+    K, c2w = camera.get_intrinsics_matrices()[0], camera.camera_to_worlds[0]
+    embed = model.frame_embed.weight[2]
+    with torch.no_grad():
+        fresh = model.background(K, c2w, embed, 160, 128)
+        cached = model.background(K, c2w, embed, 160, 128, cam_idx=2)
+        assert (2, 160, 128) in model._encoded_directions
+        again = model.background(K, c2w, embed, 160, 128, cam_idx=2)
+        model.config.background_stride = 1
+        full = model.background(K, c2w, embed, 160, 128)
+    assert torch.equal(fresh, cached) and torch.equal(cached, again)
+    assert fresh.shape == full.shape == (128, 160, 1)
+    spread = float(full.max() - full.min())
+    assert spread > 0 and float((fresh - full).abs().max()) < 0.05 * spread
+
+
+def test_ssim_matches_pytorch_msssim():
+    from pytorch_msssim import ssim as reference
+
+    from thermal_wild_ns.model.losses import ssim
+
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(40, 56, 1, generator=g)
+    y = (x + 0.1 * torch.randn(40, 56, 1, generator=g)).clamp(0, 1)
+    expected = reference(x.permute(2, 0, 1)[None], y.permute(2, 0, 1)[None], data_range=1.0, size_average=True)
+    assert abs(float(ssim(x, y)) - float(expected)) < 1e-5
+
+
+def test_sync_free_densification_statistics_equal_gsplats():
+    from gsplat.strategy import DefaultStrategy
+
+    from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
+
+    g = torch.Generator().manual_seed(3)
+    n = 500
+    params = {"means": torch.zeros(n, 3)}
+    ours, theirs = (cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy))
+    states = [s.initialize_state() for s in (ours, theirs)]
+    for _ in range(3):  # accumulates over steps, as in training
+        means2d = torch.zeros(1, n, 2)
+        means2d.absgrad = torch.rand(1, n, 2, generator=g)
+        radii = (torch.rand(1, n, generator=g) * 20).int() * (torch.rand(1, n, generator=g) > 0.4)
+        info = {"width": 64, "height": 48, "n_cameras": 1, "radii": radii, "gaussian_ids": None, "means2d": means2d}
+        for strategy, state in zip((ours, theirs), states):
+            strategy._update_state(params, state, info)
+    for key in ("grad2d", "count", "radii"):
+        assert torch.equal(states[0][key], states[1][key]), key
+    assert states[0]["count"].max() > 0

@@ -19,6 +19,12 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     config.save_config()
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
+    # training cameras reach the model on the host, the datamanager's own (undistorted) cameras
+    datamanager = trainer.pipeline.datamanager
+    camera, batch = datamanager.next_train(0)
+    idx = camera.metadata["cam_idx"]
+    assert camera.device.type == "cpu" and torch.equal(camera.camera_to_worlds, datamanager.train_cameras[idx : idx + 1].camera_to_worlds.cpu())
+    assert torch.equal(camera.fx, datamanager.train_cameras[idx : idx + 1].fx.cpu()) and batch["image"].shape[:2] == (camera.height, camera.width)
     before = evaluate(trainer.pipeline)
     losses = []
     model = trainer.pipeline.model

@@ -34,6 +34,7 @@ import tyro
 import thermal_wild_ns.compat  # noqa: F401
 from method_configs.wild_thermal import METHODS, method_trainer
 from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
+from thermal_wild_ns.benchmarks.render_fps import measure_fps
 
 VARIANTS = ("splatfacto", *METHODS)
 """Stock splatfacto and every method this plugin registers."""
@@ -53,6 +54,9 @@ class BenchArgs:
     steps: int = 30_000
     eval_at: Tuple[int, ...] = (1000, 2000, 5000, 10000, 20000, 30000)
     """Steps at which test PSNR (fixed embedding) is recorded for the speed-accuracy chart."""
+    schedule: Optional[int] = None
+    """Length of run the densification schedule is laid out for (default: --steps, i.e. a short run
+    compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first 3000 steps of a full run."""
     max_gaussians: Optional[int] = None
     """Gaussian budget of the wild-thermal variants (default: their config's)."""
     wild_steps: int = 100
@@ -61,6 +65,9 @@ class BenchArgs:
     cache_dir: Optional[Path] = None
     """Triangulation / preprocessing cache (default: `output_dir/cache`); point it at a cache made
     elsewhere to skip triangulation (e.g. on a machine without pycolmap)."""
+    fps_frames: int = 300
+    """Frames rendered to measure each trained model's render speed (baked vs unbaked emission, as
+    `wild-thermal-render-fps`); 0 skips it."""
     seed: int = 0
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
@@ -118,7 +125,9 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
         dataparser = ThermalDataParserConfig(data=Path(scene), cache_dir=args.cache_dir or args.output_dir / "cache")
     if method == "splatfacto":
         config = copy.deepcopy(method_configs["splatfacto"])
-        config.pipeline.datamanager = ThermalDatamanagerConfig(dataparser=dataparser, preprocessing=PhotometricConfig("none"), grey_rgb=True)
+        config.pipeline.datamanager = ThermalDatamanagerConfig(
+            dataparser=dataparser, preprocessing=PhotometricConfig("none"), grey_rgb=True, host_cameras=False
+        )
     else:
         config = method_trainer(method)
         config.pipeline.datamanager.dataparser = dataparser
@@ -135,7 +144,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     config.save_only_latest_checkpoint = True
     config.machine.device_type = "cuda" if torch.cuda.is_available() else "cpu"
     config.machine.seed = args.seed
-    scale_schedule(config.pipeline.model, args.steps)
+    scale_schedule(config.pipeline.model, args.schedule or args.steps)
     return config
 
 
@@ -147,17 +156,38 @@ def _model_megabytes(model) -> float:
     return sum(t.numel() * t.element_size() for t in model.state_dict().values() if isinstance(t, torch.Tensor)) / 2**20
 
 
-def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
+def train_steps(trainer, start: int, stop: int) -> torch.Tensor:
+    """Steps [start, stop) exactly as `ns-train` runs them (callbacks included, no evaluation,
+    no logging); returns the last loss."""
     from nerfstudio.engine.callbacks import TrainingCallbackLocation
 
+    loss = torch.tensor(float("nan"))
+    for step in range(start, stop):
+        trainer.pipeline.train()
+        for callback in trainer.callbacks:
+            callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+        loss, _, _ = trainer.train_iteration(step)
+        for callback in trainer.callbacks:
+            callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+    return loss
+
+
+def setup_trainer(config):
+    """nerfstudio's Trainer for `config`, set up (LPIPS never built)."""
+    with no_lpips_download():
+        trainer = config.setup(local_rank=0, world_size=1)
+        trainer.setup()
+    return trainer
+
+
+def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
     run_dir = args.output_dir / "runs" / scene_name(scene)
     config = trainer_config(method, scene, args, run_dir)
     cuda = torch.cuda.is_available()
     if cuda:
         torch.cuda.reset_peak_memory_stats()
-    with no_lpips_download():
-        trainer = config.setup(local_rank=0, world_size=1)
-        trainer.setup()
+    config.save_config()  # ns-eval / ns-render / ns-viewer load the run from its config.yml
+    trainer = setup_trainer(config)
     pipeline = trainer.pipeline
     checkpoints = sorted({s for s in args.eval_at if 0 < s <= args.steps} | {args.steps})
     curve, seconds, step = [], 0.0, 0
@@ -166,13 +196,7 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         if cuda:
             torch.cuda.synchronize()
         start = time.perf_counter()
-        for step in range(step, stop):
-            pipeline.train()
-            for callback in trainer.callbacks:
-                callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
-            loss, _, _ = trainer.train_iteration(step)
-            for callback in trainer.callbacks:
-                callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+        loss = train_steps(trainer, step, stop)
         step = stop
         if cuda:
             torch.cuda.synchronize()
@@ -191,6 +215,7 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         for name, frames in ((method, path.pop("kept")), ("0-ground-truth", path.pop("kept_truth"))):
             np.save(strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16))
     trainer.save_checkpoint(args.steps - 1)
+    fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
     return {
         "method": method,
         "scene": scene_name(scene),
@@ -202,6 +227,7 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         "gaussians": int(pipeline.model.num_points),
         "model_mb": round(_model_megabytes(pipeline.model), 2),
         "final_loss_finite": losses_finite,
+        "render_fps": fps,
         "curve": curve,
         "final": final,
         "config": str(config.get_base_dir() / "config.yml"),
@@ -236,10 +262,13 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
             + (f"{pre:.2f}" if pre is not None else "—")
             + " |"
         )
-    lines += ["", "Cost:", "", "| method | scene | steps | train s | ms/step | peak GPU MB | Gaussians | model MB |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines += ["", "Cost (render FPS: test cameras; baked = the fixed embedding's emission cached, as the viewer renders; unbaked = emission MLP every frame):", "",
+              "| method | scene | steps | train s | ms/step | peak GPU MB | Gaussians | model MB | render FPS baked / unbaked |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in done:
         mem = "—" if r["peak_gpu_memory_mb"] is None else f"{r['peak_gpu_memory_mb']:.0f}"
-        lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} |")
+        fps = r.get("render_fps") or {}
+        fps_cell = " / ".join(f"{fps[k]:.0f}" for k in ("baked", "unbaked") if k in fps) or "—"
+        lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} | {fps_cell} |")
     stress = [r for r in runs if r["scene"].startswith("stress-")]
     if stress:
         faults = list(dict.fromkeys(r["scene"] for r in stress))

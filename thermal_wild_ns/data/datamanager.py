@@ -79,6 +79,10 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     """Where processed frames and LUTs are cached (keyed by data and parameters)."""
     grey_rgb: bool = False
     """Give frames as 3 equal channels, for RGB models (stock splatfacto as a baseline)."""
+    host_cameras: bool = True
+    """Hand each training camera to the model on the host, where it reads the image size and
+    intrinsics without a GPU round trip (a host sync per read). Off for models that need their
+    cameras on the device (stock splatfacto)."""
     train_order_seed: int = 0
     """Training frames are visited in a fresh permutation per pass, drawn from (this seed, pass
     number): the order is a function of the step, so a resumed run sees what the uninterrupted one would."""
@@ -116,7 +120,12 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
         # uninterrupted one would (no per-step reshuffle: the list only refills at a pass's end)
         epoch, position = divmod(step, len(self.train_dataset))
         self.train_unseen_cameras = self.train_order(epoch)[position:]
-        return super().next_train(step)
+        camera, data = super().next_train(step)
+        if self.config.host_cameras:
+            image_idx = camera.metadata["cam_idx"]
+            camera = self.train_dataset.cameras[image_idx : image_idx + 1]  # undistorted, on the host
+            camera.metadata = {**(camera.metadata or {}), "cam_idx": image_idx}
+        return camera, data
 
     def create_train_dataset(self) -> ThermalDataset:
         return ThermalDataset(self._with_preprocessing(self.train_dataparser_outputs), scale_factor=self.config.camera_res_scale_factor)

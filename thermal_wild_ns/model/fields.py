@@ -51,9 +51,18 @@ class BackgroundMLP(nn.Module):
         self.net = mlp(self.encoding.get_out_dim() + frame_dim, width, hidden_layers)
         self.offset = nn.Parameter(torch.tensor([init_value]))
 
-    def forward(self, directions: Tensor, frame_embed: Tensor) -> Tensor:
-        """directions [..., 3] (unit, world frame), frame_embed [Df] -> background [..., 1]."""
-        enc = self.encoding(directions.reshape(-1, 3))  # [P, 16]
+    def encode(self, directions: Tensor) -> Tensor:
+        """directions [..., 3] (unit, world frame) -> their encoding [..., 16], which depends on
+        the view only (callers may cache it per camera)."""
+        return self.encoding(directions.reshape(-1, 3)).reshape(*directions.shape[:-1], -1)
+
+    def from_encoded(self, encoded: Tensor, frame_embed: Tensor) -> Tensor:
+        """encoded directions [..., 16], frame_embed [Df] -> background [..., 1]."""
+        enc = encoded.reshape(-1, encoded.shape[-1])  # [P, 16]
         frame = frame_embed[None, :].expand(enc.shape[0], -1)
         out = self.net(torch.cat([enc, frame], dim=-1)) + self.offset
-        return out.reshape(*directions.shape[:-1], 1)
+        return out.reshape(*encoded.shape[:-1], 1)
+
+    def forward(self, directions: Tensor, frame_embed: Tensor) -> Tensor:
+        """directions [..., 3] (unit, world frame), frame_embed [Df] -> background [..., 1]."""
+        return self.from_encoded(self.encode(directions), frame_embed)

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import functools
+from typing import Optional
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 
+@functools.lru_cache(maxsize=8)  # built once per device and dtype, not at every loss evaluation
 def _gaussian_window(size: int, sigma: float, device, dtype) -> Tensor:
     x = torch.arange(size, device=device, dtype=dtype) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
@@ -19,14 +23,14 @@ def ssim(pred: Tensor, target: Tensor, data_range: float | Tensor = 1.0, window:
     K1 = 0.01, K2 = 0.03, 'valid' filtering (as pytorch_msssim, which nerfstudio reports)."""
     x = pred.permute(2, 0, 1)[None]  # [1, 1, H, W]
     y = target.permute(2, 0, 1)[None]
-    w = _gaussian_window(window, sigma, x.device, x.dtype)
+    w = _gaussian_window(window, sigma, x.device, x.dtype).expand(5, 1, -1, -1)
     c1 = (0.01 * data_range) ** 2
     c2 = (0.03 * data_range) ** 2
-    mu_x, mu_y = F.conv2d(x, w), F.conv2d(y, w)
-    sxx = F.conv2d(x * x, w) - mu_x**2
-    syy = F.conv2d(y * y, w) - mu_y**2
-    sxy = F.conv2d(x * y, w) - mu_x * mu_y
-    ssim_map = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2))
+    # the five local moments in one grouped convolution (one launch instead of five)
+    moments = F.conv2d(torch.cat([x, y, x * x, y * y, x * y], dim=1), w, groups=5)  # [1, 5, H', W']
+    mu_x, mu_y, exx, eyy, exy = moments[0]
+    mu_xy, mu_xx, mu_yy = mu_x * mu_y, mu_x * mu_x, mu_y * mu_y
+    ssim_map = ((2 * mu_xy + c1) * (2 * (exy - mu_xy) + c2)) / ((mu_xx + mu_yy + c1) * (exx - mu_xx + eyy - mu_yy + c2))
     return ssim_map.mean()
 
 
@@ -39,7 +43,7 @@ def thermal_contrast(target: Tensor, max_samples: int = 65536) -> Tensor:
     return (hi - lo).clamp(min=1e-3)
 
 
-def heat_aware_ssim(pred: Tensor, target: Tensor) -> Tensor:
+def heat_aware_ssim(pred: Tensor, target: Tensor, contrast: Optional[Tensor] = None) -> Tensor:
     """SSIM whose stabilising constants follow the frame's own thermal contrast.
 
     Thermal-NeRF (Ye et al. 2024) motivates a "heat-aware" SSIM; its exact formula is not
@@ -49,8 +53,9 @@ def heat_aware_ssim(pred: Tensor, target: Tensor) -> Tensor:
     and SSIM goes blind to exactly the soft heat gradients we must reconstruct. Here
     L = p99 - p1 of the *target* frame (detached), i.e. SSIM is measured relative to the scene's
     actual temperature contrast. For a frame that spans the full range it equals plain SSIM.
+    `contrast`: the target's `thermal_contrast`, when the caller has it already.
     """
-    return ssim(pred, target, data_range=thermal_contrast(target))
+    return ssim(pred, target, data_range=thermal_contrast(target) if contrast is None else contrast)
 
 
 def alpha_regularizer(alpha: Tensor, target: Tensor, background: Tensor, tolerance: float) -> Tensor:

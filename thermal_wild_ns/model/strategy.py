@@ -37,3 +37,24 @@ class BudgetedDefaultStrategy(DefaultStrategy):
             if uses_radii:
                 state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
         return super()._grow_gs(params, optimizers, state, step)
+
+    def _update_state(self, params, state, info, packed: bool = False):
+        """gsplat's running statistics, computed with masks instead of gathering the visible
+        Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
+        one camera per step (what splatfacto renders)."""
+        if packed or info["n_cameras"] != 1:
+            return super()._update_state(params, state, info, packed=packed)
+        gradient = info[self.key_for_gradient]
+        grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [1, N, 2]
+        grads[..., 0] *= info["width"] / 2.0 * info["n_cameras"]
+        grads[..., 1] *= info["height"] / 2.0 * info["n_cameras"]
+        n = params["means"].shape[0]
+        for key in ("grad2d", "count") + (("radii",) if self.refine_scale2d_stop_iter > 0 else ()):
+            if state[key] is None:
+                state[key] = torch.zeros(n, device=grads.device)
+        visible = info["radii"][0] > 0.0  # [N]
+        state["grad2d"] += torch.where(visible, grads[0].norm(dim=-1), 0.0)
+        state["count"] += visible
+        if self.refine_scale2d_stop_iter > 0:  # screen radius normalised to [0, 1], as gsplat
+            radii = torch.where(visible, info["radii"][0], 0) / float(max(info["width"], info["height"]))
+            torch.maximum(state["radii"], radii, out=state["radii"])

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple, Type, Union
 
 import torch
+from torch.profiler import record_function
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
@@ -27,7 +28,7 @@ from torch.nn import Parameter
 
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
-from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim
+from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.rendering import Backend, rasterization
 
 
@@ -55,6 +56,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     background_value: float = 0.0
     """Constant background (normalised intensity) when the background MLP is off; the background
     MLP's initial value when it is on."""
+    background_stride: int = 4
+    """The background MLP is evaluated every this many pixels and upsampled bilinearly: its
+    direction encoding (spherical harmonics up to degree 3) varies far more slowly than that."""
     inference_embedding: str = "mean"
     """Frame embedding used outside training (evaluation, viewer, renders): 'mean' (average of the
     training frames' embeddings), 'zero', or a training-frame index such as '12'."""
@@ -138,6 +142,8 @@ class WildThermalModel(SplatfactoModel):
         self.crop_box = None
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
+        self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
+        self._frame_checks: Dict[tuple, Tuple[bool, Tensor]] = {}  # training image -> (all finite, thermal contrast)
         self.strategy = BudgetedDefaultStrategy(
             max_gaussians=cfg.max_gaussians,
             prune_opa=cfg.cull_alpha_thresh,
@@ -258,24 +264,40 @@ class WildThermalModel(SplatfactoModel):
         return emission
 
     @staticmethod
-    def ray_directions(camera: Cameras, camera_to_world: Tensor, width: int, height: int) -> Tensor:
-        """Unit world-space view directions of every pixel centre [H, W, 3] (nerfstudio/OpenGL axes)."""
+    def ray_directions(K: Tensor, camera_to_world: Tensor, width: int, height: int, stride: int = 1) -> Tensor:
+        """Unit world-space view directions (nerfstudio/OpenGL axes) at the pixel centres of the
+        image downsampled by `stride` [ceil(H / stride), ceil(W / stride), 3]; K [3, 3] and
+        camera_to_world [3, 4] at full resolution."""
         device = camera_to_world.device
-        K = camera.get_intrinsics_matrices()[0].to(device)  # [3, 3]
+        h, w = -(-height // stride), -(-width // stride)
         v, u = torch.meshgrid(
-            torch.arange(height, device=device, dtype=torch.float32) + 0.5,
-            torch.arange(width, device=device, dtype=torch.float32) + 0.5,
+            (torch.arange(h, device=device, dtype=torch.float32) + 0.5) * (height / h),
+            (torch.arange(w, device=device, dtype=torch.float32) + 0.5) * (width / w),
             indexing="ij",
         )
         dirs = torch.stack([(u - K[0, 2]) / K[0, 0], -(v - K[1, 2]) / K[1, 1], -torch.ones_like(u)], -1)
-        dirs = dirs @ camera_to_world[0, :3, :3].T  # [H, W, 3]
+        dirs = dirs @ camera_to_world[:3, :3].T  # [h, w, 3]
         return dirs / dirs.norm(dim=-1, keepdim=True)
 
-    def background(self, camera: Cameras, camera_to_world: Tensor, frame_embed: Tensor, width: int, height: int) -> Tensor:
-        """Background radiance per pixel [H, W, 1]."""
+    def background(self, K: Tensor, camera_to_world: Tensor, frame_embed: Tensor, width: int, height: int, cam_idx: Optional[int] = None) -> Tensor:
+        """Background radiance per pixel [H, W, 1], evaluated on the `background_stride` grid and
+        upsampled. `cam_idx` names a training camera whose pose is fixed (no pose optimisation):
+        its encoded directions are computed once and reused."""
         if self.background_mlp is None:
             return torch.full((height, width, 1), self.config.background_value, device=self.device)
-        return self.background_mlp(self.ray_directions(camera, camera_to_world, width, height), frame_embed)
+        stride = self.config.background_stride
+        key = (cam_idx, width, height)
+        encoded = self._encoded_directions.get(key) if cam_idx is not None else None
+        if encoded is None:
+            dirs = self.ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            encoded = self.background_mlp.encode(dirs)  # [h, w, E]
+            if cam_idx is not None:
+                self._encoded_directions[key] = encoded
+        coarse = self.background_mlp.from_encoded(encoded, frame_embed)  # [h, w, 1]
+        if coarse.shape[:2] == (height, width):
+            return coarse
+        # align_corners=False: coarse samples sit at the centres of stride x stride pixel blocks
+        return torch.nn.functional.interpolate(coarse.permute(2, 0, 1)[None], size=(height, width), mode="bilinear", align_corners=False)[0].permute(1, 2, 0)
 
     def get_outputs(self, camera: Cameras) -> Dict[str, Union[Tensor, List]]:
         if not isinstance(camera, Cameras):
@@ -288,14 +310,20 @@ class WildThermalModel(SplatfactoModel):
         camera_to_world = camera_to_world.to(self.device)
 
         scale = self._get_downscale_factor()
-        camera.rescale_output_resolution(1 / scale)
+        if scale != 1:
+            camera.rescale_output_resolution(1 / scale)
         viewmat = get_viewmat(camera_to_world)  # [1, 4, 4]
         K = camera.get_intrinsics_matrices().to(self.device)  # [1, 3, 3]
         W, H = int(camera.width.item()), int(camera.height.item())
+        if scale != 1:
+            camera.rescale_output_resolution(scale)
         self.last_size = (H, W)
         frame_embed = self.frame_embedding(camera)
-        background = self.background(camera, camera_to_world, frame_embed, W, H)  # [H, W, 1]
-        camera.rescale_output_resolution(scale)
+        fixed_pose = self.training and self.config.camera_optimizer.mode == "off" and camera.metadata and "cam_idx" in camera.metadata
+        with record_function("thermal/background"):  # named sections for wild-thermal-profile
+            background = self.background(
+                K[0], camera_to_world[0], frame_embed, W, H, int(camera.metadata["cam_idx"]) if fixed_pose else None
+            )  # [H, W, 1]
 
         ids = None
         if self.crop_box is not None and not self.training:
@@ -313,26 +341,29 @@ class WildThermalModel(SplatfactoModel):
             return x if ids is None else x[ids]
 
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
-        render, alpha, self.info = rasterization(
-            means=crop(self.means),
-            quats=crop(self.quats),  # rasterization normalises internally
-            scales=torch.exp(crop(self.scales)),
-            opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
-            colors=self.gaussian_emission(frame_embed, ids),  # [N, 1]
-            viewmats=viewmat,
-            Ks=K,
-            width=W,
-            height=H,
-            packed=False,
-            near_plane=0.01,
-            far_plane=1e10,
-            render_mode=render_mode,
-            sh_degree=None,
-            sparse_grad=False,
-            absgrad=self.strategy.absgrad,
-            rasterize_mode=self.config.rasterize_mode,
-            backend=self.config.rasterizer,
-        )  # [1, H, W, 1(+1)], [1, H, W, 1]
+        with record_function("thermal/emission"):
+            colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
+        with record_function("thermal/rasterize"):
+            render, alpha, self.info = rasterization(
+                means=crop(self.means),
+                quats=crop(self.quats),  # rasterization normalises internally
+                scales=torch.exp(crop(self.scales)),
+                opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
+                colors=colors,
+                viewmats=viewmat,
+                Ks=K,
+                width=W,
+                height=H,
+                packed=False,
+                near_plane=0.01,
+                far_plane=1e10,
+                render_mode=render_mode,
+                sh_degree=None,
+                sparse_grad=False,
+                absgrad=self.strategy.absgrad,
+                rasterize_mode=self.config.rasterize_mode,
+                backend=self.config.rasterizer,
+            )  # [1, H, W, 1(+1)], [1, H, W, 1]
         if self.training and torch.is_grad_enabled():  # no densification statistics from no-grad renders
             self.strategy.step_pre_backward(self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info)
         alpha = alpha[0]
@@ -354,8 +385,11 @@ class WildThermalModel(SplatfactoModel):
         }
 
     # ----------------------------------------------------------------- losses
-    def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Tensor]:
-        """Ground-truth thermal image at the render's resolution, and its finite-pixel mask."""
+    def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Optional[Tensor]]:
+        """Ground-truth thermal image at the render's resolution (non-finite pixels replaced by the
+        render, so they add nothing to losses and metrics) and, for a training frame without
+        such pixels, its thermal contrast (for the heat-aware SSIM). Both checks run once per
+        training frame and resolution: the frames never change."""
         image = batch["image"]
         if image.dim() != 3 or image.shape[-1] != 1:
             raise ValueError(
@@ -363,8 +397,16 @@ class WildThermalModel(SplatfactoModel):
                 f"has shape {tuple(image.shape)}. Use the thermal datamanager/dataparsers of thermal_wild_ns."
             )
         gt = self.get_gt_img(image)
-        finite = torch.isfinite(gt)
-        if not bool(finite.all()):
+        key = (int(batch["image_idx"]), tuple(gt.shape)) if self.training and "image_idx" in batch else None
+        checked = self._frame_checks.get(key) if key is not None else None
+        if checked is None:
+            all_finite = bool(torch.isfinite(gt).all())
+            checked = (all_finite, thermal_contrast(gt) if all_finite else None)
+            if key is not None:
+                self._frame_checks[key] = checked
+        all_finite, contrast = checked
+        if not all_finite:
+            finite = torch.isfinite(gt)
             if not self._warned_nonfinite:
                 CONSOLE.log(
                     f"[yellow]Image {batch.get('image_idx')} has {int((~finite).sum())} non-finite pixels; "
@@ -372,19 +414,23 @@ class WildThermalModel(SplatfactoModel):
                 )
                 self._warned_nonfinite = True
             gt = torch.where(finite, gt, outputs["thermal"].detach())
-        return gt, finite
+        return gt, contrast
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
         gt, _ = self._ground_truth(outputs, batch)
         return {"psnr": psnr(outputs["thermal"].detach(), gt), "gaussian_count": self.num_points}
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
-        gt, _ = self._ground_truth(outputs, batch)
+        with record_function("thermal/loss"):
+            return self._loss_dict(outputs, batch)
+
+    def _loss_dict(self, outputs, batch) -> Dict[str, Tensor]:
+        gt, contrast = self._ground_truth(outputs, batch)
         pred = outputs["thermal"]
         cfg = self.config
         losses = {
             "l1_loss": cfg.l1_lambda * (gt - pred).abs().mean(),
-            "ssim_loss": cfg.ssim_lambda * (1.0 - (heat_aware_ssim(pred, gt) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0))),
+            "ssim_loss": cfg.ssim_lambda * (1.0 - (heat_aware_ssim(pred, gt, contrast) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0))),
         }
         if cfg.alpha_lambda > 0:
             losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(
@@ -436,10 +482,11 @@ class WildThermalModel(SplatfactoModel):
         if self.skip_densification_step:  # the guard skipped this step: no statistics from it
             self.skip_densification_step = False
             return
-        super().step_post_backward(step)
+        with record_function("thermal/densify"):
+            super().step_post_backward(step)
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
-        gt, finite = self._ground_truth(outputs, batch)
+        gt, _ = self._ground_truth(outputs, batch)
         pred = outputs["thermal"]
         metrics = {
             "psnr": float(psnr(pred, gt)),

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Deque, List, Optional, Type
 
 import torch
+from torch.profiler import record_function
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -57,11 +58,12 @@ class DivergenceGuard:
         self.consecutive = 0
 
     def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str]) -> Optional[str]:
-        """Why this step must be skipped, or None. One host sync for the whole check."""
+        """Why this step must be skipped, or None. One host sync: the loss and the sum of all
+        gradient norms (one fused kernel; NaN/inf anywhere makes it non-finite) travel together."""
         grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
-        checks = ([loss.detach().float().reshape(1)] if loss is not None else []) + [
-            torch.isfinite(grad).all().float().reshape(1) for _, grad in grads
-        ]
+        checks = [loss.detach().float().reshape(1)] if loss is not None else []
+        if grads:
+            checks.append(torch.stack(torch._foreach_norm([grad for _, grad in grads])).sum().float().reshape(1))
         if not checks:
             return None
         values = torch.cat([c.to(checks[0].device) for c in checks]).tolist()
@@ -73,8 +75,8 @@ class DivergenceGuard:
                 median = sorted(self.recent)[len(self.recent) // 2]
                 if value > self.config.loss_spike_factor * median:
                     return f"loss spike ({value:.4g} > {self.config.loss_spike_factor:g} x recent median {median:.4g})"
-        bad = sorted({g for (g, _), ok in zip(grads, values) if not ok})
-        if bad:
+        if grads and not math.isfinite(values[0]):  # rare: find the culprits one by one
+            bad = sorted({g for g, grad in grads if not bool(torch.isfinite(grad).all())}) or ["(norm overflow)"]
             return f"non-finite gradients in {', '.join(bad)}"
         if loss is not None:
             self.recent.append(value)
@@ -102,7 +104,7 @@ class DivergenceGuard:
         if hasattr(model, "num_points"):
             if model.num_points == 0:
                 raise TrainingDiverged(f"step {step}: every Gaussian was pruned; the model collapsed to an empty scene")
-            opacity = float(torch.sigmoid(model.opacities).mean())
+            opacity = float(torch.sigmoid(model.opacities.detach()).mean())
             if opacity < self.config.min_mean_opacity:
                 raise TrainingDiverged(
                     f"step {step}: mean Gaussian opacity {opacity:.2e} < {self.config.min_mean_opacity:g}; the scene has turned "
@@ -125,12 +127,14 @@ class GuardedTrainer(Trainer):
 
         def guarded_step_some(grad_scaler, param_groups):
             model = self.pipeline.model
-            reason = self.guard.check_step(getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups)
+            with record_function("thermal/guard_check"):  # named sections for wild-thermal-profile
+                reason = self.guard.check_step(getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups)
             skip = reason is not None
             model.skip_densification_step = skip  # the strategy must not record this step's gradients either
             self.guard.record(self._step, reason)
             if not skip:
-                step_some(grad_scaler, param_groups)
+                with record_function("thermal/optimizer_step"):
+                    step_some(grad_scaler, param_groups)
 
         self.optimizers.optimizer_scaler_step_some = guarded_step_some
 

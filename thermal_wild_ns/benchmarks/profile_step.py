@@ -1,0 +1,162 @@
+"""`wild-thermal-profile`: where the time of a training step goes.
+
+Trains a method on a scene for `--warmup` steps of the full 30k schedule (densification has grown
+the model as in a real run by then), then
+- times `--steps` steps without the profiler (ms/step; synchronised at the two ends only);
+- counts the host syncs of a few steps (`torch.cuda.set_sync_debug_mode`) by the line that made them;
+- profiles `--profile-steps` steps with torch.profiler: GPU kernel time per step against wall time per
+  step (a step much longer than its kernels is bound by Python and launches, not by the GPU), the
+  top operators by GPU and by CPU time, and the model's own sections (`thermal/...` ranges).
+Writes `profile.json` and `profile.md` to `--output-dir`.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, Optional
+
+import torch
+import tyro
+
+from thermal_wild_ns.benchmarks.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, train_steps, trainer_config
+
+
+@dataclass
+class ProfileArgs:
+    scene: str = "demo"
+    """'demo', 'stress:FAULT' or a dataset folder (as in wild-thermal-bench)."""
+    method: str = "wild-thermal"
+    """'splatfacto' or one of this plugin's methods."""
+    warmup: int = 1500
+    """Steps trained before measuring (full 30k schedule)."""
+    steps: int = 300
+    """Steps timed without the profiler."""
+    profile_steps: int = 20
+    """Steps recorded by torch.profiler."""
+    max_gaussians: Optional[int] = None
+    output_dir: Path = Path("outputs/profile")
+    cache_dir: Optional[Path] = None
+
+
+def _device_time(event) -> float:
+    """Self GPU time of a profiler row, microseconds (the attribute was renamed in torch 2.4)."""
+    return float(getattr(event, "self_device_time_total", getattr(event, "self_cuda_time_total", 0.0)))
+
+
+def _inclusive_device_time(event) -> float:
+    return float(getattr(event, "device_time_total", getattr(event, "cuda_time_total", 0.0)))
+
+
+def _kernel_microseconds(prof) -> float:
+    """Time the GPU spent in kernels and copies (not in the ranges named by record_function,
+    which the profiler also reports on the GPU timeline and which overlap the kernels)."""
+    from torch.autograd import DeviceType
+
+    return sum(
+        e.time_range.elapsed_us()
+        for e in prof.events()
+        if e.device_type == DeviceType.CUDA and not getattr(e, "is_user_annotation", False)
+        and not e.name.startswith(("thermal/", "Optimizer.", "ProfilerStep"))
+    )
+
+
+def _count_syncs(trainer, start: int, steps: int) -> Dict[str, int]:
+    """Host syncs per call site over `steps` steps (CUDA only)."""
+    counts: Dict[str, int] = collections.Counter()
+    torch.cuda.set_sync_debug_mode("warn")
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            train_steps(trainer, start, start + steps)
+            torch.cuda.synchronize()
+    finally:
+        torch.cuda.set_sync_debug_mode(0)
+    for w in caught:
+        if "synchroniz" in str(w.message):
+            counts[f"{w.filename}:{w.lineno}"] += 1
+    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
+def profile(args: ProfileArgs) -> Dict:
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    bench_args = BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=FULL_SCHEDULE, schedule=FULL_SCHEDULE, max_gaussians=args.max_gaussians,
+                           output_dir=args.output_dir, cache_dir=args.cache_dir)
+    trainer = setup_trainer(trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs"))
+    cuda = torch.cuda.is_available()
+
+    def sync():
+        if cuda:
+            torch.cuda.synchronize()
+
+    step = args.warmup
+    train_steps(trainer, 0, step)
+    sync()
+    start = time.perf_counter()
+    train_steps(trainer, step, step + args.steps)
+    sync()
+    ms_per_step = 1000 * (time.perf_counter() - start) / args.steps
+    step += args.steps
+    syncs = _count_syncs(trainer, step, 5) if cuda else {}
+    step += 5 if cuda else 0
+
+    from torch.profiler import ProfilerActivity, profile as torch_profile
+
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+    start = time.perf_counter()
+    with torch_profile(activities=activities) as prof:
+        train_steps(trainer, step, step + args.profile_steps)
+        sync()
+    profiled_ms = 1000 * (time.perf_counter() - start) / args.profile_steps
+    events = prof.key_averages()
+    n = args.profile_steps
+    gpu_ms = _kernel_microseconds(prof) / 1000 / n
+    by_gpu = sorted(events, key=_device_time, reverse=True)[:25]
+    by_cpu = sorted(events, key=lambda e: e.self_cpu_time_total, reverse=True)[:25]
+    sections = sorted((e for e in events if e.key.startswith("thermal/")), key=lambda e: e.key)
+
+    def row(e) -> Dict:
+        return {"name": e.key, "calls_per_step": e.count / n, "self_gpu_ms": _device_time(e) / 1000 / n,
+                "self_cpu_ms": e.self_cpu_time_total / 1000 / n}
+
+    result = {
+        "scene": args.scene, "method": args.method, "device": torch.cuda.get_device_name() if cuda else "cpu",
+        "torch": torch.__version__, "warmup": args.warmup, "gaussians": int(trainer.pipeline.model.num_points),
+        "ms_per_step": round(ms_per_step, 3), "profiled_ms_per_step": round(profiled_ms, 3), "gpu_kernel_ms_per_step": round(gpu_ms, 3),
+        "host_syncs_per_step": {k: v / 5 for k, v in syncs.items()},
+        "sections": [{"name": e.key, "cpu_ms": e.cpu_time_total / 1000 / n, "gpu_ms": _inclusive_device_time(e) / 1000 / n} for e in sections],
+        "top_gpu": [row(e) for e in by_gpu], "top_cpu": [row(e) for e in by_cpu],
+    }
+    (args.output_dir / "profile.json").write_text(json.dumps(result, indent=1))
+    (args.output_dir / "profile.md").write_text(_markdown(result))
+    print(_markdown(result))
+    return result
+
+
+def _markdown(r: Dict) -> str:
+    lines = [
+        f"# {r['method']} on {r['scene']} ({r['device']}, torch {r['torch']}), after {r['warmup']} steps, {r['gaussians']} Gaussians",
+        "",
+        f"- {r['ms_per_step']:.2f} ms/step unprofiled; {r['profiled_ms_per_step']:.2f} ms/step profiled, of which GPU kernels {r['gpu_kernel_ms_per_step']:.2f} ms",
+        f"- host syncs per step: {sum(r['host_syncs_per_step'].values()):.1f}",
+        "",
+    ]
+    lines += [f"  - {v:.1f} x {k}" for k, v in r["host_syncs_per_step"].items()]
+    lines += ["", "| section | CPU ms/step | GPU ms/step |", "| --- | --- | --- |"]
+    lines += [f"| {s['name']} | {s['cpu_ms']:.3f} | {s['gpu_ms']:.3f} |" for s in r["sections"]]
+    for title, rows in (("by GPU time", r["top_gpu"]), ("by CPU time", r["top_cpu"])):
+        lines += ["", f"Top operators {title}:", "", "| operator | calls/step | self GPU ms | self CPU ms |", "| --- | --- | --- | --- |"]
+        lines += [f"| {x['name'][:70]} | {x['calls_per_step']:.1f} | {x['self_gpu_ms']:.3f} | {x['self_cpu_ms']:.3f} |" for x in rows]
+    return "\n".join(lines) + "\n"
+
+
+def entrypoint():
+    profile(tyro.cli(ProfileArgs))
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,116 @@
+"""`wild-thermal-render-fps`: how fast a trained model renders, baked vs unbaked emission.
+
+Loads a trained run from its config.yml (as ns-render and ns-viewer do) and renders its test
+cameras, in three ways:
+- `baked`: what ns-viewer and ns-render do: the model's own rendering (background MLP included)
+  with the emission MLP evaluated once for the fixed frame embedding and cached;
+- `unbaked`: the same, with the emission MLP evaluated again for every frame;
+- `splat_only`: gsplat's rasterization of the same Gaussians and baked emission alone, no model
+  code around it (the floor).
+Writes `fps.json` (frames per second per way, at the cameras' resolution, and the largest
+difference between baked and unbaked renders) to `--output-dir` and prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Dict
+
+import torch
+import tyro
+
+import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
+
+
+@dataclass
+class FpsArgs:
+    load_config: Path
+    """config.yml of a trained run."""
+    frames: int = 500
+    """Frames rendered per way (cycling over the test cameras), after 20 warm-up frames."""
+    output_dir: Path = Path("outputs/render_fps")
+
+
+def _fps(render: Callable[[int], torch.Tensor], frames: int, cuda: bool) -> float:
+    for i in range(20):
+        render(i)
+    if cuda:
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    for i in range(frames):
+        render(i)
+    if cuda:
+        torch.cuda.synchronize()
+    return frames / (time.perf_counter() - start)
+
+
+def measure_fps(pipeline, frames: int) -> Dict:
+    """Frames per second over the pipeline's test cameras: `baked`, `unbaked` and `splat_only` for
+    this plugin's models (the first only for others), and the largest baked/unbaked difference."""
+    from nerfstudio.models.splatfacto import get_viewmat
+
+    from thermal_wild_ns.rendering import rasterization
+
+    model = pipeline.model
+    pipeline.eval()
+    cuda = model.device.type == "cuda"
+    cameras = [camera.to(model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
+    width, height = int(cameras[0].width), int(cameras[0].height)
+    ours = hasattr(model, "gaussian_emission")
+    has_mlp = ours and model.emission_mlp is not None
+
+    def baked(i: int) -> torch.Tensor:
+        outputs = model.get_outputs_for_camera(cameras[i % len(cameras)])
+        return outputs["thermal"] if ours else outputs["rgb"]
+
+    def unbaked(i: int) -> torch.Tensor:
+        model._baked = None  # forget the cached emission: the MLP runs again for this frame
+        return baked(i)
+
+    ways: Dict[str, Callable[[int], torch.Tensor]] = {"baked": baked}
+    result: Dict = {"resolution": f"{width}x{height}", "gaussians": int(model.num_points), "frames": frames}
+    with torch.no_grad():
+        if has_mlp:
+            ways["unbaked"] = unbaked
+            result["max_abs_difference_baked_unbaked"] = max(float((unbaked(i) - baked(i)).abs().max()) for i in range(len(cameras)))
+        if ours:
+            splat = dict(
+                means=model.means, quats=model.quats, scales=torch.exp(model.scales),
+                opacities=torch.sigmoid(model.opacities).squeeze(-1), colors=model.gaussian_emission(model.inference_embedding()),
+            )
+            views = [(get_viewmat(c.camera_to_worlds), c.get_intrinsics_matrices().to(model.device)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
+
+            def splat_only(i: int) -> torch.Tensor:
+                viewmat, K = views[i % len(views)]
+                return rasterization(**splat, viewmats=viewmat, Ks=K, width=width, height=height, packed=False, backend=model.config.rasterizer)[0]
+
+            ways["splat_only"] = splat_only
+        result["fps"] = {name: round(_fps(fn, frames, cuda), 1) for name, fn in ways.items()}
+    return result
+
+
+def measure(args: FpsArgs) -> Dict:
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    _, pipeline, _, _ = eval_setup(args.load_config, test_mode="test")
+    result = {
+        "config": str(args.load_config),
+        "device": torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu",
+        "torch": torch.__version__,
+        **measure_fps(pipeline, args.frames),
+    }
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    (args.output_dir / "fps.json").write_text(json.dumps(result, indent=1))
+    print(json.dumps(result, indent=1))
+    return result
+
+
+def entrypoint():
+    measure(tyro.cli(FpsArgs))
+
+
+if __name__ == "__main__":
+    entrypoint()
