@@ -75,6 +75,12 @@ def test_loss_spike_and_nan_gradient_detection():
         assert guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"]) is None
     assert "loss spike" in guard.check_step(torch.tensor(50.0), {"means": [param]}, ["means"])
     assert guard.check_step(torch.tensor(5.0), {"means": [param]}, ["means"]) is None  # 5x: within the factor
+    # a hard frame is not a spike: skipped at its first jump, accepted when it stays there, skipped when it jumps again
+    for _ in range(5):
+        guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"], frame=3)
+    assert "loss spike" in guard.check_step(torch.tensor(50.0), {"means": [param]}, ["means"], frame=7)
+    assert guard.check_step(torch.tensor(60.0), {"means": [param]}, ["means"], frame=7) is None
+    assert "loss spike" in guard.check_step(torch.tensor(500.0), {"means": [param]}, ["means"], frame=7)
     param.grad = torch.tensor([1.0, float("nan"), 0.0])
     assert guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"]) == "non-finite gradients in means"
 

@@ -170,6 +170,19 @@ def test_baked_emission_matches_and_is_invalidated():
         model.embedding_override = torch.ones_like(model.frame_embed.weight[0])  # another embedding
         model.get_outputs(camera)
         assert model._baked[2] is not second
+    # a training step with fused Adam (which leaves tensor versions alone) invalidates it too
+    model.embedding_override = None
+    optimizer = torch.optim.Adam([*model.emission_mlp.parameters(), model.frame_embed.weight], lr=0.1, fused=True)
+    with torch.no_grad():
+        before_step = model.get_outputs(camera)["thermal"]
+        third = model._baked[2]
+    for param in [*model.emission_mlp.parameters(), model.frame_embed.weight]:
+        param.grad = torch.ones_like(param)
+    optimizer.step()
+    model.step += 1  # what the trainer's step callback does
+    with torch.no_grad():
+        after_step = model.get_outputs(camera)["thermal"]
+    assert model._baked[2] is not third and not after_step.equal(before_step)
 
 
 def test_mismatched_checkpoints_are_refused_with_the_reason():

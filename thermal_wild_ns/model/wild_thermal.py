@@ -126,6 +126,7 @@ class WildThermalModel(SplatfactoModel):
         self.embedding_override: Optional[Tensor] = None
         """Frame embedding [Df] to render with outside training, instead of `inference_embedding`."""
         self.last_train_loss: Optional[Tensor] = None  # read by the divergence guard (training/guard.py) ...
+        self.last_train_frame: Optional[int] = None  # ... with the image it came from
         self.skip_densification_step = False  # ... which sets this when it skips a step
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
@@ -220,21 +221,30 @@ class WildThermalModel(SplatfactoModel):
 
     def inference_embedding(self) -> Tensor:
         """The frame embedding [Df] used outside training: `embedding_override` when set (evaluation
-        protocols), otherwise the configured `inference_embedding`."""
+        protocols), otherwise the configured `inference_embedding`. Outside autograd the same tensor
+        is returned until the embeddings change, so the baked emission keyed on it stays valid."""
         weight = self.frame_embed.weight  # [F, Df]
         if self.embedding_override is not None:  # set by evaluation protocols (interpolated / optimised)
             return self.embedding_override
         choice = self.config.inference_embedding
+        cached = getattr(self, "_inference_embedding", None)
+        key = (choice, self.step, weight._version)  # the step: fused Adam does not bump tensor versions
+        if cached is not None and cached[0] == key and cached[1] is weight:
+            return cached[2]
         if choice == "mean":
-            return weight.mean(dim=0)
-        if choice == "zero":
-            return torch.zeros_like(weight[0])
-        if choice.isdigit() and int(choice) < weight.shape[0]:
-            return weight[int(choice)]
-        raise ValueError(
-            f"inference_embedding must be 'mean', 'zero' or a training-frame index below {weight.shape[0]}, "
-            f"got {choice!r}"
-        )
+            value = weight.mean(dim=0)
+        elif choice == "zero":
+            value = torch.zeros_like(weight[0])
+        elif choice.isdigit() and int(choice) < weight.shape[0]:
+            value = weight[int(choice)]
+        else:
+            raise ValueError(
+                f"inference_embedding must be 'mean', 'zero' or a training-frame index below {weight.shape[0]}, "
+                f"got {choice!r}"
+            )
+        if not torch.is_grad_enabled():
+            self._inference_embedding = (key, weight, value)
+        return value
 
     def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
         """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]. Outside
@@ -251,17 +261,27 @@ class WildThermalModel(SplatfactoModel):
 
     def baked_emission(self, frame_embed: Tensor) -> Tensor:
         """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], cached until
-        the embedding or any parameter it depends on changes (optimizer steps and densification
-        change the tensors' versions or identities)."""
-        tensors = [self.gauss_params["emission"], self.gauss_params["gauss_embed"], *self.emission_mlp.parameters()]
-        key = tuple((id(t), t._version) for t in tensors)
+        the embedding or any parameter it depends on changes: a training step (`self.step`; fused
+        Adam updates in place without bumping tensor versions), an in-place edit or load (versions)
+        or densification (identities). The check runs on the host: no GPU round trip per frame.
+        The cache holds the tensors themselves, so their identities cannot be recycled."""
+        tensors = (self.gauss_params["emission"], self.gauss_params["gauss_embed"], *self.emission_mlp.parameters(), frame_embed)
+        versions = (self.step, *(t._version for t in tensors))
         cached = getattr(self, "_baked", None)
-        if cached is not None and cached[0] == key and torch.equal(cached[1], frame_embed):
+        if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
             return cached[2]
         with torch.no_grad():
             emission = self.emission_mlp(self.emission, self.gauss_params["gauss_embed"], frame_embed)
-        self._baked = (key, frame_embed.detach().clone(), emission)
+        self._baked = (tensors, versions, emission)
         return emission
+
+    @staticmethod
+    def intrinsics(camera: Cameras) -> Tensor:
+        """Pinhole intrinsics [C, 3, 3], built on the camera's device (nerfstudio's
+        `get_intrinsics_matrices` builds them on the host: one GPU round trip per entry)."""
+        fx, fy, cx, cy = (getattr(camera, name).reshape(-1) for name in ("fx", "fy", "cx", "cy"))  # [C] each
+        zero, one = torch.zeros_like(fx), torch.ones_like(fx)
+        return torch.stack([fx, zero, cx, zero, fy, cy, zero, zero, one], dim=-1).reshape(-1, 3, 3)
 
     @staticmethod
     def ray_directions(K: Tensor, camera_to_world: Tensor, width: int, height: int, stride: int = 1) -> Tensor:
@@ -313,8 +333,8 @@ class WildThermalModel(SplatfactoModel):
         if scale != 1:
             camera.rescale_output_resolution(1 / scale)
         viewmat = get_viewmat(camera_to_world)  # [1, 4, 4]
-        K = camera.get_intrinsics_matrices().to(self.device)  # [1, 3, 3]
-        W, H = int(camera.width.item()), int(camera.height.item())
+        K = self.intrinsics(camera).to(self.device)  # [1, 3, 3]
+        W, H = torch.cat([camera.width.reshape(-1), camera.height.reshape(-1)]).tolist()  # one read
         if scale != 1:
             camera.rescale_output_resolution(scale)
         self.last_size = (H, W)
@@ -439,6 +459,7 @@ class WildThermalModel(SplatfactoModel):
         if self.training:
             self.camera_optimizer.get_loss_dict(losses)
             self.last_train_loss = sum(losses.values()).detach()  # read by the divergence guard
+            self.last_train_frame = int(batch["image_idx"]) if "image_idx" in batch else None
         return losses
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]

@@ -13,7 +13,7 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import dataclass, field
-from typing import Deque, List, Optional, Type
+from typing import Deque, Dict, List, Optional, Type
 
 import torch
 from torch.profiler import record_function
@@ -32,6 +32,10 @@ class DivergenceGuardConfig:
     """Skip a step whose loss exceeds this many times the median loss of the last accepted steps."""
     spike_window: int = 100
     """Accepted steps the median is taken over (no spike test before the window is full)."""
+    persistent_frame_factor: float = 2.0
+    """A spike is sudden: a frame whose loss on its previous visit was already within this factor
+    of the spike is a hard frame (a flat-field jump, an outlier frame), and its step is accepted.
+    Skipping it at every visit would silently drop that frame from training."""
     max_consecutive_skips: int = 50
     """Stop when this many steps in a row had to be skipped."""
     check_every: int = 100
@@ -54,12 +58,14 @@ class DivergenceGuard:
     def __init__(self, config: DivergenceGuardConfig):
         self.config = config
         self.recent: Deque[float] = collections.deque(maxlen=config.spike_window)
+        self.frame_loss: Dict[int, float] = {}  # each training frame's loss at its last visit
         self.skipped = 0
         self.consecutive = 0
 
-    def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str]) -> Optional[str]:
+    def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str], frame: Optional[int] = None) -> Optional[str]:
         """Why this step must be skipped, or None. One host sync: the loss and the sum of all
-        gradient norms (one fused kernel; NaN/inf anywhere makes it non-finite) travel together."""
+        gradient norms (one fused kernel; NaN/inf anywhere makes it non-finite) travel together.
+        `frame`: the training image of this step, for telling spikes from hard frames."""
         grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
         checks = [loss.detach().float().reshape(1)] if loss is not None else []
         if grads:
@@ -71,9 +77,13 @@ class DivergenceGuard:
             value = values.pop(0)
             if not math.isfinite(value):
                 return f"non-finite loss ({value})"
+            previous = self.frame_loss.get(frame) if frame is not None else None
+            if frame is not None:
+                self.frame_loss[frame] = value
             if len(self.recent) == self.recent.maxlen:
                 median = sorted(self.recent)[len(self.recent) // 2]
-                if value > self.config.loss_spike_factor * median:
+                hard_frame = previous is not None and value <= self.config.persistent_frame_factor * previous
+                if value > self.config.loss_spike_factor * median and not hard_frame:
                     return f"loss spike ({value:.4g} > {self.config.loss_spike_factor:g} x recent median {median:.4g})"
         if grads and not math.isfinite(values[0]):  # rare: find the culprits one by one
             bad = sorted({g for g, grad in grads if not bool(torch.isfinite(grad).all())}) or ["(norm overflow)"]
@@ -128,7 +138,9 @@ class GuardedTrainer(Trainer):
         def guarded_step_some(grad_scaler, param_groups):
             model = self.pipeline.model
             with record_function("thermal/guard_check"):  # named sections for wild-thermal-profile
-                reason = self.guard.check_step(getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups)
+                reason = self.guard.check_step(
+                    getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups, getattr(model, "last_train_frame", None)
+                )
             skip = reason is not None
             model.skip_densification_step = skip  # the strategy must not record this step's gradients either
             self.guard.record(self._step, reason)
