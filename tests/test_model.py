@@ -249,3 +249,31 @@ def test_sync_free_densification_statistics_equal_gsplats():
     for key in ("grad2d", "count", "radii"):
         assert torch.equal(states[0][key], states[1][key]), key
     assert states[0]["count"].max() > 0
+
+
+def test_viewer_controls_pick_colormap_and_embedding():
+    from thermal_wild_ns.data.palettes import palette_rgb
+
+    model = make_model()
+    perturb_output_layers(model)
+    with torch.no_grad():
+        model.frame_embed.weight.normal_()
+    model.eval()
+    camera = make_camera()
+    with torch.no_grad():
+        out = model.get_outputs(camera)
+        level = (out["thermal"].clamp(0, 1)[..., 0] * 255).round().long()
+        iron = torch.from_numpy(palette_rgb("iron").astype("float32") / 255)
+        assert torch.equal(out["rgb"], iron[level])  # the default colormap
+        model.viewer_colormap.value = "grey"  # what the viewer's dropdown does
+        model.viewer_colormap.cb_hook(model.viewer_colormap)
+        assert torch.equal(model.get_outputs(camera)["rgb"][..., 0], level.float() / 255)
+        mean_view = model.get_outputs(camera)["thermal"]
+        model.viewer_embedding.value = "3"
+        model.viewer_embedding.cb_hook(model.viewer_embedding)
+        assert model.config.inference_embedding == "3"
+        frame_view = model.get_outputs(camera)["thermal"]
+        assert not torch.equal(frame_view, mean_view)
+        model.embedding_override = model.frame_embed.weight[3]
+        assert torch.equal(model.get_outputs(camera)["thermal"], frame_view)
+    assert set(model.viewer_embedding.options[:2]) == {"mean", "zero"} and len(model.viewer_embedding.options) == 7

@@ -25,6 +25,10 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     idx = camera.metadata["cam_idx"]
     assert camera.device.type == "cpu" and torch.equal(camera.camera_to_worlds, datamanager.train_cameras[idx : idx + 1].camera_to_worlds.cpu())
     assert torch.equal(camera.fx, datamanager.train_cameras[idx : idx + 1].fx.cpu()) and batch["image"].shape[:2] == (camera.height, camera.width)
+    # the viewer's colour bar: the demo scene documents its temperature bounds (-10..40 degC)
+    bar = trainer.pipeline.model.viewer_colour_bar.value
+    values = [float(v) for v in bar.split(": ", 1)[1].removesuffix(" degC").split(", ")]
+    assert bar.startswith("iron 0->1") and len(values) == 5 and values == sorted(values) and -10 <= values[0] < values[-1] <= 40
     before = evaluate(trainer.pipeline)
     losses = []
     model = trainer.pipeline.model
@@ -77,6 +81,20 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     np.testing.assert_allclose(np.asarray(vertex["f_dc_0"]), expected, atol=1e-6)
     np.testing.assert_array_equal(np.asarray(vertex["f_dc_0"]), np.asarray(vertex["f_dc_2"]))  # grey
 
+    # wild-thermal-export gaussian-splat: the same PLY plus the thermal values and what they mean
+    from thermal_wild_ns.export.gaussian_splat import ExportThermalSplat, thermal_values
+
+    ExportThermalSplat(load_config=config.get_base_dir() / "config.yml", output_dir=tmp_path / "export_thermal").main()
+    ply = PlyData.read(str(tmp_path / "export_thermal" / "splat.ply"))
+    thermal_vertex = ply["vertex"]
+    assert len(thermal_vertex) == len(vertex) and set(names) | {"thermal"} == set(thermal_vertex.data.dtype.names)
+    np.testing.assert_array_equal(np.asarray(thermal_vertex["f_dc_0"]), np.asarray(vertex["f_dc_0"]))
+    np.testing.assert_allclose(np.asarray(thermal_vertex["thermal"]), thermal_values(loaded), rtol=1e-6)
+    rng = loaded.datamanager.train_dataset.thermal_range
+    assert rng.low - 1 <= float(np.median(thermal_vertex["thermal"])) <= rng.high + 1
+    assert "thermal_wild_ns frame_embedding mean (the emission MLP was baked with this frame embedding)" in ply.comments
+    assert not list((tmp_path / "export_thermal").glob("*.partial*"))
+
     # ns-render (interpolated path) writes frames and a video, with the bundled ffmpeg if the system has none
     from nerfstudio.scripts.render import RenderInterpolated
 
@@ -84,6 +102,32 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
         RenderInterpolated(load_config=config.get_base_dir() / "config.yml", output_path=out, interpolation_steps=2, output_format=fmt).main()
     assert len(list((tmp_path / "frames").glob("*.jpg"))) == 2 * (len(loaded.datamanager.eval_dataset) - 1)
     assert (tmp_path / "path.mp4").stat().st_size > 1000
+
+    # wild-thermal-render: the same command, plus radiometric frames in the dataset's units
+    import cv2
+    import imageio_ffmpeg
+
+    from thermal_wild_ns.rendering.radiometric_render import RenderInterpolated as ThermalRenderInterpolated
+
+    frames = 2 * (len(loaded.datamanager.eval_dataset) - 1)
+    rng = loaded.datamanager.train_dataset.thermal_range
+    renders = []
+    for run in ("a", "b"):
+        ThermalRenderInterpolated(load_config=config.get_base_dir() / "config.yml", output_path=tmp_path / f"path_{run}.mp4",
+                                  interpolation_steps=2, output_format="video", radiometric="uint16").main()
+        pngs = sorted((tmp_path / f"path_{run}_radiometric").glob("*.png"))
+        renders.append([cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in pngs])
+    assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "path_a.mp4"))[0] == frames == len(renders[0])
+    assert all(im.dtype == np.uint16 and im.ndim == 2 for im in renders[0])
+    assert all(rng.low <= int(im.min()) and int(im.max()) <= rng.high for im in renders[0])  # back in the dataset's native range
+    assert all(int(im.max()) - int(im.min()) > 100 for im in renders[0])  # an image, not a constant
+    assert all(np.array_equal(a, b) for a, b in zip(*renders))  # two renders of one path are identical
+    ThermalRenderInterpolated(load_config=config.get_base_dir() / "config.yml", output_path=tmp_path / "path_c.mp4",
+                              interpolation_steps=2, output_format="video", radiometric="celsius").main()
+    celsius = [np.load(f) for f in sorted((tmp_path / "path_c_radiometric").glob("*.npy"))]
+    assert len(celsius) == frames and all(c.dtype == np.float32 for c in celsius)
+    assert all(rng.celsius_low <= c.min() and c.max() <= rng.celsius_high for c in celsius)
+    np.testing.assert_allclose(celsius[0], rng.to_celsius((renders[0][0].astype(np.float64) - rng.low) / (rng.high - rng.low)), atol=(rng.celsius_high - rng.celsius_low) / (rng.high - rng.low))
 
 
 def test_dunr_loads_with_dataset_level_normalisation():
@@ -137,3 +181,30 @@ def test_every_ablation_variant_trains(method, tmp_path, demo_scene_dir):
     result = evaluate(trainer.pipeline)
     assert np.isfinite(result["psnr"]) and result["psnr"] > 5.0
     assert ("psnr_preprocessed" in result) == (variant != "none")
+
+
+def test_viewer_screenshot_shows_the_thermal_colormap(tmp_path, demo_scene_dir):
+    """ns-viewer on a trained demo scene, looked at in headless Chromium: the 3D view shows the
+    render in the iron colormap (setup_env.sh installs Debian's chromium)."""
+    import shutil
+
+    import cv2
+    from scipy.spatial import cKDTree
+
+    from thermal_wild_ns.analysis.viewer_screenshot import ScreenshotArgs, screenshot
+    from thermal_wild_ns.data.palettes import palette_rgb
+
+    if shutil.which("chromium") is None:
+        pytest.skip("no chromium on PATH (setup_env.sh installs it where apt can)")
+    config = demo_trainer_config(tmp_path, steps=30, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.save_config()
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+    png = screenshot(ScreenshotArgs(load_config=config.get_base_dir() / "config.yml", output=tmp_path / "viewer.png", width=1200, height=800))
+    image = cv2.imread(str(png))[..., ::-1]  # RGB
+    view = image[80:-80, :600].reshape(-1, 3).astype(np.float32)
+    distance, _ = cKDTree(palette_rgb("iron").astype(np.float32)).query(view)
+    assert np.mean(distance < 30) > 0.8  # (almost) every pixel of the view is an iron colour
+    assert len(np.unique(view, axis=0)) > 200  # and they form an image, not a flat fill

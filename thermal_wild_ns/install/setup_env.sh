@@ -4,14 +4,21 @@
 # GPU machines: pass GPU=1 to let pip choose the CUDA torch that nerfstudio/gsplat need.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-# open3d (imported by ns-export) needs libusb; install it from the local apt cache where we can
+# System packages: from the local apt cache where we can (no network), else from the network.
+try_apt() {
+  [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null || return 1
+  apt-get install -y -q --no-download --no-install-recommends "$@" >/dev/null 2>&1 \
+    || apt-get install -y -q --no-install-recommends "$@" >/dev/null 2>&1
+}
+# open3d (imported by ns-export) needs libusb
 if ! ldconfig -p 2>/dev/null | grep -q "libusb-1.0.so.0"; then
-  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-    apt-get install -y -q --no-download libusb-1.0-0 >/dev/null 2>&1 || apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 \
-      || echo "warning: could not install libusb-1.0-0; ns-export will fail to import open3d" >&2
-  else
-    echo "warning: libusb-1.0-0 is missing (apt-get install libusb-1.0-0); ns-export will fail to import open3d" >&2
-  fi
+  try_apt libusb-1.0-0 || echo "warning: libusb-1.0-0 is missing (apt-get install libusb-1.0-0); ns-export will fail to import open3d" >&2
+fi
+# headless Chromium for the viewer screenshot (wild-thermal-viewer-screenshot and its test); the
+# apt cache may hold a newer build than the package index names, so its .deb files come first
+if ! command -v chromium >/dev/null; then
+  try_apt /var/cache/apt/archives/chromium_*.deb /var/cache/apt/archives/chromium-common_*.deb || try_apt chromium \
+    || echo "warning: chromium is missing (apt-get install chromium); the viewer screenshot test will be skipped" >&2
 fi
 python3 -m venv .venv
 constraints=()

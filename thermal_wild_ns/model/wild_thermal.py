@@ -15,7 +15,7 @@ Outside training the frame embedding is fixed (`inference_embedding`), so render
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple, Type, Union
+from typing import Dict, List, Literal, Optional, Tuple, Type, Union
 
 import torch
 from torch.profiler import record_function
@@ -62,6 +62,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     inference_embedding: str = "mean"
     """Frame embedding used outside training (evaluation, viewer, renders): 'mean' (average of the
     training frames' embeddings), 'zero', or a training-frame index such as '12'."""
+    colormap: Literal["iron", "inferno", "grey"] = "iron"
+    """Thermal colormap of the `rgb` output outside training (ns-viewer, ns-render videos); the
+    viewer has a control for it. `thermal` stays the scalar image."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8
@@ -164,6 +167,58 @@ class WildThermalModel(SplatfactoModel):
             verbose=False,
         )
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
+        self._add_viewer_controls(num_frames)
+
+    def _add_viewer_controls(self, num_frames: int) -> None:
+        """ns-viewer finds these on the model and shows them under "Custom Elements": the colormap,
+        the frame embedding to render with, and the colour bar in the data's units."""
+        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerControl, ViewerDropdown, ViewerText
+
+        def set_colormap(element):
+            self.config.colormap = element.value
+
+        def set_embedding(element):
+            self.config.inference_embedding = element.value
+
+        self.viewer_colormap = ViewerDropdown(
+            "Thermal colormap", self.config.colormap, ["iron", "inferno", "grey"], cb_hook=set_colormap, hint="colours of the rgb output"
+        )
+        choices = ["mean", "zero", *(str(i) for i in range(num_frames))]
+        default = self.config.inference_embedding if self.config.inference_embedding in choices else "mean"
+        self.viewer_embedding = ViewerDropdown(
+            "Frame embedding", default, choices, cb_hook=set_embedding,
+            hint="mean of the training frames' embeddings (the inference default), zero, or one training frame's",
+        )
+        self.viewer_colour_bar = ViewerText("Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap")
+        self.viewer_control = ViewerControl()  # the viewer hands it its clients
+        self.viewer_go_to_frame = ViewerButton(
+            "Look through the chosen frame's camera", cb_hook=lambda _: self._look_through_training_camera(self.viewer_embedding.value)
+        )
+        self._viewer_clients_placed: set = set()
+
+    def _look_through_training_camera(self, choice: str, only_new_clients: bool = False) -> None:
+        """Put viewer clients at a training camera (the chosen frame's, or the first one), as
+        clicking its frustum does. With `only_new_clients`, only clients not placed before: the
+        viewer opens looking at the scene instead of at an arbitrary pose."""
+        viewer = getattr(self.viewer_control, "viewer", None)
+        handles = getattr(viewer, "camera_handles", None)
+        if not handles:
+            return
+        handle = handles.get(int(choice), None) if choice.isdigit() else None
+        handle = handle or handles[min(handles)]
+        import numpy as np
+        import viser.transforms as vtf
+
+        # just past the frustum's image plane, which would otherwise cover the view (viser cameras look along +z)
+        forward = vtf.SO3(np.asarray(handle.wxyz)).as_matrix()[:, 2]
+        position = np.asarray(handle.position) + forward * 2.0 * viewer.config.camera_frustum_scale
+        for client_id, client in viewer.viser_server.get_clients().items():
+            if only_new_clients and client_id in self._viewer_clients_placed:
+                continue
+            self._viewer_clients_placed.add(client_id)
+            with client.atomic():
+                client.camera.wxyz = handle.wxyz
+                client.camera.position = position
 
     @property
     def emission(self) -> Tensor:
@@ -394,15 +449,31 @@ class WildThermalModel(SplatfactoModel):
             depth = torch.where(alpha > 0, depth, depth.detach().max())
         return self._outputs(thermal, alpha, background, depth)
 
-    @staticmethod
-    def _outputs(thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
-        return {
-            "thermal": thermal,  # [H, W, 1], normalised dataset units
-            "rgb": thermal.clamp(0.0, 1.0).expand(-1, -1, 3),  # grey view for nerfstudio's viewer/renderer
+    def _outputs(self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
+        clipped = thermal.clamp(0.0, 1.0)
+        if self.training:  # nothing reads rgb while training: the cheapest grey view
+            rgb = clipped.expand(-1, -1, 3)
+        else:  # the thermal colormap (viewer, ns-render)
+            rgb = self.colormap_table(clipped.device)[(clipped[..., 0] * 255).round().long()]  # [H, W, 3]
+            self._look_through_training_camera(self.viewer_embedding.value, only_new_clients=True)
+        return {  # rgb first: the viewer shows the first output by default
+            "rgb": rgb,
+            "thermal": thermal,  # [H, W, 1], normalised dataset units (training space)
             "accumulation": alpha,
             "background": background,
             "depth": depth,
         }
+
+    def colormap_table(self, device) -> Tensor:
+        """The configured colormap's 256 colours [256, 3] in [0, 1] on `device`."""
+        from thermal_wild_ns.data.palettes import palette_rgb
+
+        name = self.config.colormap
+        cached = getattr(self, "_colormap_table", None)
+        if cached is None or cached[0] != (name, str(device)):
+            table = torch.from_numpy(palette_rgb(name).astype("float32") / 255.0).to(device)
+            self._colormap_table = cached = ((name, str(device)), table)
+        return cached[1]
 
     # ----------------------------------------------------------------- losses
     def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Optional[Tensor]]:

@@ -22,8 +22,29 @@ class ThermalPipelineConfig(VanillaPipelineConfig):
     (between the neighbouring training frames) or 'wild' (optimised on the left half, right half scored)."""
 
 
+def colour_bar(datamanager, ticks: int = 5) -> str:
+    """The data values at evenly spaced points of the colormap: the model's [0, 1] training space
+    mapped back through the mean training LUT to the dataset's range, in degC where the dataset
+    documents its temperature bounds, else in native units."""
+    dataset = datamanager.train_dataset
+    rng = dataset.thermal_range
+    levels = np.linspace(0.0, 1.0, ticks, dtype=np.float32)
+    sequence = getattr(datamanager, "preprocessed", None)
+    if sequence is not None:
+        levels = sequence.to_original_normalised(levels, list(dataset.metadata["frame_indices"]))
+    if rng.celsius_low is not None and rng.celsius_high is not None:
+        return ", ".join(f"{v:.1f}" for v in rng.to_celsius(levels)) + " degC"
+    return ", ".join(f"{v:.0f}" for v in rng.low + levels * (rng.high - rng.low)) + f" ({rng.dtype} levels)"
+
+
 class ThermalPipeline(VanillaPipeline):
     config: ThermalPipelineConfig
+
+    def __init__(self, config: ThermalPipelineConfig, *args, **kwargs):
+        super().__init__(config, *args, **kwargs)
+        bar = getattr(self.model, "viewer_colour_bar", None)
+        if bar is not None:
+            bar.value = f"{self.model.config.colormap} 0->1: {colour_bar(self.datamanager)}"
 
     def get_average_eval_image_metrics(self, step: Optional[int] = None, output_path: Optional[Path] = None, get_std: bool = False):
         from thermal_wild_ns.analysis.evaluation import evaluate

@@ -1,0 +1,107 @@
+"""`wild-thermal-export gaussian-splat`: ns-export's Gaussian-splat PLY, with the thermal values.
+
+ns-export already writes this plugin's Gaussians (the baked emission as grey in the DC colour
+fields, so standard splat viewers show a grey scene). This command is ns-export's own
+`gaussian-splat` (same options) and adds to the PLY:
+- a float vertex property `thermal`: each Gaussian's baked emission (fixed frame embedding)
+  mapped back through the mean training LUT to the dataset's native units;
+- header comments: the frame embedding the emission was baked with, the units of `thermal`,
+  the dataset's native range and its temperature bounds where documented.
+ns-export drops NaN and transparent Gaussians before writing; the kept rows are found by their
+positions, which it copies unchanged and in order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Union
+
+import numpy as np
+import torch
+import tyro
+from nerfstudio.scripts import exporter as ns_export
+from typing_extensions import Annotated
+
+import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
+
+
+def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
+    """Indices into `means` [N, 3] of the exported positions [M, 3] (an ordered subset)."""
+    kept, j = np.empty(len(exported), dtype=np.int64), 0
+    for i, row in enumerate(exported):
+        while not np.array_equal(means[j], row):
+            j += 1
+        kept[i], j = j, j + 1
+    return kept
+
+
+def thermal_values(pipeline) -> np.ndarray:
+    """Baked emission of every Gaussian in the dataset's native units [N]."""
+    model, datamanager = pipeline.model, pipeline.datamanager
+    with torch.no_grad():
+        emission = model.gaussian_emission(model.inference_embedding())[:, 0].float().cpu().numpy()
+    sequence = getattr(datamanager, "preprocessed", None)
+    if sequence is not None:
+        emission = sequence.to_original_normalised(emission, list(datamanager.train_dataset.metadata["frame_indices"]))
+    rng = datamanager.train_dataset.thermal_range
+    return (rng.low + emission * (rng.high - rng.low)).astype(np.float32)
+
+
+def header_comments(pipeline) -> List[str]:
+    rng = pipeline.datamanager.train_dataset.thermal_range
+    lines = [
+        f"frame_embedding {pipeline.model.config.inference_embedding} (the emission MLP was baked with this frame embedding)",
+        f"thermal: baked emission in native units ({rng.dtype}), through the mean training LUT",
+        "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",
+        f"native_range {rng.low:g} {rng.high:g}",
+    ]
+    if rng.celsius_low is not None and rng.celsius_high is not None:
+        lines.append(f"celsius_range {rng.celsius_low:g} {rng.celsius_high:g} (at native_range, linear)")
+    return [f"thermal_wild_ns {line}" for line in lines]
+
+
+@dataclass
+class ExportThermalSplat(ns_export.ExportGaussianSplat):
+    """ns-export gaussian-splat, plus a `thermal` property and header comments."""
+
+    def main(self) -> None:
+        captured = {}
+        original_setup, original_write = ns_export.eval_setup, ns_export.ExportGaussianSplat.write_ply
+
+        def eval_setup(*args, **kwargs):
+            result = original_setup(*args, **kwargs)
+            captured["pipeline"] = result[1]
+            return result
+
+        def write_ply(filename, count, map_to_tensors):
+            pipeline = captured["pipeline"]
+            means = pipeline.model.means.detach().cpu().numpy()
+            exported = np.concatenate([map_to_tensors[k][:, None] if map_to_tensors[k].ndim == 1 else map_to_tensors[k] for k in "xyz"], 1)
+            map_to_tensors["thermal"] = thermal_values(pipeline)[_kept_rows(means, exported)]
+            partial = Path(filename).with_suffix(".partial.ply")
+            original_write(str(partial), count, map_to_tensors)
+            data = partial.read_bytes()
+            anchor = b"comment Vertical Axis: z\n"
+            comments = "".join(f"comment {line}\n" for line in header_comments(pipeline)).encode()
+            partial.write_bytes(data.replace(anchor, anchor + comments, 1))
+            partial.replace(filename)  # never a half-written PLY under the final name
+
+        with contextlib.ExitStack() as stack:
+            ns_export.eval_setup = eval_setup
+            stack.callback(setattr, ns_export, "eval_setup", original_setup)
+            ns_export.ExportGaussianSplat.write_ply = staticmethod(write_ply)
+            stack.callback(setattr, ns_export.ExportGaussianSplat, "write_ply", staticmethod(original_write))
+            super().main()
+
+
+Commands = tyro.conf.FlagConversionOff[Union[Annotated[ExportThermalSplat, tyro.conf.subcommand(name="gaussian-splat")]]]
+
+
+def entrypoint():
+    tyro.cli(Commands).main()
+
+
+if __name__ == "__main__":
+    entrypoint()
