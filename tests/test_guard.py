@@ -61,10 +61,30 @@ def test_a_single_bad_step_is_skipped_and_training_goes_on(tmp_path, demo_scene_
 
 
 def test_persistent_divergence_stops_with_a_clear_error(tmp_path, demo_scene_dir):
-    trainer = _trainer(tmp_path, demo_scene_dir, steps=20, max_consecutive_skips=3)
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=20, max_consecutive_skips=3, max_rollbacks=1)
     _poison_loss(trainer.pipeline.model, from_step=5)
-    with pytest.raises(TrainingDiverged, match=r"step 7: 3 steps in a row were skipped \(last: non-finite loss"):
+    # steps 5-7 skipped -> back to the state of step 0; 8-10 skipped again -> no rollback left: stop
+    with pytest.raises(TrainingDiverged, match=r"step 10: 3 steps in a row were skipped \(last: non-finite loss"):
         trainer.train()
+    assert trainer.guard.rollbacks == 1
+
+
+def test_broken_parameters_roll_back_to_the_last_healthy_state(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=16, check_every=5)
+    model = trainer.pipeline.model
+    original = model.get_loss_dict
+
+    def break_once(outputs, batch, metrics_dict=None):
+        if model.training and model.step == 10:
+            with torch.no_grad():
+                model.gauss_params["means"][:5] = float("nan")  # as a bad update would leave them
+        return original(outputs, batch, metrics_dict)
+
+    model.get_loss_dict = break_once
+    trainer.train()
+    assert trainer.guard.rollbacks == 1  # the check at step 10 found the NaN and went back to step 5's state
+    assert all(bool(torch.isfinite(p).all()) for p in model.parameters())
+    assert model.num_points > 0 and model.step == 15
 
 
 def test_loss_spike_and_nan_gradient_detection():

@@ -3,14 +3,16 @@
 `GuardedTrainer` is nerfstudio's Trainer with a check between backward and the optimizer step:
 a step whose loss or gradients are not finite, or whose loss spikes far above the recent
 median, is skipped (no parameter update, no densification statistics) and logged. Every
-`check_every` steps it also checks the model itself; it stops with `TrainingDiverged` (a clear
-message, and a non-zero exit code from `ns-train`) when the parameters hold NaN/inf, when all
-Gaussians are gone or transparent, or when too many steps in a row had to be skipped.
+`check_every` steps it also checks the model itself and keeps a copy of it when healthy. When
+the parameters hold NaN/inf, all Gaussians are gone or transparent, or too many steps in a row
+had to be skipped, training rolls back to that copy and goes on; after `max_rollbacks` it stops
+with `TrainingDiverged` (a clear message, and a non-zero exit code from `ns-train`).
 """
 
 from __future__ import annotations
 
 import collections
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Deque, Dict, List, Optional, Type
@@ -40,6 +42,9 @@ class DivergenceGuardConfig:
     """Stop when this many steps in a row had to be skipped."""
     check_every: int = 100
     """Steps between checks of the model itself (finite parameters, Gaussians left, opacity)."""
+    max_rollbacks: int = 3
+    """When the model breaks (NaN/inf parameters, collapse, every step skipped), training goes back
+    to the last healthy state (kept at every model check) up to this many times, then stops."""
     min_mean_opacity: float = 1e-3
     """Stop when the mean Gaussian opacity falls below this (everything turned transparent)."""
 
@@ -61,6 +66,7 @@ class DivergenceGuard:
         self.frame_loss: Dict[int, float] = {}  # each training frame's loss at its last visit
         self.skipped = 0
         self.consecutive = 0
+        self.rollbacks = 0
 
     def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str], frame: Optional[int] = None) -> Optional[str]:
         """Why this step must be skipped, or None. One host sync: the loss and the sum of all
@@ -174,7 +180,40 @@ class GuardedTrainer(Trainer):
 
     def train_iteration(self, step: int):
         self._step = step
-        result = super().train_iteration(step)
-        if self.config.guard.enabled and step % self.config.guard.check_every == 0:
-            self.guard.check_model(self.pipeline.model, step)
+        if not self.config.guard.enabled:
+            return super().train_iteration(step)
+        try:
+            result = super().train_iteration(step)
+            if step % self.config.guard.check_every == 0:
+                self.guard.check_model(self.pipeline.model, step)
+                self._healthy = self._snapshot(step)
+        except TrainingDiverged as err:
+            healthy = getattr(self, "_healthy", None)
+            if healthy is None or self.guard.rollbacks >= self.config.guard.max_rollbacks:
+                raise
+            self._restore(healthy)
+            model = self.pipeline.model
+            model.step = step  # splatfacto's load_state_dict sets it to 30000 (for its viewer)
+            model.skip_densification_step = True  # this step's statistics belong to the discarded state
+            self.guard.rollbacks += 1
+            self.guard.consecutive = 0
+            CONSOLE.log(f"[yellow]{err} -> rolled back to the healthy state of step {healthy['step']} "
+                        f"({self.guard.rollbacks} of at most {self.config.guard.max_rollbacks} rollbacks)")
+            zero = torch.zeros((), device=self.pipeline.device)
+            return zero, {"rolled_back": zero}, {}
         return result
+
+    def _snapshot(self, step: int) -> dict:
+        """A copy of everything a rollback restores: parameters (Gaussians, embeddings, MLPs),
+        densification statistics and RNG (the model's extra state), optimizer moments."""
+        return {
+            "step": step,
+            "model": copy.deepcopy(self.pipeline.model.state_dict()),
+            "optimizers": {name: copy.deepcopy(opt.state_dict()) for name, opt in self.optimizers.optimizers.items()},
+        }
+
+    def _restore(self, healthy: dict) -> None:
+        self.pipeline.model.load_state_dict(copy.deepcopy(healthy["model"]))
+        self._rebind_optimizers()  # the load replaced the Gaussian parameters
+        for name, optimizer in self.optimizers.optimizers.items():
+            optimizer.load_state_dict(copy.deepcopy(healthy["optimizers"][name]))
