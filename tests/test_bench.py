@@ -71,3 +71,26 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
     assert "| wild-thermal-3dgs | " in (out / "bench.md").read_text().split("Stress scenes")[1]
     strip = cv2.imread(str(out / "stress-outlier_path_strip.png"))
     assert strip is not None and strip.shape[0] == 2 * 2 * 96  # ground truth + one method, each 2x 96 rows
+
+
+def test_budget_knee_is_the_smallest_budget_near_the_uncapped_run():
+    from thermal_wild_ns.benchmarks.budget_sweep import knee
+
+    rows = [{"budget": b, "psnr": p, "gaussians": b or 400_000} for b, p in ((50_000, 29.0), (100_000, 29.85), (150_000, 30.1), (0, 30.0))]
+    assert knee(rows, 0.2)["budget"] == 100_000
+    assert knee(rows, 0.1)["budget"] == 150_000
+    assert knee([{"budget": 5, "failed": "OutOfMemoryError"}], 0.2) is None
+
+
+def test_budget_sweep_runs_end_to_end_on_cpu(tmp_path):
+    from thermal_wild_ns.benchmarks.budget_sweep import SweepArgs, main
+
+    out = tmp_path / "sweep"
+    result = main(SweepArgs(method="wild-thermal-3dgs", budgets=(2500, 0), steps=40, output_dir=out))
+    assert [r["budget"] for r in result["rows"]] == [2500, 100_000_000]
+    assert all(r["gaussians"] > 0 and "psnr" in r for r in result["rows"])
+    assert result["knee"] is not None and (out / "sweep.md").is_file()
+    assert cv2.imread(str(out / "psnr_vs_gaussians.png")) is not None
+    # runs made by separate commands merge into the same sweep
+    merged = main(SweepArgs(merge=tuple(sorted(out.glob("budget_*/bench.json"))), output_dir=tmp_path / "merged"))
+    assert merged["rows"] == result["rows"]

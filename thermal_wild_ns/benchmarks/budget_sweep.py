@@ -1,0 +1,125 @@
+"""`wild-thermal-budget-sweep`: how many Gaussians a scene needs.
+
+Trains one method on one scene once per Gaussian budget (`--budgets`, 0 = uncapped) with
+`wild-thermal-bench`, or merges bench.json files of such runs made by separate commands
+(`--merge`, e.g. one GPU command per budget). Writes to `--output-dir`:
+- `sweep.json`: budget, final Gaussian count, test PSNR/SSIM (fixed embedding), ms/step per run,
+  and the knee;
+- `sweep.md`: the same as a table;
+- `psnr_vs_gaussians.png`: test PSNR against the final Gaussian count.
+The knee is the smallest budget whose PSNR is within `--tolerance` dB of the uncapped run's
+(of the largest budget's when there is no uncapped run): the default to set.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import tyro
+
+UNCAPPED = 100_000_000
+"""What budget 0 means: more Gaussians than any run here reaches."""
+
+
+@dataclass
+class SweepArgs:
+    scene: str = "demo"
+    """'demo', 'stress:FAULT' or a dataset folder (as in wild-thermal-bench)."""
+    method: str = "wild-thermal"
+    budgets: Tuple[int, ...] = (50_000, 100_000, 150_000, 300_000, 0)
+    """Gaussian budgets (max_gaussians) to train with; 0 = uncapped."""
+    steps: int = 30_000
+    tolerance: float = 0.2
+    """PSNR (dB) the knee may give up against the uncapped run."""
+    output_dir: Path = Path("outputs/budget_sweep")
+    cache_dir: Optional[Path] = None
+    merge: Tuple[Path, ...] = ()
+    """Instead of training: bench.json files of one method on one scene at several budgets."""
+
+
+def _rows(results: List[Dict]) -> List[Dict]:
+    rows = []
+    for result in results:
+        budget = result["args"]["max_gaussians"]
+        for run in result["runs"]:
+            if "failed" in run:
+                rows.append({"budget": budget, "failed": run["failed"], "method": run["method"], "scene": run["scene"]})
+                continue
+            fixed = run["final"]["fixed"]
+            rows.append({"budget": budget, "method": run["method"], "scene": run["scene"], "gaussians": run["gaussians"],
+                         "psnr": fixed["psnr"], "ssim": fixed["ssim"], "ms_per_step": run["ms_per_step"]})
+    if len({(r["method"], r["scene"]) for r in rows}) > 1:
+        raise ValueError("a budget sweep compares one method on one scene; got " + ", ".join(sorted({f"{r['method']} on {r['scene']}" for r in rows})))
+    return sorted(rows, key=lambda r: r["budget"] if r["budget"] not in (None, 0) else UNCAPPED)
+
+
+def knee(rows: List[Dict], tolerance: float) -> Optional[Dict]:
+    """The smallest budget within `tolerance` dB of the reference (uncapped, else the largest budget)."""
+    done = [r for r in rows if "failed" not in r]
+    if not done:
+        return None
+    reference = next((r for r in done if r["budget"] in (None, 0, UNCAPPED)), done[-1])
+    return next(r for r in done if r["psnr"] >= reference["psnr"] - tolerance)
+
+
+def _write(args: SweepArgs, rows: List[Dict]) -> Dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    best = knee(rows, args.tolerance)
+    result = {"tolerance_db": args.tolerance, "rows": rows, "knee": best}
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    (args.output_dir / "sweep.json").write_text(json.dumps(result, indent=1))
+    label = lambda b: "uncapped" if b in (None, 0, UNCAPPED) else f"{b:,}"  # noqa: E731
+    lines = ["| budget | Gaussians | PSNR | SSIM | ms/step |", "| --- | --- | --- | --- | --- |"]
+    for r in rows:
+        if "failed" in r:
+            lines.append(f"| {label(r['budget'])} | failed: {r['failed'][:80]} | | | |")
+        else:
+            lines.append(f"| {label(r['budget'])} | {r['gaussians']:,} | {r['psnr']:.2f} | {r['ssim']:.3f} | {r['ms_per_step']:.2f} |")
+    if best is not None:
+        lines += ["", f"Knee (smallest budget within {args.tolerance} dB of the reference): {label(best['budget'])}, {best['gaussians']:,} Gaussians, {best['psnr']:.2f} dB."]
+    (args.output_dir / "sweep.md").write_text("\n".join(lines) + "\n")
+    done = [r for r in rows if "failed" not in r]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot([r["gaussians"] for r in done], [r["psnr"] for r in done], marker="o")
+    for r in done:
+        ax.annotate(label(r["budget"]), (r["gaussians"], r["psnr"]), fontsize=7, textcoords="offset points", xytext=(4, 4))
+    if best is not None:
+        ax.axvline(best["gaussians"], ls="--", color="grey", label=f"knee: {label(best['budget'])}")
+        ax.legend(fontsize=8)
+    ax.set(title=f"{done[0]['method']} on {done[0]['scene']}" if done else "no finished run", xlabel="final Gaussians", ylabel="test PSNR (dB, fixed embedding)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(args.output_dir / "psnr_vs_gaussians.png", dpi=120)
+    plt.close(fig)
+    print("\n".join(lines))
+    return result
+
+
+def main(args: SweepArgs) -> Dict:
+    if args.merge:
+        return _write(args, _rows([json.loads(Path(p).read_text()) for p in args.merge]))
+    from thermal_wild_ns.benchmarks.bench import BenchArgs
+    from thermal_wild_ns.benchmarks.bench import main as bench
+
+    results = []
+    for budget in args.budgets:
+        run_dir = args.output_dir / f"budget_{budget or 'uncapped'}"
+        results.append(bench(BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED,
+                                       output_dir=run_dir, cache_dir=args.cache_dir, fps_frames=0, wild_steps=5,
+                                       eval_at=(args.steps,))))
+    return _write(args, _rows(results))
+
+
+def entrypoint():
+    main(tyro.cli(SweepArgs))
+
+
+if __name__ == "__main__":
+    entrypoint()
