@@ -135,7 +135,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     sequence = preprocess(capture.frames, rng, args.preprocessing, args.cache_dir)
     raw = [rng.read(f.image) for f in tqdm(capture.frames, desc="Reading frames")]
     processed = [np.load(sequence.frame_path(t)) for t in range(len(capture.frames))]
-    native = lambda frames: [rng.low + float(f.mean()) * (rng.high - rng.low) for f in frames]  # noqa: E731
+    native = lambda frames: [float(rng.to_native(f.mean())) for f in frames]  # noqa: E731
     result = {
         "data": str(args.data),
         "layout": capture.layout,

@@ -148,8 +148,6 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
     outputs_meta = datamanager.train_dataparser_outputs
     transform, scale = outputs_meta.dataparser_transform.float(), float(outputs_meta.dataparser_scale)
     reference = datamanager.train_dataset.cameras[0]
-    sequence = getattr(datamanager, "preprocessed", None)
-    train_frames = list(datamanager.train_dataset.metadata["frame_indices"])
     rng = datamanager.train_dataset.thermal_range
     pipeline.eval()
     preds, gts, rows, kept, kept_truth = [], [], [], {}, {}
@@ -164,8 +162,7 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
         with torch.no_grad():
             outputs = model.get_outputs_for_camera(camera)
         pred = (outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(-1, keepdim=True))[..., 0].float().cpu().numpy()
-        if sequence is not None:
-            pred = sequence.to_original_normalised(pred, train_frames).astype(np.float32)
+        pred = datamanager.novel_view_to_original(pred)
         gt = rng.read(Path(scene_root) / view["file_path"])
         true_depth = np.load(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's
         depth = outputs["depth"][..., 0].float().cpu().numpy()

@@ -34,6 +34,7 @@ import tyro
 import thermal_wild_ns.compat  # noqa: F401
 from method_configs.wild_thermal import METHODS, method_trainer
 from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
+from thermal_wild_ns.benchmarks import device_name
 from thermal_wild_ns.benchmarks.render_fps import measure_fps
 
 VARIANTS = ("splatfacto", *METHODS)
@@ -348,7 +349,7 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     scenes = list(dict.fromkeys(r["scene"] for r in runs))
     result = {
         "args": {k: (str(v) if isinstance(v, Path) else [str(x) for x in v] if k == "merge" else v) for k, v in vars(args).items()},
-        "device": device or (torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu"),
+        "device": device or device_name(),
         "torch": torch_version or torch.__version__,
         "runs": runs,
     }

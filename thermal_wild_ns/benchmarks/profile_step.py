@@ -23,6 +23,7 @@ from typing import Dict, Optional
 import torch
 import tyro
 
+from thermal_wild_ns.benchmarks import device_name
 from thermal_wild_ns.benchmarks.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, train_steps, trainer_config
 
 
@@ -124,7 +125,7 @@ def profile(args: ProfileArgs) -> Dict:
                 "self_cpu_ms": e.self_cpu_time_total / 1000 / n}
 
     result = {
-        "scene": args.scene, "method": args.method, "device": torch.cuda.get_device_name() if cuda else "cpu",
+        "scene": args.scene, "method": args.method, "device": device_name(),
         "torch": torch.__version__, "warmup": args.warmup, "gaussians": int(trainer.pipeline.model.num_points),
         "ms_per_step": round(ms_per_step, 3), "profiled_ms_per_step": round(profiled_ms, 3), "gpu_kernel_ms_per_step": round(gpu_ms, 3),
         "host_syncs_per_step": {k: v / 5 for k, v in syncs.items()},

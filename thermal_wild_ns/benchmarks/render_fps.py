@@ -23,6 +23,7 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
+from thermal_wild_ns.benchmarks import device_name
 
 
 @dataclass
@@ -81,7 +82,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 means=model.means, quats=model.quats, scales=torch.exp(model.scales),
                 opacities=torch.sigmoid(model.opacities).squeeze(-1), colors=model.gaussian_emission(model.inference_embedding()),
             )
-            views = [(get_viewmat(c.camera_to_worlds), c.get_intrinsics_matrices().to(model.device)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
+            views = [(get_viewmat(c.camera_to_worlds), model.intrinsics(c)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
 
             def splat_only(i: int) -> torch.Tensor:
                 viewmat, K = views[i % len(views)]
@@ -98,7 +99,7 @@ def measure(args: FpsArgs) -> Dict:
     _, pipeline, _, _ = eval_setup(args.load_config, test_mode="test")
     result = {
         "config": str(args.load_config),
-        "device": torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu",
+        "device": device_name(),
         "torch": torch.__version__,
         **measure_fps(pipeline, args.frames),
     }

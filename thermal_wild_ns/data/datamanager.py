@@ -102,6 +102,15 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
         capture = self.dataparser.capture()
         return preprocess(capture.frames, self.dataparser.radiometric_range(), self.config.preprocessing, self.config.preprocessing_cache)
 
+    def novel_view_to_original(self, values: np.ndarray) -> np.ndarray:
+        """Renders of views where no frame was captured (paths, the viewer's colour bar, exports),
+        from the training space back to the dataset-normalised original space: through the mean
+        training LUT when the frames were preprocessed."""
+        sequence = self.preprocessed
+        if sequence is None:
+            return values
+        return sequence.to_original_normalised(values, list(self.train_dataset.metadata["frame_indices"])).astype(np.float32)
+
     def _with_preprocessing(self, outputs: DataparserOutputs) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed
         outputs.metadata["grey_rgb"] = self.config.grey_rgb

@@ -166,7 +166,7 @@ class ThermalDataParser(DataParser):
             if seeds.values is None:  # sample the frames once; train and eval outputs share the seeds
                 rng = self.radiometric_range()
                 values = sample_point_values(seeds.xyz, train, rng)
-                seeds = SeedPoints(xyz=seeds.xyz, source=seeds.source, values=rng.low + values * (rng.high - rng.low))
+                seeds = SeedPoints(xyz=seeds.xyz, source=seeds.source, values=rng.to_native(values))
             CONSOLE.log(f"Gaussian seeds: {len(seeds.xyz)} points ({seeds.source})")
             self._seeds = seeds
         return self._seeds

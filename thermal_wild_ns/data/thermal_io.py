@@ -90,6 +90,10 @@ class RadiometricRange:
     def normalize(self, raw: np.ndarray) -> np.ndarray:
         return ((raw.astype(np.float64) - self.low) / (self.high - self.low)).astype(np.float32)
 
+    def to_native(self, normalised: np.ndarray) -> np.ndarray:
+        """Normalised values -> native units (the inverse of `normalize`)."""
+        return self.low + normalised * (self.high - self.low)
+
     def read(self, path: Path) -> np.ndarray:
         """One frame, normalised: float32 [H, W]."""
         return self.normalize(read_raw_frame(path, self.palette))

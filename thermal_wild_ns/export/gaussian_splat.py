@@ -42,11 +42,7 @@ def thermal_values(pipeline) -> np.ndarray:
     model, datamanager = pipeline.model, pipeline.datamanager
     with torch.no_grad():
         emission = model.gaussian_emission(model.inference_embedding())[:, 0].float().cpu().numpy()
-    sequence = getattr(datamanager, "preprocessed", None)
-    if sequence is not None:
-        emission = sequence.to_original_normalised(emission, list(datamanager.train_dataset.metadata["frame_indices"]))
-    rng = datamanager.train_dataset.thermal_range
-    return (rng.low + emission * (rng.high - rng.low)).astype(np.float32)
+    return datamanager.train_dataset.thermal_range.to_native(datamanager.novel_view_to_original(emission)).astype(np.float32)
 
 
 def header_comments(pipeline) -> List[str]:

@@ -23,6 +23,7 @@ from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
 from nerfstudio.utils.rich_utils import CONSOLE
+from nerfstudio.viewer.viewer_elements import ViewerControl
 from torch import Tensor, nn
 from torch.nn import Parameter
 
@@ -30,6 +31,18 @@ from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.rendering import Backend, rasterization
+
+
+class _OnViewerConnect(ViewerControl):
+    """nerfstudio's ViewerControl (the viewer hands it itself when it starts) that also calls
+    `on_connect(client)` for every browser that connects."""
+
+    def __init__(self, on_connect):
+        self.on_connect = on_connect
+
+    def _setup(self, viewer) -> None:
+        super()._setup(viewer)
+        viewer.viser_server.on_client_connect(self.on_connect)
 
 
 @dataclass
@@ -172,7 +185,7 @@ class WildThermalModel(SplatfactoModel):
     def _add_viewer_controls(self, num_frames: int) -> None:
         """ns-viewer finds these on the model and shows them under "Custom Elements": the colormap,
         the frame embedding to render with, and the colour bar in the data's units."""
-        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerControl, ViewerDropdown, ViewerText
+        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerText
 
         def set_colormap(element):
             self.config.colormap = element.value
@@ -190,16 +203,16 @@ class WildThermalModel(SplatfactoModel):
             hint="mean of the training frames' embeddings (the inference default), zero, or one training frame's",
         )
         self.viewer_colour_bar = ViewerText("Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap")
-        self.viewer_control = ViewerControl()  # the viewer hands it its clients
+        self.viewer_control = _OnViewerConnect(  # the viewer opens looking at the scene, not from an arbitrary pose
+            lambda client: self._look_through_training_camera(self.viewer_embedding.value, client)
+        )
         self.viewer_go_to_frame = ViewerButton(
             "Look through the chosen frame's camera", cb_hook=lambda _: self._look_through_training_camera(self.viewer_embedding.value)
         )
-        self._viewer_clients_placed: set = set()
 
-    def _look_through_training_camera(self, choice: str, only_new_clients: bool = False) -> None:
-        """Put viewer clients at a training camera (the chosen frame's, or the first one), as
-        clicking its frustum does. With `only_new_clients`, only clients not placed before: the
-        viewer opens looking at the scene instead of at an arbitrary pose."""
+    def _look_through_training_camera(self, choice: str, client=None) -> None:
+        """Put a viewer client (default: all) at a training camera, the chosen frame's or else the
+        first one, as clicking its frustum does."""
         viewer = getattr(self.viewer_control, "viewer", None)
         handles = getattr(viewer, "camera_handles", None)
         if not handles:
@@ -212,13 +225,10 @@ class WildThermalModel(SplatfactoModel):
         # just past the frustum's image plane, which would otherwise cover the view (viser cameras look along +z)
         forward = vtf.SO3(np.asarray(handle.wxyz)).as_matrix()[:, 2]
         position = np.asarray(handle.position) + forward * 2.0 * viewer.config.camera_frustum_scale
-        for client_id, client in viewer.viser_server.get_clients().items():
-            if only_new_clients and client_id in self._viewer_clients_placed:
-                continue
-            self._viewer_clients_placed.add(client_id)
-            with client.atomic():
-                client.camera.wxyz = handle.wxyz
-                client.camera.position = position
+        for each in [client] if client is not None else viewer.viser_server.get_clients().values():
+            with each.atomic():
+                each.camera.wxyz = handle.wxyz
+                each.camera.position = position
 
     @property
     def emission(self) -> Tensor:
@@ -455,7 +465,6 @@ class WildThermalModel(SplatfactoModel):
             rgb = clipped.expand(-1, -1, 3)
         else:  # the thermal colormap (viewer, ns-render)
             rgb = self.colormap_table(clipped.device)[(clipped[..., 0] * 255).round().long()]  # [H, W, 3]
-            self._look_through_training_camera(self.viewer_embedding.value, only_new_clients=True)
         return {  # rgb first: the viewer shows the first output by default
             "rgb": rgb,
             "thermal": thermal,  # [H, W, 1], normalised dataset units (training space)

@@ -26,15 +26,11 @@ def colour_bar(datamanager, ticks: int = 5) -> str:
     """The data values at evenly spaced points of the colormap: the model's [0, 1] training space
     mapped back through the mean training LUT to the dataset's range, in degC where the dataset
     documents its temperature bounds, else in native units."""
-    dataset = datamanager.train_dataset
-    rng = dataset.thermal_range
-    levels = np.linspace(0.0, 1.0, ticks, dtype=np.float32)
-    sequence = getattr(datamanager, "preprocessed", None)
-    if sequence is not None:
-        levels = sequence.to_original_normalised(levels, list(dataset.metadata["frame_indices"]))
+    rng = datamanager.train_dataset.thermal_range
+    levels = datamanager.novel_view_to_original(np.linspace(0.0, 1.0, ticks, dtype=np.float32))
     if rng.celsius_low is not None and rng.celsius_high is not None:
         return ", ".join(f"{v:.1f}" for v in rng.to_celsius(levels)) + " degC"
-    return ", ".join(f"{v:.0f}" for v in rng.low + levels * (rng.high - rng.low)) + f" ({rng.dtype} levels)"
+    return ", ".join(f"{v:.0f}" for v in rng.to_native(levels)) + f" ({rng.dtype} levels)"
 
 
 class ThermalPipeline(VanillaPipeline):

@@ -58,8 +58,7 @@ class PreprocessedSequence:
 
     def to_native(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
         """Processed values in the normalised scale -> original native values, through `lut(index)`'s inverse."""
-        rng = self.radiometric_range
-        return invert_lut(self.lut(index), rng.low + normalised * (rng.high - rng.low), self.grid)
+        return invert_lut(self.lut(index), self.radiometric_range.to_native(normalised), self.grid)
 
     def to_original_normalised(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
         """Processed values -> the dataset-normalised ORIGINAL scale (where raw frames live)."""

@@ -16,8 +16,6 @@ beside a `radiometry.json` that states the mapping.
 from __future__ import annotations
 
 import contextlib
-import copy
-import inspect
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,65 +41,69 @@ class RadiometricOptions:
         return self.radiometric_dir or output_path.with_name(output_path.stem + "_radiometric")
 
 
-def write_radiometric_frames(pipeline, cameras, folder: Path, mode: str, resolution_scale: float = 1.0) -> int:
-    """Render `cameras` (fixed embedding) and write their thermal values in the dataset's units;
-    returns the number of frames written."""
-    from tqdm import tqdm
+class RadiometricFrameWriter:
+    """Writes the thermal values of each frame a model renders, in the dataset's units."""
 
-    datamanager = pipeline.datamanager
-    dataset = datamanager.train_dataset
-    rng = dataset.thermal_range
-    if mode == "celsius" and (rng.celsius_low is None or rng.celsius_high is None):
-        raise ValueError(f"{datamanager.config.dataparser.data}: the dataset documents no temperature bounds; use --radiometric uint16")
-    if mode == "uint16" and not (rng.low >= 0 and rng.high <= 65535):
-        raise ValueError(f"{datamanager.config.dataparser.data}: native range {rng.low}..{rng.high} ({rng.dtype}) does not fit 16 bits; use --radiometric celsius")
-    sequence = getattr(datamanager, "preprocessed", None)
-    train_frames = list(dataset.metadata["frame_indices"])
-    cameras = copy.deepcopy(cameras)  # ns-render rescales its cameras in place afterwards
-    cameras.rescale_output_resolution(resolution_scale)
-    cameras = cameras.to(pipeline.device)
-    folder.mkdir(parents=True, exist_ok=True)
-    pipeline.eval()
-    import cv2
+    def __init__(self, datamanager, folder: Path, mode: str):
+        rng = datamanager.train_dataset.thermal_range
+        if mode == "celsius" and (rng.celsius_low is None or rng.celsius_high is None):
+            raise ValueError(f"{datamanager.config.dataparser.data}: the dataset documents no temperature bounds; use --radiometric uint16")
+        if mode == "uint16" and not (rng.low >= 0 and rng.high <= 65535):
+            raise ValueError(f"{datamanager.config.dataparser.data}: native range {rng.low}..{rng.high} ({rng.dtype}) does not fit 16 bits; use --radiometric celsius")
+        self.datamanager, self.rng, self.folder, self.mode, self.frames = datamanager, rng, folder, mode, 0
+        folder.mkdir(parents=True, exist_ok=True)
 
-    for i in tqdm(range(cameras.size), desc=f"radiometric frames ({mode})"):
-        with torch.no_grad():
-            thermal = pipeline.model.get_outputs_for_camera(cameras[i : i + 1])["thermal"][..., 0].float().cpu().numpy()  # [H, W]
-        normalised = sequence.to_original_normalised(thermal, train_frames) if sequence is not None else thermal
-        if mode == "uint16":
-            levels = np.clip(np.round(rng.low + np.clip(normalised, 0.0, 1.0) * (rng.high - rng.low)), 0, 65535).astype(np.uint16)
-            cv2.imwrite(str(folder / f"{i:05d}.png"), levels)
+    def write(self, thermal: torch.Tensor) -> None:
+        """thermal [H, W, 1], the model's training space -> the next frame file."""
+        import cv2
+
+        normalised = np.clip(self.datamanager.novel_view_to_original(thermal[..., 0].float().cpu().numpy()), 0.0, 1.0)
+        if self.mode == "uint16":
+            cv2.imwrite(str(self.folder / f"{self.frames:05d}.png"), np.round(self.rng.to_native(normalised)).astype(np.uint16))
         else:
-            np.save(folder / f"{i:05d}.npy", rng.to_celsius(np.clip(normalised, 0.0, 1.0)).astype(np.float32))
-    (folder / "radiometry.json").write_text(json.dumps({
-        "frames": int(cameras.size),
-        "format": {"uint16": "16-bit PNG, native levels", "celsius": "float32 .npy, degC"}[mode],
-        "native_range": [rng.low, rng.high],
-        "native_dtype": rng.dtype,
-        "celsius_range": [rng.celsius_low, rng.celsius_high],
-        "mapping": "render -> mean training LUT inverse -> dataset range" if sequence is not None else "render -> dataset range",
-        "frame_embedding": pipeline.model.config.inference_embedding,
-    }, indent=1))
-    return int(cameras.size)
+            np.save(self.folder / f"{self.frames:05d}.npy", self.rng.to_celsius(normalised).astype(np.float32))
+        self.frames += 1
+
+    def close(self, frame_embedding: str) -> None:
+        rng = self.rng
+        (self.folder / "radiometry.json").write_text(json.dumps({
+            "frames": self.frames,
+            "format": {"uint16": "16-bit PNG, native levels", "celsius": "float32 .npy, degC"}[self.mode],
+            "native_range": [rng.low, rng.high],
+            "native_dtype": rng.dtype,
+            "celsius_range": [rng.celsius_low, rng.celsius_high],
+            "mapping": "render -> mean training LUT inverse -> dataset range" if self.datamanager.preprocessed is not None else "render -> dataset range",
+            "frame_embedding": frame_embedding,
+        }, indent=1))
 
 
 @contextlib.contextmanager
 def _radiometric_too(options: RadiometricOptions, output_path: Path):
-    """While ns-render's command runs, its trajectory writer first writes the radiometric frames."""
+    """While ns-render's command runs, every frame its trajectory writer renders also goes to a
+    RadiometricFrameWriter: the same renders as the video, not a second pass."""
     original = ns_render._render_trajectory_video
     if options.radiometric == "none":
         yield
         return
-    signature = inspect.signature(original)
 
-    def writer(*args, **kwargs):
-        bound = signature.bind(*args, **kwargs)
-        bound.apply_defaults()
-        write_radiometric_frames(bound.arguments["pipeline"], bound.arguments["cameras"], options.radiometric_folder(output_path),
-                                 options.radiometric, bound.arguments["rendered_resolution_scaling_factor"])
-        return original(*args, **kwargs)
+    def trajectory_writer(pipeline, *args, **kwargs):
+        model = pipeline.model
+        frames = RadiometricFrameWriter(pipeline.datamanager, options.radiometric_folder(output_path), options.radiometric)
+        render = model.get_outputs_for_camera
 
-    ns_render._render_trajectory_video = writer
+        def recording(*render_args, **render_kwargs):
+            outputs = render(*render_args, **render_kwargs)
+            frames.write(outputs["thermal"])
+            return outputs
+
+        model.get_outputs_for_camera = recording
+        try:
+            return original(pipeline, *args, **kwargs)
+        finally:
+            del model.get_outputs_for_camera  # back to the class's method
+            frames.close(model.config.inference_embedding)
+
+    ns_render._render_trajectory_video = trajectory_writer
     try:
         yield
     finally:
