@@ -71,6 +71,10 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
     assert "| wild-thermal-3dgs | " in (out / "bench.md").read_text().split("Stress scenes")[1]
     strip = cv2.imread(str(out / "stress-outlier_path_strip.png"))
     assert strip is not None and strip.shape[0] == 2 * 2 * 96  # ground truth + one method, each 2x 96 rows
+    # runs from separate commands (e.g. one per GPU) merge with their strips
+    main(BenchArgs(merge=(out / "bench.json",), output_dir=tmp_path / "merged"))
+    merged = cv2.imread(str(tmp_path / "merged" / "stress-outlier_path_strip.png"))
+    assert merged is not None and merged.shape == strip.shape
 
 
 def test_budget_knee_is_the_smallest_budget_near_the_uncapped_run():

@@ -118,3 +118,21 @@ def test_broken_models_are_named(tmp_path, demo_scene_dir):
         model.gauss_params["means"][0, 0] = float("nan")
     with pytest.raises(TrainingDiverged, match=r"step 200: parameter 'gauss_params.means' holds NaN/inf"):
         guard.check_model(model, 200)
+
+
+def test_scheduled_loss_jumps_rebaseline_instead_of_skipping(tmp_path, demo_scene_dir):
+    """An opacity reset or a finer resolution moves every frame's loss at once: the guard must take a
+    new baseline there, not skip each frame's first visit (the stress runs skipped ~30 steps per reset)."""
+    guard = DivergenceGuard(DivergenceGuardConfig(spike_window=5, loss_spike_factor=10.0))
+    for frame in range(5):
+        assert guard.check_step(torch.tensor(0.01), {}, [], frame) is None
+    assert guard.check_step(torch.tensor(0.5), {}, [], 0) is not None  # a jump is a spike...
+    guard.rebaseline()
+    assert guard.check_step(torch.tensor(0.5), {}, [], 1) is None  # ...unless the schedule moved the loss
+
+    model = _trainer(tmp_path, demo_scene_dir, steps=1).pipeline.model
+    reset, stop, r = model.strategy.reset_every, model.strategy.refine_stop_iter, model.config.resolution_schedule
+    moves = {step for step in range(1, 3 * max(reset, r) + 2) if model.schedule_moves_loss(step)}
+    expected = {s + 1 for s in range(reset, stop + 1, reset)} | {k * r for k in range(1, model.config.num_downscales + 1)}
+    assert moves == {s for s in expected if s < 3 * max(reset, r) + 2}
+    assert not model.schedule_moves_loss(1) and not model.schedule_moves_loss(2)

@@ -325,6 +325,7 @@ def main(args: BenchArgs) -> Dict:
         devices = {m["device"] for m in merged}
         if len(devices) > 1:
             raise ValueError(f"{', '.join(map(str, args.merge))}: runs come from different devices ({devices}); timings would not compare")
+        _gather_strips([Path(p).parent / "strips" for p in args.merge], args.output_dir / "strips")
         return _write(args, [r for m in merged for r in m["runs"]], device=devices.pop(), torch_version=merged[0]["torch"])
     runs = []
     for scene in args.scenes:
@@ -359,6 +360,19 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     for folder in sorted((args.output_dir / "strips").glob("stress-*")) if (args.output_dir / "strips").is_dir() else []:
         strip_png(folder, args.output_dir / f"{folder.name}_path_strip.png")
     return result
+
+
+def _gather_strips(sources: List[Path], target: Path) -> None:
+    """The stress scenes' path frames of merged runs (`strips/SCENE/METHOD.npy` beside each
+    bench.json), so the merged output draws every method's strip."""
+    import shutil
+
+    for source in sources:
+        if not source.is_dir() or source.resolve() == target.resolve():
+            continue
+        for npy in source.glob("*/*.npy"):
+            (target / npy.parent.name).mkdir(parents=True, exist_ok=True)
+            shutil.copy2(npy, target / npy.parent.name / npy.name)
 
 
 def strip_png(folder: Path, path: Path) -> None:

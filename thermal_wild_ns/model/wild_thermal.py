@@ -586,6 +586,16 @@ class WildThermalModel(SplatfactoModel):
         with record_function("thermal/densify"):
             super().step_post_backward(step)
 
+    def schedule_moves_loss(self, step: int) -> bool:
+        """Whether the training schedule itself moves the loss at `step`: the first step after an
+        opacity reset, or the first at a finer training resolution. The divergence guard takes a
+        new baseline there rather than skipping each frame's jump as a spike."""
+        reset_every, stop = self.strategy.reset_every, self.strategy.refine_stop_iter
+        after_reset = 1 < step <= stop and (step - 1) % reset_every == 0  # gsplat resets at step % reset_every == 0
+        r = self.config.resolution_schedule
+        finer = step % r == 0 and 0 < step // r <= self.config.num_downscales  # splatfacto halves the downscale here
+        return after_reset or finer
+
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         gt, _ = self._ground_truth(outputs, batch)
         pred = outputs["thermal"]

@@ -2,7 +2,9 @@
 
 `GuardedTrainer` is nerfstudio's Trainer with a check between backward and the optimizer step:
 a step whose loss or gradients are not finite, or whose loss spikes far above the recent
-median, is skipped (no parameter update, no densification statistics) and logged. Every
+median, is skipped (no parameter update, no densification statistics) and logged. Where the
+model says its schedule moves the loss (`schedule_moves_loss(step)`: opacity resets, resolution
+changes), the recent losses are forgotten instead. Every
 `check_every` steps it also checks the model itself and keeps a copy of it when healthy. When
 the parameters hold NaN/inf, all Gaussians are gone or transparent, or too many steps in a row
 had to be skipped, training rolls back to that copy and goes on; after `max_rollbacks` it stops
@@ -98,6 +100,13 @@ class DivergenceGuard:
             self.recent.append(value)
         return None
 
+    def rebaseline(self) -> None:
+        """Forget the recent losses: the schedule itself just moved the loss (an opacity reset, a
+        finer training resolution). Without this, every frame's first visit after such a step
+        looks like a spike and is skipped, right when the model must recover."""
+        self.recent.clear()
+        self.frame_loss.clear()
+
     def record(self, step: int, reason: Optional[str]) -> None:
         if reason is None:
             self.consecutive = 0
@@ -182,6 +191,9 @@ class GuardedTrainer(Trainer):
         self._step = step
         if not self.config.guard.enabled:
             return super().train_iteration(step)
+        moves_loss = getattr(self.pipeline.model, "schedule_moves_loss", None)
+        if moves_loss is not None and moves_loss(step):
+            self.guard.rebaseline()
         try:
             result = super().train_iteration(step)
             if step % self.config.guard.check_every == 0:
