@@ -51,6 +51,15 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     assert len(merged["runs"]) == 2 and (tmp_path / "merged" / "bench.md").is_file()
 
 
+def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(tmp_path):
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+
+    result = main(BenchArgs(methods=("wild-thermal-3dgs",), steps=150, eval_at=(150,), fps_frames=0, time_limit=1e-9, output_dir=tmp_path))
+    (run,) = result["runs"]
+    assert run["failed"].startswith("RunTooSlow: --time-limit reached at step 100 (")  # the first check after training began
+    assert "- wild-thermal-3dgs on demo: RunTooSlow" in (tmp_path / "bench.md").read_text()
+
+
 def test_unknown_method_and_mode_are_refused(tmp_path):
     from thermal_wild_ns.analysis.evaluation import evaluate
     from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config

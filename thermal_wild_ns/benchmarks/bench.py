@@ -70,6 +70,9 @@ class BenchArgs:
     """Frames rendered to measure each trained model's render speed (baked vs unbaked emission, as
     `wild-thermal-render-fps`); 0 skips it."""
     seed: int = 0
+    time_limit: Optional[float] = None
+    """Training seconds a run may take; a run past it stops and is recorded as failed, with its step
+    and Gaussian count (so one exploding method cannot use up a GPU session). Default: no limit."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
     machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
@@ -157,13 +160,22 @@ def _model_megabytes(model) -> float:
     return sum(t.numel() * t.element_size() for t in model.state_dict().values() if isinstance(t, torch.Tensor)) / 2**20
 
 
-def train_steps(trainer, start: int, stop: int) -> torch.Tensor:
+class RunTooSlow(RuntimeError):
+    """A bench run went past `--time-limit`."""
+
+
+def train_steps(trainer, start: int, stop: int, seconds_left: Optional[float] = None) -> torch.Tensor:
     """Steps [start, stop) exactly as `ns-train` runs them (callbacks included, no evaluation,
-    no logging); returns the last loss."""
+    no logging); returns the last loss. Once `seconds_left` have passed (checked every 100 steps)
+    it raises RunTooSlow."""
     from nerfstudio.engine.callbacks import TrainingCallbackLocation
 
     loss = torch.tensor(float("nan"))
+    deadline = None if seconds_left is None else time.perf_counter() + seconds_left
     for step in range(start, stop):
+        if deadline is not None and step > start and step % 100 == 0 and time.perf_counter() > deadline:
+            gaussians = getattr(trainer.pipeline.model, "num_points", "?")
+            raise RunTooSlow(f"--time-limit reached at step {step} ({gaussians} Gaussians)")
         trainer.pipeline.train()
         for callback in trainer.callbacks:
             callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
@@ -197,7 +209,7 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         if cuda:
             torch.cuda.synchronize()
         start = time.perf_counter()
-        loss = train_steps(trainer, step, stop)
+        loss = train_steps(trainer, step, stop, None if args.time_limit is None else args.time_limit - seconds)
         step = stop
         if cuda:
             torch.cuda.synchronize()
