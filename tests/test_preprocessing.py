@@ -169,3 +169,39 @@ def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_di
     assert images["none"].shape == images["stab+bbhe"].shape == (96, 128, 1)
     # BBHE spreads the frame over the range: the processed frame has more contrast
     assert float(images["stab+bbhe"].std()) > 1.3 * float(images["none"].std())
+
+
+
+def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_cannot_move(tmp_path):
+    """The canonical LUT for views no frame was captured at (paths, viewer, exports). On the outlier
+    stress scene (the clean scene plus one frame at +30 % gain), mapping the clean scene's processed
+    path views back through the outlier scene's training LUTs: the level-wise median gives back the
+    truth, the mean (used before) caps the path at about 27 dB by itself."""
+    import json
+
+    from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+    from thermal_wild_ns.preprocessing.photometric import invert_lut
+    from thermal_wild_ns.preprocessing.stage import preprocess
+
+    def scene(fault):
+        parser = ThermalDemoDataParserConfig(data=tmp_path / fault, scene=fault).setup()
+        frames = list(parser.get_dataparser_outputs("train").metadata["frame_indices"])
+        return parser, preprocess(parser.capture().frames, parser.radiometric_range(), PhotometricConfig(), tmp_path / "cache"), frames
+
+    clean_parser, clean, frames = scene("clean")
+    _, outlier, outlier_frames = scene("outlier")
+    assert frames == outlier_frames
+    rng, grid = clean_parser.radiometric_range(), clean.grid
+    median = outlier.lut(frames)
+    assert np.all(np.diff(median) > 0)  # still invertible
+    np.testing.assert_array_equal(median, np.median(np.asarray(outlier.luts)[frames], axis=0))
+
+    path = json.loads((tmp_path / "clean" / "transforms.json").read_text())["path"][::6]
+    truth = np.stack([rng.read(tmp_path / "clean" / view["file_path"]) for view in path])  # normalised original
+    processed = np.interp(rng.to_native(truth), grid.values(np.arange(grid.num_levels)), clean.lut(frames))
+
+    def psnr(lut):
+        return -10 * np.log10(np.mean((rng.normalize(invert_lut(lut, processed, grid)) - truth) ** 2))
+
+    assert psnr(median) > 40.0
+    assert psnr(np.asarray(outlier.luts)[frames].mean(axis=0)) < 30.0

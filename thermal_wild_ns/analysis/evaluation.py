@@ -132,7 +132,7 @@ def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
 def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -> Dict:
     """Renders along a generated scene's smooth camera path (`transforms.json` "path": clean views
     with true depth) with the fixed embedding, scored with the stability measures. Preprocessed
-    renders are mapped back through the mean training LUT (no frame was captured there).
+    renders are mapped back through the median training LUT (no frame was captured there).
     Returns the means, the flicker measures, and the renders and ground truth at `keep_frames`
     (original space; `kept`, `kept_truth`)."""
     import json

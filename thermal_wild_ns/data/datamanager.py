@@ -104,7 +104,7 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
 
     def novel_view_to_original(self, values: np.ndarray) -> np.ndarray:
         """Renders of views where no frame was captured (paths, the viewer's colour bar, exports),
-        from the training space back to the dataset-normalised original space: through the mean
+        from the training space back to the dataset-normalised original space: through the median
         training LUT when the frames were preprocessed."""
         sequence = self.preprocessed
         if sequence is None:

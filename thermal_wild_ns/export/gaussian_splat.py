@@ -4,7 +4,7 @@ ns-export already writes this plugin's Gaussians (the baked emission as grey in 
 fields, so standard splat viewers show a grey scene). This command is ns-export's own
 `gaussian-splat` (same options) and adds to the PLY:
 - a float vertex property `thermal`: each Gaussian's baked emission (fixed frame embedding)
-  mapped back through the mean training LUT to the dataset's native units;
+  mapped back through the median training LUT to the dataset's native units;
 - header comments: the frame embedding the emission was baked with, the units of `thermal`,
   the dataset's native range and its temperature bounds where documented.
 ns-export drops NaN and transparent Gaussians before writing; the kept rows are found by their
@@ -49,7 +49,7 @@ def header_comments(pipeline) -> List[str]:
     rng = pipeline.datamanager.train_dataset.thermal_range
     lines = [
         f"frame_embedding {pipeline.model.config.inference_embedding} (the emission MLP was baked with this frame embedding)",
-        f"thermal: baked emission in native units ({rng.dtype}), through the mean training LUT",
+        f"thermal: baked emission in native units ({rng.dtype}), through the median training LUT",
         "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",
         f"native_range {rng.low:g} {rng.high:g}",
     ]

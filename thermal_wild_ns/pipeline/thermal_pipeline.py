@@ -24,7 +24,7 @@ class ThermalPipelineConfig(VanillaPipelineConfig):
 
 def colour_bar(datamanager, ticks: int = 5) -> str:
     """The data values at evenly spaced points of the colormap: the model's [0, 1] training space
-    mapped back through the mean training LUT to the dataset's range, in degC where the dataset
+    mapped back through the median training LUT to the dataset's range, in degC where the dataset
     documents its temperature bounds, else in native units."""
     rng = datamanager.train_dataset.thermal_range
     levels = datamanager.novel_view_to_original(np.linspace(0.0, 1.0, ticks, dtype=np.float32))

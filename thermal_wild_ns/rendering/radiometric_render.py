@@ -4,7 +4,7 @@ ns-render writes every output through its 8-bit colormap writer (video, PNG or J
 cannot hand a thermal user their data back. These commands are ns-render's own (same options;
 the video or images are ns-render's, in the model's thermal colormap, with the fixed frame
 embedding and the background model) with one more option, `--radiometric`:
-- `uint16`: each frame's thermal render mapped back through the mean training LUT (no frame was
+- `uint16`: each frame's thermal render mapped back through the median training LUT (no frame was
   captured on the path) to the dataset's native levels, as 16-bit PNGs;
 - `celsius`: the same as float32 degC arrays (.npy), for datasets that document their
   temperature bounds;
@@ -72,7 +72,7 @@ class RadiometricFrameWriter:
             "native_range": [rng.low, rng.high],
             "native_dtype": rng.dtype,
             "celsius_range": [rng.celsius_low, rng.celsius_high],
-            "mapping": "render -> mean training LUT inverse -> dataset range" if self.datamanager.preprocessed is not None else "render -> dataset range",
+            "mapping": "render -> median training LUT inverse -> dataset range" if self.datamanager.preprocessed is not None else "render -> dataset range",
             "frame_embedding": frame_embedding,
         }, indent=1))
 
