@@ -55,6 +55,18 @@ def test_tracked_features_follow_a_shifted_texture_not_unrelated_noise():
     assert same > 100 and other < same / 5
 
 
+def test_inverse_lut_gain_is_one_over_the_slope():
+    from thermal_wild_ns.analysis.diagnostics import gain_summary, inverse_lut_gain
+
+    levels = np.arange(1000, dtype=np.float64)
+    lut = np.where(levels < 500, levels, 500 + 0.25 * (levels - 500))  # rare top levels squeezed 4x
+    frame = np.array([[100, 200], [700, 900]])
+    np.testing.assert_allclose(inverse_lut_gain(lut, frame), [[1.0, 1.0], [4.0, 4.0]])
+    summary = gain_summary([inverse_lut_gain(lut, frame)], [frame.astype(float)], hottest=0.25)
+    assert summary["median_hottest"] == pytest.approx(4.0) and summary["hottest_over_4x"] == 0.0
+    assert summary["median"] == pytest.approx(2.5)
+
+
 def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     from thermal_wild_ns.analysis.diagnose import DiagnoseArgs, diagnose
 
@@ -67,6 +79,8 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     assert written["after"]["std_delta_i"] < written["before"]["std_delta_i"]
     assert written["after"]["dynamic_range"]["used_range"] > written["before"]["dynamic_range"]["used_range"]
     assert result["summary"].startswith(demo_scene_dir.name + ": std dI_t")
+    gain = written["inverse_lut_gain"]
+    assert gain["median"] > 0 and gain["median_hottest"] > 0 and 0.0 <= gain["hottest_over_4x"] <= 1.0
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))
         assert image is not None and image.shape[0] > 100

@@ -4,8 +4,9 @@ preprocessing (the paper's Fig. 2/3 diagnostics).
 Reads any supported layout, runs the chosen preprocessing variant over the capture (capture
 order) and writes to `--output-dir`:
 - `diagnostics.json`: per-frame dI_t, tracked SIFT features per consecutive pair, the mean radial
-  power spectrum, the histogram, and a summary, each before and after; and the largest error (in
-  native levels) of mapping the processed frames back through their inverse LUTs;
+  power spectrum, the histogram, and a summary, each before and after; the largest error (in
+  native levels) of mapping the processed frames back through their inverse LUTs; and how much
+  that inverse magnifies a rendering error, over all pixels and at each frame's hottest 5 %;
 - `diagnostics.png`: the four panels (dI_t per frame, tracked features per frame pair, mean radial
   power spectrum, histogram), before vs after;
 - `frames.png`: a few frames before and after, on the dataset's one radiometric range.
@@ -23,7 +24,9 @@ import tyro
 from tqdm import tqdm
 
 from thermal_wild_ns.analysis.diagnostics import (
+    gain_summary,
     high_frequency_ratio,
+    inverse_lut_gain,
     radial_power_spectrum,
     relative_mean_change,
     tracked_features,
@@ -147,11 +150,19 @@ def diagnose(args: DiagnoseArgs) -> Dict:
             float(np.abs(sequence.to_original_normalised(p, t) - r).max()) * (rng.high - rng.low) / sequence.grid.step
             for t, (p, r) in enumerate(zip(processed, raw))
         ),
+        # a render's error at a pixel grows by this much when mapped back (hot, rare levels most)
+        "inverse_lut_gain": gain_summary(
+            [inverse_lut_gain(np.asarray(sequence.lut(t)), sequence.grid.levels(rng.to_native(r))) for t, r in enumerate(raw)], raw
+        ),
         "before": _frames_stats(raw, native(raw), args.spectrum_frames),
         "after": _frames_stats(processed, native(processed), args.spectrum_frames),
     }
     name = Path(args.data).resolve().name
-    result["summary"] = summary_line(name, result["before"], result["after"])
+    gain = result["inverse_lut_gain"]
+    result["summary"] = summary_line(name, result["before"], result["after"]) + (
+        f"; inverse-LUT error gain: median {gain['median']:.2f}, hottest 5 % {gain['median_hottest']:.2f}"
+        f" ({100 * gain['hottest_over_4x']:.0f} % of them above 4x)"
+    )
     (args.output_dir / "diagnostics.json").write_text(json.dumps(result, indent=1))
     _plot(result, args.output_dir / "diagnostics.png", f"{name} ({capture.layout}, {len(raw)} frames): raw vs {args.preprocessing.variant}")
     _frames_png(raw, processed, args.output_dir / "frames.png")

@@ -3,7 +3,8 @@
 - relative mean change per frame: dI_t = (mu_t - mean(mu)) / mean(mu) (its std summarises drift);
 - radially averaged power spectrum of a frame (and the share of energy above half Nyquist);
 - intensity histogram and the used dynamic range;
-- SIFT features tracked from each frame to the next (ratio test + RANSAC on the fundamental matrix).
+- SIFT features tracked from each frame to the next (ratio test + RANSAC on the fundamental matrix);
+- how much preprocessing's inverse LUT magnifies a rendering error, per pixel (`inverse_lut_gain`).
 
 Frames are given in the dataset's normalised scale (0..1 over its radiometric range), so numbers
 are comparable between datasets and before/after preprocessing.
@@ -93,3 +94,25 @@ def tracked_features(frames: Sequence[np.ndarray], max_features: int = 4000, rat
         _, inliers = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.0, 0.999)
         counts.append(int(inliers.sum()) if inliers is not None else 0)
     return counts
+
+
+def inverse_lut_gain(lut: np.ndarray, levels: np.ndarray, span: int = 2) -> np.ndarray:
+    """How much a small error in a processed frame grows when mapped back through the inverse of its
+    LUT: 1 / the LUT's slope at each pixel's level, measured over +-`span` levels (both in native
+    units). Equalization gives rare levels a shallow slope, so errors at those pixels (often the
+    hottest objects) grow. `lut`: [levels] native values; `levels`: [H, W] int."""
+    top = len(lut) - 1
+    slope = (lut[np.clip(levels + span, 0, top)] - lut[np.clip(levels - span, 0, top)]) / (np.clip(levels + span, 0, top) - np.clip(levels - span, 0, top))
+    return 1.0 / np.maximum(slope, 1e-12)
+
+
+def gain_summary(gains: Sequence[np.ndarray], frames: Sequence[np.ndarray], hottest: float = 0.05) -> Dict[str, float]:
+    """Median inverse-LUT gain over all pixels and over each frame's hottest `hottest` share, and the
+    share of those hottest pixels whose errors grow more than 4x."""
+    hot = [g[f >= np.quantile(f, 1.0 - hottest)] for g, f in zip(gains, frames)]
+    everything, hot_all = np.concatenate([g.ravel() for g in gains]), np.concatenate(hot)
+    return {
+        "median": float(np.median(everything)),
+        "median_hottest": float(np.median(hot_all)),
+        "hottest_over_4x": float((hot_all > 4.0).mean()),
+    }
