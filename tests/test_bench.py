@@ -60,6 +60,20 @@ def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(t
     assert "- wild-thermal-3dgs on demo: RunTooSlow" in (tmp_path / "bench.md").read_text()
 
 
+def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
+    """--gpus N: one queue per GPU, one run at a time per queue, each in its own process (on a CPU
+    machine the queues simply run side by side); the merged table has every run, in order."""
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+
+    methods = ("wild-thermal-3dgs", "wild-thermal-3dgs-bbhe", "wild-thermal-3dgs-stab")
+    result = main(BenchArgs(methods=methods, steps=20, eval_at=(20,), wild_steps=2, fps_frames=0, gpus=2, output_dir=tmp_path))
+    assert [r["method"] for r in result["runs"]] == list(methods) and not any("failed" in r for r in result["runs"])
+    for folder in ("gpu0/00_demo_wild-thermal-3dgs", "gpu1/01_demo_wild-thermal-3dgs-bbhe", "gpu0/02_demo_wild-thermal-3dgs-stab"):
+        assert (tmp_path / folder / "bench.json").is_file() and (tmp_path / folder / "log.txt").is_file()
+    assert json.loads((tmp_path / "bench.json").read_text())["runs"] == result["runs"]
+    assert "| wild-thermal-3dgs-stab | " in (tmp_path / "bench.md").read_text()
+
+
 def test_unknown_method_and_mode_are_refused(tmp_path):
     from thermal_wild_ns.analysis.evaluation import evaluate
     from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config

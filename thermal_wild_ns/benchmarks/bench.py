@@ -73,6 +73,10 @@ class BenchArgs:
     time_limit: Optional[float] = None
     """Training seconds a run may take; a run past it stops and is recorded as failed, with its step
     and Gaussian count (so one exploding method cannot use up a GPU session). Default: no limit."""
+    gpus: int = 1
+    """Spread the runs over this many GPUs: one queue per GPU, each training one run at a time in its
+    own process (`CUDA_VISIBLE_DEVICES`), then their results merged into `output_dir`. Runs sharing a
+    GPU as processes slow each other many times over, so a GPU never gets two."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
     machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
@@ -339,6 +343,8 @@ def main(args: BenchArgs) -> Dict:
             raise ValueError(f"{', '.join(map(str, args.merge))}: runs come from different devices ({devices}); timings would not compare")
         _gather_strips([Path(p).parent / "strips" for p in args.merge], args.output_dir / "strips")
         return _write(args, [r for m in merged for r in m["runs"]], device=devices.pop(), torch_version=merged[0]["torch"])
+    if args.gpus > 1:
+        return _spread_over_gpus(args)
     runs = []
     for scene in args.scenes:
         for method in args.methods:
@@ -372,6 +378,59 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     for folder in sorted((args.output_dir / "strips").glob("stress-*")) if (args.output_dir / "strips").is_dir() else []:
         strip_png(folder, args.output_dir / f"{folder.name}_path_strip.png")
     return result
+
+
+def _run_command(args: BenchArgs, scene: str, method: str, output_dir: Path) -> List[str]:
+    """This bench, for one scene and method, as a command line (the settings every run shares)."""
+    import sys
+
+    command = [sys.executable, "-m", "thermal_wild_ns.benchmarks.bench", "--scenes", scene, "--methods", method,
+               "--steps", str(args.steps), "--eval-at", *map(str, args.eval_at), "--wild-steps", str(args.wild_steps),
+               "--fps-frames", str(args.fps_frames), "--seed", str(args.seed), "--output-dir", str(output_dir),
+               "--cache-dir", str(args.cache_dir or args.output_dir / "cache")]
+    for flag, value in (("--schedule", args.schedule), ("--max-gaussians", args.max_gaussians), ("--time-limit", args.time_limit)):
+        if value is not None:
+            command += [flag, str(value)]
+    return command
+
+
+def _spread_over_gpus(args: BenchArgs) -> Dict:
+    """Every scene x method run in its own process, `args.gpus` queues (one per GPU) at a time; each
+    run's output and log in `output_dir/gpuI/NN_SCENE_METHOD/`, then all merged."""
+    import os
+    import subprocess
+    import threading
+
+    package_root = str(Path(__file__).resolve().parents[2])  # the workers import this same code
+    pairs = [(scene, method) for scene in args.scenes for method in args.methods]
+    queues = [list(enumerate(pairs))[gpu :: args.gpus] for gpu in range(args.gpus)]
+    results: List[Path] = []
+
+    def work(gpu: int) -> None:
+        for k, (scene, method) in queues[gpu]:
+            folder = args.output_dir / f"gpu{gpu}" / f"{k:02d}_{scene_name(scene)}_{method}"
+            folder.mkdir(parents=True, exist_ok=True)
+            env = {**os.environ, "CUDA_VISIBLE_DEVICES": str(gpu), "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
+            with open(folder / "log.txt", "w") as log:
+                code = subprocess.call(_run_command(args, scene, method, folder), env=env, stdout=log, stderr=subprocess.STDOUT)
+            print(f"  GPU {gpu}: {method} on {scene_name(scene)} {'done' if code == 0 else f'exited with {code}'} ({folder / 'log.txt'})")
+            if (folder / "bench.json").is_file():
+                results.append(folder / "bench.json")
+
+    threads = [threading.Thread(target=work, args=(gpu,)) for gpu in range(args.gpus) if queues[gpu]]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    if not results:
+        raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
+    done = sorted(results, key=lambda path: path.parent.name)  # NN_...: the order the runs were asked for
+    merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
+    merged_runs = {(r["scene"], r["method"]) for r in merged["runs"]}
+    lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in merged_runs]
+    if lost:  # a run whose process died without writing bench.json (killed, crashed)
+        print("  no result (see its log.txt): " + ", ".join(f"{m} on {scene_name(s)}" for s, m in lost))
+    return merged
 
 
 def _gather_strips(sources: List[Path], target: Path) -> None:
