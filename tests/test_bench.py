@@ -121,3 +121,11 @@ def test_budget_sweep_runs_end_to_end_on_cpu(tmp_path):
     # runs made by separate commands merge into the same sweep
     merged = main(SweepArgs(merge=tuple(sorted(out.glob("budget_*/bench.json"))), output_dir=tmp_path / "merged"))
     assert merged["rows"] == result["rows"]
+
+
+def test_budget_sweep_spreads_budgets_over_gpus(tmp_path):
+    from thermal_wild_ns.benchmarks.budget_sweep import SweepArgs, main
+
+    result = main(SweepArgs(method="wild-thermal-3dgs", budgets=(2500, 0), steps=20, gpus=2, output_dir=tmp_path))
+    assert [r["budget"] for r in result["rows"]] == [2500, 100_000_000] and all("psnr" in r for r in result["rows"])
+    assert (tmp_path / "budget_2500" / "log.txt").is_file() and (tmp_path / "budget_uncapped" / "bench.json").is_file()

@@ -394,41 +394,49 @@ def _run_command(args: BenchArgs, scene: str, method: str, output_dir: Path) -> 
     return command
 
 
-def _spread_over_gpus(args: BenchArgs) -> Dict:
-    """Every scene x method run in its own process, `args.gpus` queues (one per GPU) at a time; each
-    run's output and log in `output_dir/gpuI/NN_SCENE_METHOD/`, then all merged."""
+def run_in_gpu_queues(jobs: List[Tuple[BenchArgs, str, str, Path]], gpus: int) -> List[Path]:
+    """Each job (bench settings, scene, method, output folder) as its own bench process, in `gpus`
+    queues run side by side, one per GPU (`CUDA_VISIBLE_DEVICES`), one job at a time per queue: runs
+    sharing a GPU as processes slow each other many times over. Each folder gets the run's log.txt.
+    Returns the bench.json files written, in job order (a killed or crashed run writes none)."""
     import os
     import subprocess
     import threading
 
     package_root = str(Path(__file__).resolve().parents[2])  # the workers import this same code
-    pairs = [(scene, method) for scene in args.scenes for method in args.methods]
-    queues = [list(enumerate(pairs))[gpu :: args.gpus] for gpu in range(args.gpus)]
-    results: List[Path] = []
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
+    written: Dict[int, Path] = {}
 
     def work(gpu: int) -> None:
-        for k, (scene, method) in queues[gpu]:
-            folder = args.output_dir / f"gpu{gpu}" / f"{k:02d}_{scene_name(scene)}_{method}"
+        for k in range(gpu, len(jobs), gpus):
+            settings, scene, method, folder = jobs[k]
             folder.mkdir(parents=True, exist_ok=True)
-            env = {**os.environ, "CUDA_VISIBLE_DEVICES": str(gpu), "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
             with open(folder / "log.txt", "w") as log:
-                code = subprocess.call(_run_command(args, scene, method, folder), env=env, stdout=log, stderr=subprocess.STDOUT)
+                code = subprocess.call(_run_command(settings, scene, method, folder), env={**env, "CUDA_VISIBLE_DEVICES": str(gpu)},
+                                       stdout=log, stderr=subprocess.STDOUT)
             print(f"  GPU {gpu}: {method} on {scene_name(scene)} {'done' if code == 0 else f'exited with {code}'} ({folder / 'log.txt'})")
             if (folder / "bench.json").is_file():
-                results.append(folder / "bench.json")
+                written[k] = folder / "bench.json"
 
-    threads = [threading.Thread(target=work, args=(gpu,)) for gpu in range(args.gpus) if queues[gpu]]
+    threads = [threading.Thread(target=work, args=(gpu,)) for gpu in range(min(gpus, len(jobs)))]
     for thread in threads:
         thread.start()
     for thread in threads:
         thread.join()
-    if not results:
+    return [written[k] for k in sorted(written)]
+
+
+def _spread_over_gpus(args: BenchArgs) -> Dict:
+    """Every scene x method run in `output_dir/gpuI/NN_SCENE_METHOD/`, over `args.gpus` queues, then merged."""
+    pairs = [(scene, method) for scene in args.scenes for method in args.methods]
+    jobs = [(args, scene, method, args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}") for k, (scene, method) in enumerate(pairs)]
+    done = run_in_gpu_queues(jobs, args.gpus)
+    if not done:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
-    done = sorted(results, key=lambda path: path.parent.name)  # NN_...: the order the runs were asked for
     merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
-    merged_runs = {(r["scene"], r["method"]) for r in merged["runs"]}
-    lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in merged_runs]
-    if lost:  # a run whose process died without writing bench.json (killed, crashed)
+    finished = {(r["scene"], r["method"]) for r in merged["runs"]}
+    lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in finished]
+    if lost:
         print("  no result (see its log.txt): " + ", ".join(f"{m} on {scene_name(s)}" for s, m in lost))
     return merged
 

@@ -36,6 +36,9 @@ class SweepArgs:
     """PSNR (dB) the knee may give up against the uncapped run."""
     output_dir: Path = Path("outputs/budget_sweep")
     cache_dir: Optional[Path] = None
+    gpus: int = 1
+    """Train the budgets on this many GPUs side by side, one budget per GPU at a time (as
+    `wild-thermal-bench --gpus`)."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: bench.json files of one method on one scene at several budgets."""
 
@@ -105,15 +108,19 @@ def _write(args: SweepArgs, rows: List[Dict]) -> Dict:
 def main(args: SweepArgs) -> Dict:
     if args.merge:
         return _write(args, _rows([json.loads(Path(p).read_text()) for p in args.merge]))
-    from thermal_wild_ns.benchmarks.bench import BenchArgs
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, run_in_gpu_queues
     from thermal_wild_ns.benchmarks.bench import main as bench
 
-    results = []
-    for budget in args.budgets:
-        run_dir = args.output_dir / f"budget_{budget or 'uncapped'}"
-        results.append(bench(BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED,
-                                       output_dir=run_dir, cache_dir=args.cache_dir, fps_frames=0, wild_steps=5,
-                                       eval_at=(args.steps,))))
+    jobs = [
+        (BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED, cache_dir=args.cache_dir,
+                   fps_frames=0, wild_steps=5, eval_at=(args.steps,), output_dir=args.output_dir / f"budget_{budget or 'uncapped'}"),
+         args.scene, args.method, args.output_dir / f"budget_{budget or 'uncapped'}")
+        for budget in args.budgets
+    ]
+    if args.gpus > 1:
+        results = [json.loads(p.read_text()) for p in run_in_gpu_queues(jobs, args.gpus)]
+    else:
+        results = [bench(settings) for settings, *_ in jobs]
     return _write(args, _rows(results))
 
 
