@@ -91,6 +91,7 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
     result = main(BenchArgs(scenes=("stress:outlier",), methods=("wild-thermal-3dgs",), steps=30, eval_at=(30,), wild_steps=2, fps_frames=0, output_dir=out))
     path = result["runs"][0]["path"]
     assert path["views"] == 60 and 0.0 <= path["floater_fraction"] <= 1.0 and path["flicker_pixel_excess"] >= 0.0
+    assert 0.0 <= path["visible_floater_fraction"] <= path["floater_fraction"]
     assert "| wild-thermal-3dgs | " in (out / "bench.md").read_text().split("Stress scenes")[1]
     strip = cv2.imread(str(out / "stress-outlier_path_strip.png"))
     assert strip is not None and strip.shape[0] == 2 * 2 * 96  # ground truth + one method, each 2x 96 rows

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction
+from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction, visible_floater_fraction
 
 
 def _scene():
@@ -31,6 +31,21 @@ def test_floaters_in_front_of_the_surface_and_against_the_sky_are_counted():
     assert floater_fraction(depth, alpha, true_depth) == pytest.approx(40 / 600)
     depth[10:12, 0:10] = 4.8  # within 10 % of the surface: not a floater
     assert floater_fraction(depth, alpha, true_depth) == pytest.approx(20 / 600)
+
+
+def test_visible_floaters_are_the_floaters_with_an_error():
+    true_depth = _scene()
+    depth = np.where(np.isfinite(true_depth), true_depth, 0.0)
+    alpha = np.where(np.isfinite(true_depth), 1.0, 0.0)
+    depth[10:12, 0:10] = 2.0  # 20 floater pixels
+    alpha[0:2, 0:10] = 0.9  # 20 pixels of sky painted by Gaussians
+    gt = np.full((20, 30), 0.5)
+    pred = gt.copy()
+    assert floater_fraction(depth, alpha, true_depth) == pytest.approx(40 / 600)
+    assert visible_floater_fraction(depth, alpha, true_depth, pred, gt) == 0.0  # right colour: not seen
+    pred[10:12, 0:5] += 0.3  # half the surface floater shows
+    pred[15:17, 0:10] += 0.3  # an error where nothing floats: not a floater
+    assert visible_floater_fraction(depth, alpha, true_depth, pred, gt) == pytest.approx(10 / 600)
 
 
 def test_flicker_measures_only_what_the_truth_does_not_do():

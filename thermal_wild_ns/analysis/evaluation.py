@@ -139,7 +139,7 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
 
     from nerfstudio.cameras.cameras import Cameras, CameraType
 
-    from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction
+    from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction, visible_floater_fraction
 
     meta = json.loads((Path(scene_root) / "transforms.json").read_text())
     if not meta.get("path"):
@@ -170,6 +170,7 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
         rows.append({
             **_scores(pred, gt),
             "floater_fraction": floater_fraction(depth, alpha, true_depth),
+            "visible_floater_fraction": visible_floater_fraction(depth, alpha, true_depth, pred, gt, 0.1),
             "error_exceedance": error_exceedance(pred, gt, 0.1),
             "background_error": background_error(pred, gt, true_depth),
         })

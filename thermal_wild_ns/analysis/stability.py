@@ -11,14 +11,27 @@ from typing import Dict, Sequence
 import numpy as np
 
 
-def floater_fraction(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5) -> float:
-    """Share of pixels with something rendered in front of the true surface: rendered depth more
-    than `rel_tol` nearer than the truth, or (against the empty background) accumulated opacity
-    above `min_alpha`. [H, W] each."""
+def floater_mask(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5) -> np.ndarray:
+    """Pixels with something rendered in front of the true surface: rendered depth more than
+    `rel_tol` nearer than the truth, or (against the empty background) accumulated opacity above
+    `min_alpha`. [H, W] each -> [H, W] bool."""
     surface = np.isfinite(true_depth)
     in_front = surface & (accumulation > min_alpha) & (depth < (1.0 - rel_tol) * np.where(surface, true_depth, 0.0))
     over_sky = ~surface & (accumulation > min_alpha)
-    return float((in_front | over_sky).mean())
+    return in_front | over_sky
+
+
+def floater_fraction(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5) -> float:
+    """Share of pixels of `floater_mask`: geometry in the wrong place, seen or not (a sky painted
+    by Gaussians in the right colour counts)."""
+    return float(floater_mask(depth, accumulation, true_depth, rel_tol, min_alpha).mean())
+
+
+def visible_floater_fraction(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, pred: np.ndarray, gt: np.ndarray,
+                             threshold: float = 0.1) -> float:
+    """Share of pixels that are floaters (`floater_mask`) AND whose error exceeds `threshold`
+    (normalised units): the floaters a person sees."""
+    return float((floater_mask(depth, accumulation, true_depth) & (np.abs(pred - gt) > threshold)).mean())
 
 
 def error_exceedance(pred: np.ndarray, gt: np.ndarray, threshold: float = 0.1) -> float:
