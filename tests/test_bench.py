@@ -71,6 +71,13 @@ def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
     for folder in ("gpu0/00_demo_wild-thermal-3dgs", "gpu1/01_demo_wild-thermal-3dgs-bbhe", "gpu0/02_demo_wild-thermal-3dgs-stab"):
         assert (tmp_path / folder / "bench.json").is_file() and (tmp_path / folder / "log.txt").is_file()
     assert json.loads((tmp_path / "bench.json").read_text())["runs"] == result["runs"]
+    # each worker's command line carries every setting of its job
+    import tyro
+
+    from thermal_wild_ns.benchmarks.bench import _command_line
+
+    job = BenchArgs(methods=methods[:1], steps=20, schedule=30000, time_limit=9.5, cache_dir=tmp_path / "cache", output_dir=tmp_path / "x")
+    assert tyro.cli(BenchArgs, args=_command_line(job)[3:]) == job
     assert "| wild-thermal-3dgs-stab | " in (tmp_path / "bench.md").read_text()
 
 

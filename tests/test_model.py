@@ -24,6 +24,17 @@ def perturb_output_layers(model):
         model.background_mlp.net[-1].weight.normal_(0, 0.1)
 
 
+def make_frame_dependent_model():
+    """A model, in eval mode, whose renders depend on the frame embedding (as after training):
+    moved output layers and distinct frame embeddings."""
+    model = make_model()
+    perturb_output_layers(model)
+    with torch.no_grad():
+        model.frame_embed.weight.normal_()
+    model.eval()
+    return model
+
+
 def make_camera(idx=0, width=48, height=32):
     c2w = torch.eye(4)[None, :3].clone()
     c2w[0, 2, 3] = 3.0  # looking down -z at the origin (OpenGL)
@@ -53,11 +64,7 @@ def test_forward_backward_reaches_every_parameter_group():
 
 
 def test_fixed_inference_embedding_makes_renders_frame_independent():
-    model = make_model()
-    perturb_output_layers(model)
-    with torch.no_grad():
-        model.frame_embed.weight.normal_()
-    model.eval()
+    model = make_frame_dependent_model()
     a = model.get_outputs(make_camera(0))["thermal"]
     b = model.get_outputs(make_camera(3))["thermal"]
     assert torch.equal(a, b)
@@ -254,11 +261,7 @@ def test_sync_free_densification_statistics_equal_gsplats():
 def test_viewer_controls_pick_colormap_and_embedding():
     from thermal_wild_ns.data.palettes import palette_rgb
 
-    model = make_model()
-    perturb_output_layers(model)
-    with torch.no_grad():
-        model.frame_embed.weight.normal_()
-    model.eval()
+    model = make_frame_dependent_model()
     camera = make_camera()
     with torch.no_grad():
         out = model.get_outputs(camera)

@@ -127,7 +127,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     celsius = [np.load(f) for f in sorted((tmp_path / "path_c_radiometric").glob("*.npy"))]
     assert len(celsius) == frames and all(c.dtype == np.float32 for c in celsius)
     assert all(rng.celsius_low <= c.min() and c.max() <= rng.celsius_high for c in celsius)
-    np.testing.assert_allclose(celsius[0], rng.to_celsius((renders[0][0].astype(np.float64) - rng.low) / (rng.high - rng.low)), atol=(rng.celsius_high - rng.celsius_low) / (rng.high - rng.low))
+    np.testing.assert_allclose(celsius[0], rng.to_celsius(rng.normalize(renders[0][0])), atol=(rng.celsius_high - rng.celsius_low) / (rng.high - rng.low))
 
 
 def test_dunr_loads_with_dataset_level_normalisation():

@@ -34,7 +34,7 @@ import tyro
 import thermal_wild_ns.compat  # noqa: F401
 from method_configs.wild_thermal import METHODS, method_trainer
 from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
-from thermal_wild_ns.benchmarks import device_name
+from thermal_wild_ns.benchmarks import device_name, synchronize
 from thermal_wild_ns.benchmarks.render_fps import measure_fps
 
 VARIANTS = ("splatfacto", *METHODS)
@@ -210,13 +210,11 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
     curve, seconds, step = [], 0.0, 0
     losses_finite = True
     for stop in checkpoints:
-        if cuda:
-            torch.cuda.synchronize()
+        synchronize()
         start = time.perf_counter()
         loss = train_steps(trainer, step, stop, None if args.time_limit is None else args.time_limit - seconds)
         step = stop
-        if cuda:
-            torch.cuda.synchronize()
+        synchronize()
         seconds += time.perf_counter() - start
         losses_finite = losses_finite and bool(torch.isfinite(loss))
         result = evaluate(pipeline, "fixed")
@@ -382,25 +380,25 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     return result
 
 
-def _run_command(args: BenchArgs, scene: str, method: str, output_dir: Path) -> List[str]:
-    """This bench, for one scene and method, as a command line (the settings every run shares)."""
+def _command_line(settings: BenchArgs) -> List[str]:
+    """`settings` as this bench's command line (every field but `gpus` and `merge`)."""
+    import dataclasses
     import sys
 
-    command = [sys.executable, "-m", "thermal_wild_ns.benchmarks.bench", "--scenes", scene, "--methods", method,
-               "--steps", str(args.steps), "--eval-at", *map(str, args.eval_at), "--wild-steps", str(args.wild_steps),
-               "--fps-frames", str(args.fps_frames), "--seed", str(args.seed), "--output-dir", str(output_dir),
-               "--cache-dir", str(args.cache_dir or args.output_dir / "cache")]
-    for flag, value in (("--schedule", args.schedule), ("--max-gaussians", args.max_gaussians), ("--time-limit", args.time_limit)):
-        if value is not None:
-            command += [flag, str(value)]
+    command = [sys.executable, "-m", "thermal_wild_ns.benchmarks.bench"]
+    for field in dataclasses.fields(settings):
+        value = getattr(settings, field.name)
+        if field.name not in ("gpus", "merge") and value is not None:
+            command += [f"--{field.name.replace('_', '-')}", *map(str, value if isinstance(value, tuple) else (value,))]
     return command
 
 
-def run_in_gpu_queues(jobs: List[Tuple[BenchArgs, str, str, Path]], gpus: int) -> List[Path]:
-    """Each job (bench settings, scene, method, output folder) as its own bench process, in `gpus`
-    queues run side by side, one per GPU (`CUDA_VISIBLE_DEVICES`), one job at a time per queue: runs
-    sharing a GPU as processes slow each other many times over. Each folder gets the run's log.txt.
-    Returns the bench.json files written, in job order (a killed or crashed run writes none)."""
+def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int) -> List[Path]:
+    """Each job (a bench of one scene and method, in its own `output_dir`) as its own process, in
+    `gpus` queues run side by side, one per GPU (`CUDA_VISIBLE_DEVICES`), one job at a time per
+    queue: runs sharing a GPU as processes slow each other many times over. Each output folder gets
+    the run's log.txt. Returns the bench.json files written, in job order (a killed or crashed run
+    writes none)."""
     import os
     import subprocess
     import threading
@@ -411,12 +409,12 @@ def run_in_gpu_queues(jobs: List[Tuple[BenchArgs, str, str, Path]], gpus: int) -
 
     def work(gpu: int) -> None:
         for k in range(gpu, len(jobs), gpus):
-            settings, scene, method, folder = jobs[k]
+            job, folder = jobs[k], jobs[k].output_dir
             folder.mkdir(parents=True, exist_ok=True)
             with open(folder / "log.txt", "w") as log:
-                code = subprocess.call(_run_command(settings, scene, method, folder), env={**env, "CUDA_VISIBLE_DEVICES": str(gpu)},
-                                       stdout=log, stderr=subprocess.STDOUT)
-            print(f"  GPU {gpu}: {method} on {scene_name(scene)} {'done' if code == 0 else f'exited with {code}'} ({folder / 'log.txt'})")
+                code = subprocess.call(_command_line(job), env={**env, "CUDA_VISIBLE_DEVICES": str(gpu)}, stdout=log, stderr=subprocess.STDOUT)
+            what = f"{', '.join(job.methods)} on {', '.join(map(scene_name, job.scenes))}"
+            print(f"  GPU {gpu}: {what} {'done' if code == 0 else f'exited with {code}'} ({folder / 'log.txt'})")
             if (folder / "bench.json").is_file():
                 written[k] = folder / "bench.json"
 
@@ -430,8 +428,15 @@ def run_in_gpu_queues(jobs: List[Tuple[BenchArgs, str, str, Path]], gpus: int) -
 
 def _spread_over_gpus(args: BenchArgs) -> Dict:
     """Every scene x method run in `output_dir/gpuI/NN_SCENE_METHOD/`, over `args.gpus` queues, then merged."""
+    import dataclasses
+
     pairs = [(scene, method) for scene in args.scenes for method in args.methods]
-    jobs = [(args, scene, method, args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}") for k, (scene, method) in enumerate(pairs)]
+    cache = args.cache_dir or args.output_dir / "cache"  # one cache for all (triangulation once)
+    jobs = [
+        dataclasses.replace(args, scenes=(scene,), methods=(method,), cache_dir=cache, gpus=1,
+                            output_dir=args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}")
+        for k, (scene, method) in enumerate(pairs)
+    ]
     done = run_in_gpu_queues(jobs, args.gpus)
     if not done:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")

@@ -112,15 +112,14 @@ def main(args: SweepArgs) -> Dict:
     from thermal_wild_ns.benchmarks.bench import main as bench
 
     jobs = [
-        (BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED, cache_dir=args.cache_dir,
-                   fps_frames=0, wild_steps=5, eval_at=(args.steps,), output_dir=args.output_dir / f"budget_{budget or 'uncapped'}"),
-         args.scene, args.method, args.output_dir / f"budget_{budget or 'uncapped'}")
+        BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED, cache_dir=args.cache_dir,
+                  fps_frames=0, wild_steps=5, eval_at=(args.steps,), output_dir=args.output_dir / f"budget_{budget or 'uncapped'}")
         for budget in args.budgets
     ]
     if args.gpus > 1:
         results = [json.loads(p.read_text()) for p in run_in_gpu_queues(jobs, args.gpus)]
     else:
-        results = [bench(settings) for settings, *_ in jobs]
+        results = [bench(job) for job in jobs]
     return _write(args, _rows(results))
 
 

@@ -23,7 +23,7 @@ from typing import Dict, Optional
 import torch
 import tyro
 
-from thermal_wild_ns.benchmarks import device_name
+from thermal_wild_ns.benchmarks import device_name, synchronize
 from thermal_wild_ns.benchmarks.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, train_steps, trainer_config
 
 
@@ -89,17 +89,12 @@ def profile(args: ProfileArgs) -> Dict:
                            output_dir=args.output_dir, cache_dir=args.cache_dir)
     trainer = setup_trainer(trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs"))
     cuda = torch.cuda.is_available()
-
-    def sync():
-        if cuda:
-            torch.cuda.synchronize()
-
     step = args.warmup
     train_steps(trainer, 0, step)
-    sync()
+    synchronize()
     start = time.perf_counter()
     train_steps(trainer, step, step + args.steps)
-    sync()
+    synchronize()
     ms_per_step = 1000 * (time.perf_counter() - start) / args.steps
     step += args.steps
     syncs = _count_syncs(trainer, step, 5) if cuda else {}
@@ -111,7 +106,7 @@ def profile(args: ProfileArgs) -> Dict:
     start = time.perf_counter()
     with torch_profile(activities=activities) as prof:
         train_steps(trainer, step, step + args.profile_steps)
-        sync()
+        synchronize()
     profiled_ms = 1000 * (time.perf_counter() - start) / args.profile_steps
     events = prof.key_averages()
     n = args.profile_steps

@@ -23,7 +23,7 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
-from thermal_wild_ns.benchmarks import device_name
+from thermal_wild_ns.benchmarks import device_name, synchronize
 
 
 @dataclass
@@ -35,16 +35,14 @@ class FpsArgs:
     output_dir: Path = Path("outputs/render_fps")
 
 
-def _fps(render: Callable[[int], torch.Tensor], frames: int, cuda: bool) -> float:
+def _fps(render: Callable[[int], torch.Tensor], frames: int) -> float:
     for i in range(20):
         render(i)
-    if cuda:
-        torch.cuda.synchronize()
+    synchronize()
     start = time.perf_counter()
     for i in range(frames):
         render(i)
-    if cuda:
-        torch.cuda.synchronize()
+    synchronize()
     return frames / (time.perf_counter() - start)
 
 
@@ -57,7 +55,6 @@ def measure_fps(pipeline, frames: int) -> Dict:
 
     model = pipeline.model
     pipeline.eval()
-    cuda = model.device.type == "cuda"
     cameras = [camera.to(model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
     width, height = int(cameras[0].width), int(cameras[0].height)
     ours = hasattr(model, "gaussian_emission")
@@ -89,7 +86,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 return rasterization(**splat, viewmats=viewmat, Ks=K, width=width, height=height, packed=False, backend=model.config.rasterizer)[0]
 
             ways["splat_only"] = splat_only
-        result["fps"] = {name: round(_fps(fn, frames, cuda), 1) for name, fn in ways.items()}
+        result["fps"] = {name: round(_fps(fn, frames), 1) for name, fn in ways.items()}
     return result
 
 

@@ -50,7 +50,7 @@ class PreprocessedSequence:
         """Frame `index`'s LUT, or the level-wise median of several frames' LUTs: a canonical scale
         for a view no frame was captured at. The median of strictly increasing LUTs is strictly
         increasing, and one photometric outlier frame cannot move it; the mean was moved enough to
-        cap a novel view at 27 dB on the outlier stress scene (README, stability). Computed once per set."""
+        cap a novel view below 30 dB on the outlier stress scene (README, stability). Computed once per set."""
         if isinstance(index, int):
             return np.asarray(self.luts[index])
         key = tuple(index)
