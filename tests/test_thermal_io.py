@@ -2,6 +2,7 @@
 errors that name the file and the problem for every kind of bad input."""
 
 import json
+import threading
 
 import cv2
 import numpy as np
@@ -11,7 +12,8 @@ import layout_fixtures as fx
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.layouts import detect_layout
 from thermal_wild_ns.data.palettes import PALETTE_NAMES, apply_palette, invert_palette, palette_rgb
-from thermal_wild_ns.data.thermal_io import read_raw_frame, scan_frames
+from thermal_wild_ns.data import thermal_io
+from thermal_wild_ns.data.thermal_io import load_npy, read_raw_frame, scan_frames
 
 
 @pytest.mark.parametrize("suffix", [".png", ".tiff"])
@@ -26,6 +28,21 @@ def test_float_npy_temperatures(tmp_path):
     temps = np.linspace(-5.0, 80.0, 40 * 30, dtype=np.float32).reshape(30, 40)
     np.save(tmp_path / "t.npy", temps)
     assert np.array_equal(read_raw_frame(tmp_path / "t.npy"), temps)
+
+
+def test_npy_reads_are_serialised_across_threads(tmp_path):
+    # nerfstudio caches frames from a thread pool, and numpy parses .npy headers with the AST
+    # constructor, which CPython 3.11 cannot run in two threads at once (CI once failed on it)
+    array = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.save(tmp_path / "a.npy", array)
+    result = {}
+    worker = threading.Thread(target=lambda: result.update(array=load_npy(tmp_path / "a.npy")))
+    with thermal_io._NPY_HEADER_LOCK:  # another thread is parsing a header
+        worker.start()
+        worker.join(timeout=0.5)
+        assert worker.is_alive() and "array" not in result  # waits for it
+    worker.join(timeout=10)
+    assert np.array_equal(result["array"], array)
 
 
 @pytest.mark.parametrize("name", PALETTE_NAMES)

@@ -137,7 +137,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     args.output_dir.mkdir(parents=True, exist_ok=True)
     sequence = preprocess(capture.frames, rng, args.preprocessing, args.cache_dir)
     raw = [rng.read(f.image) for f in tqdm(capture.frames, desc="Reading frames")]
-    processed = [np.load(sequence.frame_path(t)) for t in range(len(capture.frames))]
+    processed = [sequence.read_frame(t) for t in range(len(capture.frames))]
     native = lambda frames: [float(rng.to_native(f.mean())) for f in frames]  # noqa: E731
     result = {
         "data": str(args.data),

@@ -23,6 +23,7 @@ from typing import Dict, List, Literal, Optional, Sequence, get_args
 import numpy as np
 import torch
 
+from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.model.losses import psnr, ssim
 
 EmbeddingMode = Literal["fixed", "interpolate", "wild"]
@@ -164,7 +165,7 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
         pred = (outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(-1, keepdim=True))[..., 0].float().cpu().numpy()
         pred = datamanager.novel_view_to_original(pred)
         gt = rng.read(Path(scene_root) / view["file_path"])
-        true_depth = np.load(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's
+        true_depth = load_npy(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's
         depth = outputs["depth"][..., 0].float().cpu().numpy()
         alpha = outputs["accumulation"][..., 0].float().cpu().numpy()
         rows.append({

@@ -36,6 +36,7 @@ from method_configs.wild_thermal import METHODS, method_trainer
 from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
 from thermal_wild_ns.benchmarks import device_name, synchronize
 from thermal_wild_ns.benchmarks.render_fps import measure_fps
+from thermal_wild_ns.data.thermal_io import load_npy
 
 VARIANTS = ("splatfacto", *METHODS)
 """Stock splatfacto and every method this plugin registers."""
@@ -469,7 +470,7 @@ def strip_png(folder: Path, path: Path) -> None:
 
     rows = []
     for npy in sorted(folder.glob("*.npy")):
-        strip = np.load(npy).astype(np.float32)
+        strip = load_npy(npy).astype(np.float32)
         row = false_colour(strip)
         row = cv2.resize(row, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
         label = np.zeros((row.shape[0], 260, 3), np.uint8)

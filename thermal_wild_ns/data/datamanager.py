@@ -40,7 +40,7 @@ class ThermalDataset(InputDataset):
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
         sequence: Optional[PreprocessedSequence] = self.metadata.get("preprocessed")
         if sequence is not None:
-            image = np.load(sequence.frame_path(self.frame_index(image_idx), self.metadata["is_ground_truth"][image_idx]))
+            image = sequence.read_frame(self.frame_index(image_idx), self.metadata["is_ground_truth"][image_idx])
         else:
             image = self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx])
         if self.scale_factor != 1.0:

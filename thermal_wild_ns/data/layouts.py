@@ -24,7 +24,7 @@ from thermal_wild_ns.data.capture import (
     interval_split,
     opencv_to_opengl,
 )
-from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange
+from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange, load_npy
 
 THERMALMIX_CELSIUS = {
     "face": (22.5, 35.2),
@@ -256,7 +256,7 @@ def read_thermalmix(root: Path, holdout_index: int = 20, celsius: Optional[Tuple
     declared = None
     if bounds is not None:
         if frames[0].image.suffix == ".npy":
-            declared = RadiometricRange(bounds[0], bounds[1], str(np.load(frames[0].image, mmap_mode="r").dtype), *bounds)
+            declared = RadiometricRange(bounds[0], bounds[1], str(load_npy(frames[0].image, mmap_mode="r").dtype), *bounds)
         else:
             declared = RadiometricRange(0.0, 255.0, "uint8", *bounds)
     return ThermalCapture(
@@ -320,7 +320,7 @@ def read_llff(root: Path, layout: str = "llff") -> ThermalCapture:
     (LLFF's `llffhold`)."""
     path = root / "poses_bounds.npy"
     try:
-        table = np.load(path, allow_pickle=False)
+        table = load_npy(path)
     except (OSError, ValueError) as err:
         raise ValueError(f"{path}: unreadable poses_bounds.npy ({err})") from err
     if table.ndim != 2 or table.shape[1] != 17:

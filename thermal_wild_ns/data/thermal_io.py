@@ -7,6 +7,7 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
@@ -19,6 +20,17 @@ from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 
+# numpy parses a .npy header with `ast.literal_eval`, and CPython 3.11's AST constructor keeps its
+# recursion depth in interpreter-wide state: two threads parsing at once can raise "SystemError: AST
+# constructor recursion depth mismatch" (cpython gh-106905). nerfstudio caches images from a thread pool.
+_NPY_HEADER_LOCK = threading.Lock()
+
+
+def load_npy(path: Path, mmap_mode: Optional[str] = None) -> np.ndarray:
+    """`np.load` of one plain (no pickle) array, safe to call from several threads at once."""
+    with _NPY_HEADER_LOCK:
+        return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
+
 
 def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
     """The file's pixels, a grey 3-channel image collapsed to [H, W]; and whether it is a
@@ -28,7 +40,7 @@ def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
         raise FileNotFoundError(f"{path}: thermal frame not found")
     if path.suffix.lower() == ".npy":
         try:
-            image = np.load(path, allow_pickle=False)
+            image = load_npy(path)
         except (ValueError, OSError) as err:
             raise ValueError(f"{path}: unreadable .npy thermal frame ({err})") from err
     elif path.suffix.lower() in IMAGE_SUFFIXES:

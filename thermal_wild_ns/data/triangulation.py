@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange
+from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy
 
 CACHE_VERSION = 1
 
@@ -184,7 +184,7 @@ def cached_triangulation(
     key = cache_key(frames, radiometric_range, config)
     final = Path(cache_root) / f"triangulation-{key}"
     if (final / "report.json").is_file():
-        return np.load(final / "points.npy"), json.loads((final / "report.json").read_text())
+        return load_npy(final / "points.npy"), json.loads((final / "report.json").read_text())
     Path(cache_root).mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=".triangulation-", dir=cache_root))
     try:

@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange, read_raw_frame
+from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, read_raw_frame
 from thermal_wild_ns.preprocessing.photometric import LevelGrid, PhotometricConfig, apply_lut, frame_luts, invert_lut
 
 CACHE_VERSION = 1
@@ -41,10 +41,14 @@ class PreprocessedSequence:
     @property
     def luts(self) -> np.ndarray:
         """[T, levels] float64 native values (memory-mapped)."""
-        return np.load(self.folder / "luts.npy", mmap_mode="r")
+        return load_npy(self.folder / "luts.npy", mmap_mode="r")
 
     def frame_path(self, index: int, ground_truth: bool = False) -> Path:
         return self.folder / ("ground_truth" if ground_truth else "frames") / f"{index:05d}.npy"
+
+    def read_frame(self, index: int, ground_truth: bool = False) -> np.ndarray:
+        """Processed frame `index` ([H, W] float32, normalised; thread-safe)."""
+        return load_npy(self.frame_path(index, ground_truth))
 
     def lut(self, index: Union[int, Sequence[int]]) -> np.ndarray:
         """Frame `index`'s LUT, or the level-wise median of several frames' LUTs: a canonical scale
