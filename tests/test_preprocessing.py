@@ -176,7 +176,8 @@ def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_can
     """The canonical LUT for views no frame was captured at (paths, viewer, exports). On the outlier
     stress scene (the clean scene plus one frame at +30 % gain), mapping the clean scene's processed
     path views back through the outlier scene's training LUTs: the level-wise median gives back the
-    truth, the mean (used before) caps the path at about 27 dB by itself."""
+    truth, the mean (used before) caps the path at about 36 dB by itself (under 30 dB on the
+    saturated outlier frame of generator version 2)."""
     import json
 
     from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
@@ -203,5 +204,5 @@ def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_can
     def psnr(lut):
         return -10 * np.log10(np.mean((rng.normalize(invert_lut(lut, processed, grid)) - truth) ** 2))
 
-    assert psnr(median) > 40.0
-    assert psnr(np.asarray(outlier.luts)[frames].mean(axis=0)) < 30.0
+    assert psnr(median) > 45.0  # 46.6 when written
+    assert psnr(np.asarray(outlier.luts)[frames].mean(axis=0)) < 40.0  # 36.5: the one bright frame moves the mean

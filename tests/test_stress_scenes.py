@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, generate_demo_scene, stress_scene_config
+from thermal_wild_ns.data.demo_scene import COUNTS_RANGE, STRESS_FAULTS, generate_demo_scene, stress_scene_config
 
 FAULTS = ["clean", *STRESS_FAULTS.keys() - {"clean"}, "all"]
 
@@ -32,10 +32,14 @@ def test_every_scene_shows_the_same_content(scenes):
 
 
 def test_outlier_frame_is_30_percent_brighter(scenes):
-    observed, clean = frames(scenes["outlier"]), frames(scenes["clean"])
+    low, high = COUNTS_RANGE
+    normalised = lambda scene: [(f - low) / (high - low) for f in frames(scene)]  # noqa: E731  (the model's scale)
+    observed, clean = normalised(scenes["outlier"]), normalised(scenes["clean"])
     ratios = [o.mean() / c.mean() for o, c in zip(observed, clean)]
     assert ratios[13] == pytest.approx(1.3, abs=1e-3)
     assert all(r == pytest.approx(1.0, abs=1e-3) for i, r in enumerate(ratios) if i != 13)
+    # a bright frame, not a saturated one: only its hottest pixels leave the recording range
+    assert 0.0 < (observed[13] > 1.0).mean() < 0.1 and (clean[13] > 1.0).mean() == 0.0
 
 
 def test_drift_and_flat_field_sawtooth(scenes):

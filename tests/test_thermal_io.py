@@ -87,6 +87,23 @@ def test_normalisation_is_per_dataset_not_per_frame(tmp_path):
     assert a.mean() == pytest.approx(0.125) and b.mean() == pytest.approx(0.875)  # per-frame min-max would give equal means
 
 
+def test_frames_outside_the_range_are_named(tmp_path, recwarn):
+    from thermal_wild_ns.data.thermal_io import RadiometricRange
+
+    base = np.tile(np.linspace(3000, 3500, 64).astype(np.uint16), (48, 1))
+    hot = base.copy()
+    hot[:, -2:] = 4200  # 3 % of the pixels above the declared high end
+    for name, image in (("a.png", base), ("b.png", hot), ("c.png", base)):
+        cv2.imwrite(str(tmp_path / name), image)
+    declared = RadiometricRange(2800.0, 3800.0, "uint16")
+    scan_frames([tmp_path / "a.png", tmp_path / "c.png"], declared=declared)
+    assert not recwarn.list  # frames inside the range: silent
+    with pytest.warns(UserWarning, match=r"1 frame\(s\) have over 1% of their pixels above the declared radiometric range \(above 3800\): b\.png\."):
+        scan_frames(sorted(tmp_path.glob("*.png")), declared=declared)
+    with pytest.warns(UserWarning, match=r"below the measured radiometric range .*: a\.png, b\.png, c\.png"):
+        scan_frames(sorted(tmp_path.glob("*.png")), percentiles=(5.0, 100.0))  # the lowest 5 % of every frame's pixels fall below
+
+
 # --------------------------------------------------------------------------- bad input
 def _parse(root, **kw):
     parser = ThermalDataParserConfig(data=root, seed_points="random", num_random_points=8, **kw).setup()

@@ -28,7 +28,7 @@ from typing import Dict, Tuple
 import cv2
 import numpy as np
 
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3  # bump when an unchanged config would give different frames (3: outlier gain on the normalised scale)
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,9 @@ class DemoSceneConfig:
     seed: int = 0
     # stress faults (off in the demo scene; see STRESS_FAULTS)
     outlier_frame: int = -1
-    """Index of a frame recorded with `outlier_gain` on its whole signal (-1: none)."""
+    """Index of a frame recorded `outlier_gain` times brighter (-1: none): its values above the
+    recording range's low end are scaled, so its mean in the dataset-normalised scale (what the
+    model sees; an 8-bit AGC frame's levels) is that much higher while its content stays in range."""
     outlier_gain: float = 1.3
     ffc_period: int = 0
     """Flat-field-correction sawtooth: the offset climbs `ffc_step_counts` per frame and drops back
@@ -72,6 +74,8 @@ class DemoSceneConfig:
 # Sensor model: counts = COUNTS_AT_0C + COUNTS_PER_C * temperature (degC).
 COUNTS_AT_0C = 3000.0
 COUNTS_PER_C = 20.0
+CELSIUS_RANGE = (-10.0, 40.0)  # the recording range declared in transforms.json
+COUNTS_RANGE = tuple(COUNTS_AT_0C + COUNTS_PER_C * c for c in CELSIUS_RANGE)
 
 # Scene (world frame: z up, metres).
 WALL_Y = 3.0  # facade plane y = WALL_Y, facing -y, x in [-4, 4], z in [0, 4]
@@ -239,7 +243,11 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
         clean, depth = _clean_counts(c2w, cfg)
         signal = (clean - COUNTS_AT_0C) * faults["vignetting"]
         observed = COUNTS_AT_0C + faults["offset"][i] + faults["gain"][i] * signal + faults["columns"]
-        observed = faults["outlier"][i] * (observed + cfg.noise_counts * rng.standard_normal(observed.shape))
+        observed = observed + cfg.noise_counts * rng.standard_normal(observed.shape)
+        # the outlier gain acts on the normalised scale, not on raw counts: x1.3 on counts of ~3,250
+        # would put the whole frame ~90 degC above the range, a saturated frame rather than a bright one
+        if faults["outlier"][i] != 1.0:
+            observed = COUNTS_RANGE[0] + faults["outlier"][i] * (observed - COUNTS_RANGE[0])
         name = f"frame_{i:05d}.png"
         cv2.imwrite(str(tmp / "images" / name), np.clip(np.round(observed), 0, 65535).astype(np.uint16))
         cv2.imwrite(str(tmp / "ground_truth" / name), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
@@ -280,10 +288,10 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
         "test_filenames": [n for i, n in enumerate(names) if i % cfg.eval_every == 0],
         "ply_file_path": "sparse_pc.ply",
         "thermal": {
-            "celsius_low": -10.0,
-            "celsius_high": 40.0,
-            "low": COUNTS_AT_0C - 10.0 * COUNTS_PER_C,
-            "high": COUNTS_AT_0C + 40.0 * COUNTS_PER_C,
+            "celsius_low": CELSIUS_RANGE[0],
+            "celsius_high": CELSIUS_RANGE[1],
+            "low": COUNTS_RANGE[0],
+            "high": COUNTS_RANGE[1],
             "dtype": "uint16",
         },
         "path": path,

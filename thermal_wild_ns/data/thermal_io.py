@@ -8,6 +8,7 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 from __future__ import annotations
 
 import threading
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
@@ -129,7 +130,9 @@ def scan_frames(
     Checks: each file is readable, all frames share one pixel type (mixing bit depths would mix
     radiometric scales) and one palette, each frame's size matches its camera (`sizes`, (W, H)),
     and float frames are finite. The measured range is the given percentiles of all pixels of all
-    frames (integers histogrammed exactly, floats sampled on a strided grid).
+    frames (integers histogrammed exactly, floats sampled on a strided grid). Frames with more than
+    `OUT_OF_RANGE_SHARE` of their pixels outside the range (declared or measured) are named in a
+    warning: preprocessing clips those pixels, and a frame mostly outside the range is saturated.
     """
     if not paths:
         raise ValueError("No thermal frames to read")
@@ -140,6 +143,7 @@ def scan_frames(
     dtype = None
     hist = None
     samples = []
+    tails = []  # per frame: the values with OUT_OF_RANGE_SHARE of its pixels below / above them
     for i, path in enumerate(tqdm(paths, desc="Checking thermal frames", leave=False, disable=len(paths) < 50)):
         raw = read_raw_frame(path, palette)
         if dtype is None:
@@ -151,13 +155,17 @@ def scan_frames(
         if raw.dtype in (np.uint8, np.uint16):
             counts = np.bincount(raw.reshape(-1), minlength=1 << (8 * raw.dtype.itemsize))
             hist = counts if hist is None else hist + counts
+            cdf = np.cumsum(counts) / raw.size
+            tails.append((float(np.searchsorted(cdf, OUT_OF_RANGE_SHARE)), float(np.searchsorted(cdf, 1.0 - OUT_OF_RANGE_SHARE))))
         else:
             if not np.all(np.isfinite(raw)):
                 raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
             samples.append(raw.reshape(-1)[:: max(1, raw.size // 65536)])
+            tails.append(tuple(float(v) for v in np.quantile(raw, [OUT_OF_RANGE_SHARE, 1.0 - OUT_OF_RANGE_SHARE])))
     if declared is not None:
         if declared.dtype != str(np.dtype(dtype)):
             raise ValueError(f"{paths[0]}: frames are {dtype} but the dataset declares {declared.dtype}")
+        _warn_out_of_range(paths, tails, declared.low, declared.high, "declared")
         return replace(declared, palette=palette)
     if hist is not None:
         cdf = np.cumsum(hist) / hist.sum()
@@ -167,4 +175,25 @@ def scan_frames(
         low, high = (float(v) for v in np.percentile(np.concatenate(samples), percentiles))
     if not high > low:
         raise ValueError(f"Thermal frames ({paths[0].parent}) have no contrast: range [{low}, {high}] is empty")
+    _warn_out_of_range(paths, tails, low, high, "measured")
     return RadiometricRange(low=low, high=high, dtype=str(np.dtype(dtype)), palette=palette)
+
+
+OUT_OF_RANGE_SHARE = 0.01
+"""A frame with more of its pixels than this below or above the dataset's range is named in a warning."""
+
+
+def _warn_out_of_range(paths: Sequence[Path], tails: Sequence[Tuple[float, float]], low: float, high: float, kind: str) -> None:
+    """Warn about the frames whose low or high tail (`OUT_OF_RANGE_SHARE` of pixels) lies outside [low, high]."""
+    advice = {"declared": "Check the range the dataset declares, or those frames.", "measured": "Widen the dataparser's --range-percentiles, or check those frames."}
+    below = [Path(p).name for p, (lo, _) in zip(paths, tails) if lo < low]
+    above = [Path(p).name for p, (_, hi) in zip(paths, tails) if hi > high]
+    for names, side, bound in ((below, "below", low), (above, "above", high)):
+        if names:
+            listed = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+            warnings.warn(
+                f"{Path(paths[0]).parent}: {len(names)} frame(s) have over {OUT_OF_RANGE_SHARE:.0%} of their pixels {side} the "
+                f"{kind} radiometric range ({side} {bound:g}): {listed}. Preprocessing clips those pixels; a frame mostly "
+                f"outside the range is saturated. {advice[kind]}",
+                stacklevel=3,
+            )
