@@ -81,6 +81,24 @@ def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
     assert "| wild-thermal-3dgs-stab | " in (tmp_path / "bench.md").read_text()
 
 
+def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeypatch):
+    """--runs-per-gpu K: K queues per GPU, each process with cores / queues torch threads (not
+    torch's default of one per core), and the merged results say their timings were shared."""
+    import os
+
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)  # the parent's count sets the workers' share (torch caps it at the real cores)
+    methods = ("wild-thermal-3dgs", "wild-thermal-3dgs-bbhe")
+    result = main(BenchArgs(methods=methods, steps=20, eval_at=(20,), wild_steps=2, fps_frames=0, runs_per_gpu=2, output_dir=tmp_path))
+    assert [r["method"] for r in result["runs"]] == list(methods)
+    assert all(r["runs_per_gpu"] == 2 and r["torch_threads"] == 1 for r in result["runs"])  # 2 cores / 2 queues
+    assert (tmp_path / "gpu0/00_demo_wild-thermal-3dgs/bench.json").is_file() and (tmp_path / "gpu0/01_demo_wild-thermal-3dgs-bbhe/bench.json").is_file()
+    assert "(2 runs per GPU)" in (tmp_path / "bench.md").read_text()
+    assert json.loads((tmp_path / "bench.json").read_text())["runs"][0]["runs_per_gpu"] == 2
+
+
 def test_unknown_method_and_mode_are_refused(tmp_path):
     from thermal_wild_ns.analysis.evaluation import evaluate
     from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config

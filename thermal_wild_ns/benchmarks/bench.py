@@ -75,9 +75,13 @@ class BenchArgs:
     """Training seconds a run may take; a run past it stops and is recorded as failed, with its step
     and Gaussian count (so one exploding method cannot use up a GPU session). Default: no limit."""
     gpus: int = 1
-    """Spread the runs over this many GPUs: one queue per GPU, each training one run at a time in its
-    own process (`CUDA_VISIBLE_DEVICES`), then their results merged into `output_dir`. Runs sharing a
-    GPU as processes slow each other many times over, so a GPU never gets two."""
+    """Spread the runs over this many GPUs: `--runs-per-gpu` queues per GPU, each training one run at
+    a time in its own process (`CUDA_VISIBLE_DEVICES`), then their results merged into `output_dir`."""
+    runs_per_gpu: int = 1
+    """Runs trained at once on each GPU, each in its own process with an equal share of the CPU
+    cores as its torch threads. Small scenes leave a GPU mostly idle (a step is bound by Python and
+    kernel launches), but measure before raising it: 13 runs per GPU, each with torch's default of
+    one thread per core, once ran 30-40x slower than one alone (results/README.md)."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
     machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
@@ -240,6 +244,7 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         "train_seconds": round(seconds, 2),
         "ms_per_step": round(1000 * seconds / args.steps, 3),
         "peak_gpu_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
+        "torch_threads": torch.get_num_threads(),
         "gaussians": int(pipeline.model.num_points),
         "model_mb": round(_model_megabytes(pipeline.model), 2),
         "final_loss_finite": losses_finite,
@@ -284,7 +289,8 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
         mem = "—" if r["peak_gpu_memory_mb"] is None else f"{r['peak_gpu_memory_mb']:.0f}"
         fps = r.get("render_fps") or {}
         fps_cell = " / ".join(f"{fps[k]:.0f}" for k in ("baked", "unbaked") if k in fps) or "—"
-        lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} | {fps_cell} |")
+        shared = f" ({r['runs_per_gpu']} runs per GPU)" if r.get("runs_per_gpu", 1) > 1 else ""  # not the timing of a run alone
+        lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f}{shared} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} | {fps_cell} |")
     stress = [r for r in runs if r["scene"].startswith("stress-")]
     if stress:
         faults = list(dict.fromkeys(r["scene"] for r in stress))
@@ -344,7 +350,7 @@ def main(args: BenchArgs) -> Dict:
             raise ValueError(f"{', '.join(map(str, args.merge))}: runs come from different devices ({devices}); timings would not compare")
         _gather_strips([Path(p).parent / "strips" for p in args.merge], args.output_dir / "strips")
         return _write(args, [r for m in merged for r in m["runs"]], device=devices.pop(), torch_version=merged[0]["torch"])
-    if args.gpus > 1:
+    if args.gpus > 1 or args.runs_per_gpu > 1:
         return _spread_over_gpus(args)
     runs = []
     for scene in args.scenes:
@@ -382,34 +388,41 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
 
 
 def _command_line(settings: BenchArgs) -> List[str]:
-    """`settings` as this bench's command line (every field but `gpus` and `merge`)."""
+    """`settings` as this bench's command line (every field but those that spread runs or merge them)."""
     import dataclasses
     import sys
 
     command = [sys.executable, "-m", "thermal_wild_ns.benchmarks.bench"]
     for field in dataclasses.fields(settings):
         value = getattr(settings, field.name)
-        if field.name not in ("gpus", "merge") and value is not None:
+        if field.name not in ("gpus", "runs_per_gpu", "merge") and value is not None:
             command += [f"--{field.name.replace('_', '-')}", *map(str, value if isinstance(value, tuple) else (value,))]
     return command
 
 
-def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int) -> List[Path]:
+def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -> List[Path]:
     """Each job (a bench of one scene and method, in its own `output_dir`) as its own process, in
-    `gpus` queues run side by side, one per GPU (`CUDA_VISIBLE_DEVICES`), one job at a time per
-    queue: runs sharing a GPU as processes slow each other many times over. Each output folder gets
-    the run's log.txt. Returns the bench.json files written, in job order (a killed or crashed run
-    writes none)."""
+    `gpus * runs_per_gpu` queues run side by side; job k goes to queue k mod queues, on GPU k mod
+    `gpus` (`CUDA_VISIBLE_DEVICES`), one job at a time per queue. Each process gets an equal share of
+    the CPU cores as torch threads (`OMP_NUM_THREADS`, unless set): with torch's default, every
+    process would start one thread per core. Each output folder gets the run's log.txt. Returns the
+    bench.json files written, in job order (a killed or crashed run writes none)."""
     import os
     import subprocess
     import threading
 
+    queues = gpus * runs_per_gpu
     package_root = str(Path(__file__).resolve().parents[2])  # the workers import this same code
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH"))))}
+    env = {
+        "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // queues)),
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH")))),
+    }
     written: Dict[int, Path] = {}
 
-    def work(gpu: int) -> None:
-        for k in range(gpu, len(jobs), gpus):
+    def work(queue: int) -> None:
+        gpu = queue % gpus
+        for k in range(queue, len(jobs), queues):
             job, folder = jobs[k], jobs[k].output_dir
             folder.mkdir(parents=True, exist_ok=True)
             with open(folder / "log.txt", "w") as log:
@@ -419,7 +432,7 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int) -> List[Path]:
             if (folder / "bench.json").is_file():
                 written[k] = folder / "bench.json"
 
-    threads = [threading.Thread(target=work, args=(gpu,)) for gpu in range(min(gpus, len(jobs)))]
+    threads = [threading.Thread(target=work, args=(queue,)) for queue in range(min(queues, len(jobs)))]
     for thread in threads:
         thread.start()
     for thread in threads:
@@ -428,20 +441,24 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int) -> List[Path]:
 
 
 def _spread_over_gpus(args: BenchArgs) -> Dict:
-    """Every scene x method run in `output_dir/gpuI/NN_SCENE_METHOD/`, over `args.gpus` queues, then merged."""
+    """Every scene x method run in `output_dir/gpuI/NN_SCENE_METHOD/`, over `args.gpus` GPUs, then merged."""
     import dataclasses
 
     pairs = [(scene, method) for scene in args.scenes for method in args.methods]
     cache = args.cache_dir or args.output_dir / "cache"  # one cache for all (triangulation once)
     jobs = [
-        dataclasses.replace(args, scenes=(scene,), methods=(method,), cache_dir=cache, gpus=1,
+        dataclasses.replace(args, scenes=(scene,), methods=(method,), cache_dir=cache, gpus=1, runs_per_gpu=1,
                             output_dir=args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}")
         for k, (scene, method) in enumerate(pairs)
     ]
-    done = run_in_gpu_queues(jobs, args.gpus)
+    done = run_in_gpu_queues(jobs, args.gpus, args.runs_per_gpu)
     if not done:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
     merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
+    if args.runs_per_gpu > 1:  # their timings are not those of a run alone: say so in the results
+        for run in merged["runs"]:
+            run["runs_per_gpu"] = args.runs_per_gpu
+        merged = _write(args, merged["runs"], device=merged["device"], torch_version=merged["torch"])
     finished = {(r["scene"], r["method"]) for r in merged["runs"]}
     lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in finished]
     if lost:
