@@ -39,7 +39,7 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     assert set(result["runs"][1]["render_fps"]) == {"baked", "unbaked", "splat_only"}
     assert all(v > 0 for v in result["runs"][1]["render_fps"].values())
     # the full method is preprocessed: its preprocessed-space numbers are reported beside
-    assert "psnr_preprocessed" in result["runs"][1]["final"]["fixed"]
+    assert "psnr_preprocessed" in result["runs"][1]["final"]["fixed"] and "psnr_median_lut" in result["runs"][1]["final"]["fixed"]
     table = (out / "bench.md").read_text()
     assert "| wild-thermal-3dgs | " in table and "| wild-thermal | demo |" in table
     chart = cv2.imread(str(out / "speed_accuracy.png"))

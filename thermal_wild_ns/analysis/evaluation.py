@@ -4,7 +4,9 @@
   preprocessed frames are mapped back through the test frame's inverse LUT; the target is the
   evaluation frame as the dataset gives it (the raw held-out frame; clean ground truth for
   generated scenes). The model's own numbers in the preprocessed space are kept as
-  `*_preprocessed` (what the paper most likely reported).
+  `*_preprocessed` (what the paper most likely reported). The test frame's LUT carries that
+  frame's photometric state, which no rendered novel view has: `*_median_lut` scores the same
+  renders mapped back through the median training LUT instead, as `ns-render` maps every view.
 - Held-out frame embedding (`EmbeddingMode`):
   `fixed`: the model's inference embedding (mean of the training frames');
   `interpolate`: linear in capture order between the neighbouring training frames' embeddings
@@ -105,12 +107,14 @@ def evaluate(
         # the evaluation frame as cached (undistorted like the render), back in the original space
         to_original = (lambda x: x) if sequence is None else (lambda x: sequence.to_original_normalised(x, frame).astype(np.float32))
         gt, pred = to_original(training_space_gt), to_original(rendered)
+        as_novel_view = datamanager.novel_view_to_original(rendered)  # the median training LUT
         if mode == "wild":  # score only what the embedding did not see
             half = gt.shape[1] // 2
-            pred, gt, rendered, training_space_gt = (x[:, half:] for x in (pred, gt, rendered, training_space_gt))
+            pred, gt, rendered, training_space_gt, as_novel_view = (x[:, half:] for x in (pred, gt, rendered, training_space_gt, as_novel_view))
         row = {"frame": frame, **_scores(pred, gt)}
         if sequence is not None:
             row.update(_scores(rendered, training_space_gt, "_preprocessed"))
+            row.update(_scores(as_novel_view, gt, "_median_lut"))
         rows.append(row)
         if out_dir is not None:
             _write_panel(out_dir / f"test_{i:02d}_{mode}.png", gt, pred)

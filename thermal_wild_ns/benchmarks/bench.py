@@ -273,14 +273,16 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
             cells.append(f"{f['psnr']:.2f} / {f['ssim']:.3f}")
         mean = f"{np.mean(ps):.2f} / {np.mean(ss):.3f}" if ps else "—"
         lines.append(f"| {m} | " + " | ".join(cells) + f" | {mean} |")
-    lines += ["", "Embedding modes (PSNR; `wild` scores the right half only):", "", "| method | scene | fixed | interpolate | wild (right half) | preprocessed space (fixed) |", "| --- | --- | --- | --- | --- | --- |"]
+    lines += ["", "Embedding modes (PSNR; `wild` scores the right half only; preprocessed renders mapped back through the test frame's LUT, "
+              "or, in the last column, through the median training LUT, as every rendered novel view is):", "",
+              "| method | scene | fixed | interpolate | wild (right half) | preprocessed space (fixed) | median training LUT (fixed) |", "| --- | --- | --- | --- | --- | --- | --- |"]
     done = [r for r in runs if "failed" not in r]
     for r in done:
         f = r["final"]
-        pre = f["fixed"].get("psnr_preprocessed")
+        optional = [f["fixed"].get(key) for key in ("psnr_preprocessed", "psnr_median_lut")]
         lines.append(
             f"| {r['method']} | {r['scene']} | {f['fixed']['psnr']:.2f} | {f['interpolate']['psnr']:.2f} | {f['wild']['psnr']:.2f} | "
-            + (f"{pre:.2f}" if pre is not None else "—")
+            + " | ".join(f"{v:.2f}" if v is not None else "—" for v in optional)
             + " |"
         )
     lines += ["", "Cost (render FPS: test cameras; baked = the fixed embedding's emission cached, as the viewer renders; unbaked = emission MLP every frame):", "",
