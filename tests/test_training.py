@@ -41,7 +41,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
 
     model.get_loss_dict = record
     trainer.train()
-    after = evaluate(trainer.pipeline, "fixed", tmp_path / "after")
+    after = evaluate(trainer.pipeline, "interpolate", tmp_path / "after")  # ns-eval's default mode
     first, last = sum(losses[:20]) / 20, sum(losses[-20:]) / 20
     assert last < 0.7 * first, (first, last)
     assert after["psnr"] > before["psnr"] + 5.0, (before["psnr"], after["psnr"])
@@ -64,7 +64,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
 
     ComputePSNR(load_config=config.get_base_dir() / "config.yml", output_path=tmp_path / "eval.json").main()
     results = json.loads((tmp_path / "eval.json").read_text())["results"]
-    assert results["embedding_mode"] == "fixed" and results["views"] == 5 and "psnr_preprocessed" in results
+    assert results["embedding_mode"] == "interpolate" and results["views"] == 5 and "psnr_preprocessed" in results
     assert results["psnr"] == pytest.approx(after["psnr"], abs=1e-4)  # what the protocol gives
 
     # ns-export gaussian-splat: every Gaussian, grey DC colour = the emission as rendered (MLP included)
