@@ -61,6 +61,10 @@ class BenchArgs:
     compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first 3000 steps of a full run."""
     max_gaussians: Optional[int] = None
     """Gaussian budget of the wild-thermal variants (default: their config's)."""
+    num_downscales: Optional[int] = None
+    """Resolution warm-up of every method, splatfacto included: train at 1/2^n resolution first,
+    halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
+    128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
     wild_steps: int = 100
     """Embedding optimisation steps of the in-the-wild protocol."""
     output_dir: Path = Path("outputs/bench")
@@ -146,6 +150,8 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
             config.pipeline.model.max_gaussians = args.max_gaussians
+    if args.num_downscales is not None:
+        config.pipeline.model.num_downscales = args.num_downscales
     config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
     config.output_dir = run_dir
     config.experiment_name = method
