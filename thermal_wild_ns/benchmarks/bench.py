@@ -83,8 +83,8 @@ class BenchArgs:
     a time in its own process (`CUDA_VISIBLE_DEVICES`), then their results merged into `output_dir`."""
     runs_per_gpu: int = 1
     """Runs trained at once on each GPU, each in its own process with an equal share of the CPU
-    cores as its torch threads. Small scenes leave a GPU mostly idle (a step is bound by Python and
-    kernel launches), but measure before raising it: 13 runs per GPU, each with torch's default of
+    cores as its torch threads. One run leaves a GPU mostly idle (on DUNR its kernels took 2.4 of a
+    step's 10 ms, results/profile_dunr), but measure before raising it: 13 runs per GPU, each with torch's default of
     one thread per core, once ran 30-40x slower than one alone (results/README.md)."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
