@@ -99,13 +99,15 @@ def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeyp
     assert json.loads((tmp_path / "bench.json").read_text())["runs"][0]["runs_per_gpu"] == 2
 
 
-def test_resolution_warm_up_is_set_for_every_method(tmp_path):
+def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
     from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config
 
     for method in ("splatfacto", "wild-thermal"):
         assert trainer_config(method, "demo", BenchArgs(output_dir=tmp_path), tmp_path).pipeline.model.num_downscales == 2  # the configs' own
         config = trainer_config(method, "demo", BenchArgs(output_dir=tmp_path, num_downscales=0), tmp_path)
         assert config.pipeline.model.num_downscales == 0, method
+    config = trainer_config("wild-thermal", "demo", BenchArgs(output_dir=tmp_path, equalization_strength=0.5), tmp_path)
+    assert config.pipeline.datamanager.preprocessing.equalization_strength == 0.5
 
 
 def test_unknown_method_and_mode_are_refused(tmp_path):

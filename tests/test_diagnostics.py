@@ -67,6 +67,21 @@ def test_inverse_lut_gain_is_one_over_the_slope():
     assert summary["median"] == pytest.approx(2.5)
 
 
+def test_error_amplification_known_answers():
+    from thermal_wild_ns.analysis.diagnostics import error_amplification
+
+    raw = [np.linspace(0.0, 1.0, 40000).reshape(200, 200)]
+    # a LUT that stretches 2x: errors halve when mapped back; the identity leaves them as they are
+    halved = error_amplification([2 * r for r in raw], raw, lambda p, t: p / 2, sigma=0.01)
+    same = error_amplification(raw, raw, lambda p, t: p, sigma=0.01)
+    assert halved["rms"] == pytest.approx(0.5, rel=0.02) and same["rms"] == pytest.approx(1.0, rel=0.02)
+    assert same["p99"] == pytest.approx(2.576, rel=0.05)  # |N(0, 1)|'s 99th percentile
+    # squeezing the hottest levels 4x (a rare band, as equalization does) grows their errors 4x
+    squeeze = lambda p, t: np.where(p < 0.9, p, 0.9 + 4 * (p - 0.9))  # noqa: E731
+    hot = error_amplification([np.where(r < 0.9, r, 0.9 + (r - 0.9) / 4) for r in raw], raw, squeeze, sigma=0.001, hottest=0.05)
+    assert hot["rms_hottest"] == pytest.approx(4.0, rel=0.05) and hot["rms"] < 2.0
+
+
 def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     from thermal_wild_ns.analysis.diagnose import DiagnoseArgs, diagnose
 
@@ -81,6 +96,7 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     assert result["summary"].startswith(demo_scene_dir.name + ": std dI_t")
     gain = written["inverse_lut_gain"]
     assert gain["median"] > 0 and gain["median_hottest"] > 0 and 0.0 <= gain["hottest_over_4x"] <= 1.0
+    assert written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 1.0
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))
         assert image is not None and image.shape[0] > 100

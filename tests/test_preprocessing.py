@@ -48,6 +48,23 @@ def test_identity_at_beta_zero_without_bbhe():
         np.testing.assert_array_equal(lut, np.arange(65536, dtype=np.float64))
 
 
+def test_equalization_strength_blends_bbhe_with_its_input():
+    frames = skewed_frames()
+    luts = lambda **kw: list(frame_luts(frames, GRID16, 3550.0, 4100.0, PhotometricConfig("stab+bbhe", **kw)))  # noqa: E731
+    stab_only = list(frame_luts(frames, GRID16, 3550.0, 4100.0, PhotometricConfig("stab")))
+    for none, stab in zip(luts(equalization_strength=0.0), stab_only):
+        np.testing.assert_array_equal(none, stab)
+    for full, half, stab, frame in zip(luts(), luts(equalization_strength=0.5), stab_only, frames):
+        # half-way between at the frame's levels, but a few that strictly_increasing lifted past long
+        # stretches of empty levels (0.05 of a level per empty level)
+        occupied = np.unique(frame)
+        off = np.abs(half[occupied] - 0.5 * (full[occupied] + stab[occupied]))
+        assert np.mean(off <= 1e-6) > 0.9 and off.max() < 5.0
+        assert np.all(np.diff(half) > 0)
+    with pytest.raises(ValueError, match="equalization_strength must be in"):
+        PhotometricConfig(equalization_strength=1.5)
+
+
 def _std_delta_i(frames):
     return float(np.std(relative_mean_change([f.mean() for f in frames])))
 

@@ -15,7 +15,7 @@ order) and writes to `--output-dir`:
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Dict, List
 
@@ -24,6 +24,7 @@ import tyro
 from tqdm import tqdm
 
 from thermal_wild_ns.analysis.diagnostics import (
+    error_amplification,
     gain_summary,
     high_frequency_ratio,
     inverse_lut_gain,
@@ -144,7 +145,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         "layout": capture.layout,
         "frames": len(capture.frames),
         "radiometric_range": {"low": rng.low, "high": rng.high, "dtype": rng.dtype},
-        "preprocessing": {"variant": args.preprocessing.variant, "alpha": args.preprocessing.alpha, "beta": args.preprocessing.beta},
+        "preprocessing": asdict(args.preprocessing),
         # the stored processed frames mapped back through their inverse LUTs, against the raw frames
         "lut_round_trip_max_levels": max(
             float(np.abs(sequence.to_original_normalised(p, t) - r).max()) * (rng.high - rng.low) / sequence.grid.step
@@ -154,6 +155,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         "inverse_lut_gain": gain_summary(
             [inverse_lut_gain(np.asarray(sequence.lut(t)), sequence.grid.levels(rng.to_native(r))) for t, r in enumerate(raw)], raw
         ),
+        "error_amplification": error_amplification(processed, raw, sequence.to_original_normalised),
         "before": _frames_stats(raw, native(raw), args.spectrum_frames),
         "after": _frames_stats(processed, native(processed), args.spectrum_frames),
     }
@@ -162,6 +164,8 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     result["summary"] = summary_line(name, result["before"], result["after"]) + (
         f"; inverse-LUT error gain: median {gain['median']:.2f}, hottest 5 % {gain['median_hottest']:.2f}"
         f" ({100 * gain['hottest_over_4x']:.0f} % of them above 4x)"
+        f"; a training-space error of {result['error_amplification']['sigma']} becomes x{result['error_amplification']['rms']:.2f} RMS"
+        f" (hottest 5 %: x{result['error_amplification']['rms_hottest']:.2f})"
     )
     (args.output_dir / "diagnostics.json").write_text(json.dumps(result, indent=1))
     _plot(result, args.output_dir / "diagnostics.png", f"{name} ({capture.layout}, {len(raw)} frames): raw vs {args.preprocessing.variant}")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import gc
 import json
 import time
@@ -61,6 +62,9 @@ class BenchArgs:
     compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first 3000 steps of a full run."""
     max_gaussians: Optional[int] = None
     """Gaussian budget of the wild-thermal variants (default: their config's)."""
+    equalization_strength: Optional[float] = None
+    """Strength of the preprocessed variants' equalization step, 0-1 (default: their config's, the
+    paper's full BBHE); see `wild-thermal-diagnose`'s error amplification for what it trades."""
     num_downscales: Optional[int] = None
     """Resolution warm-up of every method, splatfacto included: train at 1/2^n resolution first,
     halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
@@ -150,6 +154,9 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
             config.pipeline.model.max_gaussians = args.max_gaussians
+        if args.equalization_strength is not None:
+            preprocessing = config.pipeline.datamanager.preprocessing
+            config.pipeline.datamanager.preprocessing = dataclasses.replace(preprocessing, equalization_strength=args.equalization_strength)
     if args.num_downscales is not None:
         config.pipeline.model.num_downscales = args.num_downscales
     config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
@@ -397,7 +404,6 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
 
 def _command_line(settings: BenchArgs) -> List[str]:
     """`settings` as this bench's command line (every field but those that spread runs or merge them)."""
-    import dataclasses
     import sys
 
     command = [sys.executable, "-m", "thermal_wild_ns.benchmarks.bench"]
@@ -450,8 +456,6 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
 
 def _spread_over_gpus(args: BenchArgs) -> Dict:
     """Every scene x method run in `output_dir/gpuI/NN_SCENE_METHOD/`, over `args.gpus` GPUs, then merged."""
-    import dataclasses
-
     pairs = [(scene, method) for scene in args.scenes for method in args.methods]
     cache = args.cache_dir or args.output_dir / "cache"  # one cache for all (triangulation once)
     jobs = [

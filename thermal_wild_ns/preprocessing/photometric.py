@@ -12,6 +12,7 @@ level histogram h_t and CDF F_t:
   equalised onto [low, m], those above onto [m, high], each with its own half's CDF, where
   [low, high] is the dataset's radiometric range (the output stays in native units, so the
   dataset normalisation still applies);
+- optionally a weaker equalization, s + k (bbhe_t(s) - s) with k = `equalization_strength` < 1;
 - the composite y = bbhe_t(s_t(x)) is kept per frame as a LUT over every native level, made
   strictly increasing (slope 1 beyond the frame's lowest/highest level, at least 0.05 of a level
   per level inside, which breaks the ties of empty levels and leaves an already increasing LUT
@@ -136,12 +137,19 @@ class PhotometricConfig:
     real content changes as the camera moves."""
     beta: float = 0.5
     """Blend of the stabilized mapping: I' = (1-beta) x + beta F*_t^{-1}(F_t(x))."""
+    equalization_strength: float = 1.0
+    """Blend of the equalization step (BBHE or histeq) with its input: y = s + k (eq(s) - s); 1 is
+    the paper's full equalization. Equalization squeezes rare levels (hot objects, the gaps of a
+    bimodal scene), so a rendering error there grows when mapped back: `wild-thermal-diagnose`
+    reports by how much (`error_amplification`). Lower k trades contrast for that."""
 
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown preprocessing variant '{self.variant}' (one of {', '.join(VARIANTS)})")
         if not (0.0 < self.alpha <= 1.0 and 0.0 <= self.beta <= 1.0):
             raise ValueError(f"alpha must be in (0, 1] and beta in [0, 1], got alpha={self.alpha}, beta={self.beta}")
+        if not 0.0 <= self.equalization_strength <= 1.0:
+            raise ValueError(f"equalization_strength must be in [0, 1], got {self.equalization_strength}")
 
 
 def frame_luts(
@@ -167,9 +175,9 @@ def frame_luts(
         else:
             mapped = identity
         if config.variant in ("bbhe", "stab+bbhe"):
-            mapped = bbhe_mapping(mapped, hist, lo, hi)
+            mapped = mapped + config.equalization_strength * (bbhe_mapping(mapped, hist, lo, hi) - mapped)
         elif config.variant == "histeq":
-            mapped = equalize_mapping(hist, lo, hi)
+            mapped = mapped + config.equalization_strength * (equalize_mapping(hist, lo, hi) - mapped)
         if config.variant != "none":
             mapped = strictly_increasing(mapped, hist)
         yield grid.values(mapped)
