@@ -97,6 +97,17 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     gain = written["inverse_lut_gain"]
     assert gain["median"] > 0 and gain["median_hottest"] > 0 and 0.0 <= gain["hottest_over_4x"] <= 1.0
     assert written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 1.0
+    assert written["advice"].startswith("preprocessing makes the frames more consistent")  # the demo drifts
+
+
+def test_diagnose_advises_against_preprocessing_a_stable_capture(tmp_path):
+    from thermal_wild_ns.analysis.diagnose import DiagnoseArgs, diagnose
+    from thermal_wild_ns.data.demo_scene import generate_demo_scene, stress_scene_config
+
+    scene = generate_demo_scene(tmp_path / "clean", stress_scene_config("clean", path_views=0))
+    result = diagnose(DiagnoseArgs(data=scene, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4))
+    assert result["after"]["std_delta_i"] > result["before"]["std_delta_i"]
+    assert "less consistent" in result["advice"] and "wild-thermal-emission-mlp" in result["advice"]
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))
         assert image is not None and image.shape[0] > 100
