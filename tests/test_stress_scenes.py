@@ -39,7 +39,7 @@ def test_outlier_frame_is_30_percent_brighter(scenes):
     assert ratios[13] == pytest.approx(1.3, abs=1e-3)
     assert all(r == pytest.approx(1.0, abs=1e-3) for i, r in enumerate(ratios) if i != 13)
     # a bright frame, not a saturated one: only its hottest pixels leave the recording range
-    assert 0.0 < (observed[13] > 1.0).mean() < 0.1 and (clean[13] > 1.0).mean() == 0.0
+    assert 0.0 < (observed[13] > 1.0).mean() < 0.05 and (clean[13] > 1.0).mean() == 0.0
 
 
 def test_drift_and_flat_field_sawtooth(scenes):

@@ -107,6 +107,11 @@ def inverse_lut_gain(lut: np.ndarray, levels: np.ndarray, span: int = 2) -> np.n
     return 1.0 / np.maximum(slope, 1e-12)
 
 
+def _hottest(values: np.ndarray, frame: np.ndarray, share: float) -> np.ndarray:
+    """`values` at the frame's hottest `share` of pixels."""
+    return values[frame >= np.quantile(frame, 1.0 - share)]
+
+
 def error_amplification(
     processed: Sequence[np.ndarray], raw: Sequence[np.ndarray], to_original, sigma: float = 0.005, hottest: float = 0.05, seed: int = 0
 ) -> Dict[str, float]:
@@ -121,7 +126,7 @@ def error_amplification(
     for t, (p, r) in enumerate(zip(processed, raw)):
         error = to_original(p + sigma * rs.standard_normal(p.shape).astype(np.float32), t) - r
         errors.append(error.ravel())
-        hot.append(error[r >= np.quantile(r, 1.0 - hottest)])
+        hot.append(_hottest(error, r, hottest))
     every, hot_all = np.concatenate(errors), np.concatenate(hot)
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
     return {"sigma": sigma, "rms": rms(every) / sigma, "rms_hottest": rms(hot_all) / sigma, "p99": float(np.quantile(np.abs(every), 0.99)) / sigma}
@@ -130,7 +135,7 @@ def error_amplification(
 def gain_summary(gains: Sequence[np.ndarray], frames: Sequence[np.ndarray], hottest: float = 0.05) -> Dict[str, float]:
     """Median inverse-LUT gain over all pixels and over each frame's hottest `hottest` share, and the
     share of those hottest pixels whose errors grow more than 4x."""
-    hot = [g[f >= np.quantile(f, 1.0 - hottest)] for g, f in zip(gains, frames)]
+    hot = [_hottest(g, f, hottest) for g, f in zip(gains, frames)]
     everything, hot_all = np.concatenate([g.ravel() for g in gains]), np.concatenate(hot)
     return {
         "median": float(np.median(everything)),

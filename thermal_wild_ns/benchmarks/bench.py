@@ -466,11 +466,13 @@ def _spread_over_gpus(args: BenchArgs) -> Dict:
     done = run_in_gpu_queues(jobs, args.gpus, args.runs_per_gpu)
     if not done:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
+    if args.runs_per_gpu > 1:  # their timings are not those of a run alone: each run's record says so
+        for path in done:
+            record = json.loads(path.read_text())
+            for run in record["runs"]:
+                run["runs_per_gpu"] = args.runs_per_gpu
+            path.write_text(json.dumps(record, indent=1))
     merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
-    if args.runs_per_gpu > 1:  # their timings are not those of a run alone: say so in the results
-        for run in merged["runs"]:
-            run["runs_per_gpu"] = args.runs_per_gpu
-        merged = _write(args, merged["runs"], device=merged["device"], torch_version=merged["torch"])
     finished = {(r["scene"], r["method"]) for r in merged["runs"]}
     lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in finished]
     if lost:

@@ -246,7 +246,7 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
         observed = observed + cfg.noise_counts * rng.standard_normal(observed.shape)
         # the outlier gain acts on the normalised scale, not on raw counts: x1.3 on counts of ~3,250
         # would put the whole frame ~90 degC above the range, a saturated frame rather than a bright one
-        if faults["outlier"][i] != 1.0:
+        if faults["outlier"][i] != 1.0:  # every other frame stays bit for bit as before
             observed = COUNTS_RANGE[0] + faults["outlier"][i] * (observed - COUNTS_RANGE[0])
         name = f"frame_{i:05d}.png"
         cv2.imwrite(str(tmp / "images" / name), np.clip(np.round(observed), 0, 65535).astype(np.uint16))
