@@ -23,6 +23,7 @@ import copy
 import dataclasses
 import gc
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +39,9 @@ from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evalu
 from thermal_wild_ns.benchmarks import device_name, synchronize
 from thermal_wild_ns.benchmarks.render_fps import measure_fps
 from thermal_wild_ns.data.thermal_io import load_npy
+
+RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
+"""How many runs share this run's GPU (set by `--runs-per-gpu`'s queues for their workers)."""
 
 VARIANTS = ("splatfacto", *METHODS)
 """Stock splatfacto and every method this plugin registers."""
@@ -258,6 +262,8 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         "ms_per_step": round(1000 * seconds / args.steps, 3),
         "peak_gpu_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
         "torch_threads": torch.get_num_threads(),
+        # set by the GPU queues: a timing shared with other runs is not that of a run alone
+        "runs_per_gpu": int(os.environ.get(RUNS_PER_GPU_VARIABLE, "1")),
         "gaussians": int(pipeline.model.num_points),
         "model_mb": round(_model_megabytes(pipeline.model), 2),
         "final_loss_finite": losses_finite,
@@ -421,7 +427,6 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
     the CPU cores as torch threads (`OMP_NUM_THREADS`, unless set): with torch's default, every
     process would start one thread per core. Each output folder gets the run's log.txt. Returns the
     bench.json files written, in job order (a killed or crashed run writes none)."""
-    import os
     import subprocess
     import threading
 
@@ -430,6 +435,7 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
     env = {
         "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // queues)),
         **os.environ,
+        RUNS_PER_GPU_VARIABLE: str(runs_per_gpu),  # each run labels its own record, so one finished before a kill is labelled too
         "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH")))),
     }
     written: Dict[int, Path] = {}
@@ -466,12 +472,6 @@ def _spread_over_gpus(args: BenchArgs) -> Dict:
     done = run_in_gpu_queues(jobs, args.gpus, args.runs_per_gpu)
     if not done:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
-    if args.runs_per_gpu > 1:  # their timings are not those of a run alone: each run's record says so
-        for path in done:
-            record = json.loads(path.read_text())
-            for run in record["runs"]:
-                run["runs_per_gpu"] = args.runs_per_gpu
-            path.write_text(json.dumps(record, indent=1))
     merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
     finished = {(r["scene"], r["method"]) for r in merged["runs"]}
     lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in finished]
