@@ -166,3 +166,18 @@ def test_budget_sweep_spreads_budgets_over_gpus(tmp_path):
     result = main(SweepArgs(method="wild-thermal-3dgs", budgets=(2500, 0), steps=20, gpus=2, output_dir=tmp_path))
     assert [r["budget"] for r in result["rows"]] == [2500, 100_000_000] and all("psnr" in r for r in result["rows"])
     assert (tmp_path / "budget_2500" / "log.txt").is_file() and (tmp_path / "budget_uncapped" / "bench.json").is_file()
+
+
+def test_a_bench_of_only_skipped_runs_still_writes_its_table(tmp_path):
+    """Stock splatfacto needs CUDA: on a CPU its run is skipped, and a bench of it alone writes an
+    empty record and table instead of dying while drawing a chart with no scenes."""
+    import torch
+
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+
+    if torch.cuda.is_available():
+        return  # splatfacto would train here
+    result = main(BenchArgs(methods=("splatfacto",), steps=20, eval_at=(20,), wild_steps=2, fps_frames=0, output_dir=tmp_path))
+    assert result["runs"] == []
+    assert json.loads((tmp_path / "bench.json").read_text())["runs"] == []
+    assert (tmp_path / "bench.md").is_file() and not (tmp_path / "speed_accuracy.png").exists()

@@ -402,7 +402,8 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     }
     (args.output_dir / "bench.json").write_text(json.dumps(result, indent=1))
     (args.output_dir / "bench.md").write_text(markdown(runs, scenes))
-    chart(runs, scenes, args.output_dir / "speed_accuracy.png")
+    if scenes:  # nothing to chart when every run was skipped (e.g. only splatfacto, on a CPU)
+        chart(runs, scenes, args.output_dir / "speed_accuracy.png")
     for folder in sorted((args.output_dir / "strips").glob("stress-*")) if (args.output_dir / "strips").is_dir() else []:
         strip_png(folder, args.output_dir / f"{folder.name}_path_strip.png")
     return result
