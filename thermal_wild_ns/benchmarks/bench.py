@@ -91,9 +91,9 @@ class BenchArgs:
     a time in its own process (`CUDA_VISIBLE_DEVICES`), then their results merged into `output_dir`."""
     runs_per_gpu: int = 1
     """Runs trained at once on each GPU, each in its own process with an equal share of the CPU
-    cores as its torch threads. One run leaves a GPU mostly idle (on DUNR its kernels took 2.4 of a
-    step's 10 ms, results/profile_dunr), but measure before raising it: 13 runs per GPU, each with torch's default of
-    one thread per core, once ran 30-40x slower than one alone (results/README.md)."""
+    cores as its torch threads; their timings are labelled as shared. Measured not to pay: two
+    per H200 made each 5,000-step stress run take 87-114 s instead of 46-70 s alone
+    (results/stress_gpu_5k)."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
     machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
