@@ -258,6 +258,39 @@ def test_sync_free_densification_statistics_equal_gsplats():
     assert states[0]["count"].max() > 0
 
 
+def test_screen_size_rule_is_skipped_where_it_would_split_every_gaussian():
+    """At 32x24 (the 1/4 warm-up of a 128x96 camera) the smallest radius a visible Gaussian can
+    have, 2 px from rasterization's 0.3 px^2 blur, already exceeds 5 % of 32 px: gsplat's rule then
+    marks every visible Gaussian for splitting. Ours records no screen radii there, and still
+    does at 64x48, where the rule tells small from large."""
+    from gsplat.strategy import DefaultStrategy
+
+    from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy, screen_size_rule_applies
+    from thermal_wild_ns.rendering import rasterization
+
+    tiny = torch.tensor([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0]])  # 0.1 mm Gaussians, 2 m away: far below a pixel
+    K = torch.tensor([[[16.0, 0.0, 16.0], [0.0, 16.0, 12.0], [0.0, 0.0, 1.0]]])
+    _, _, info = rasterization(tiny, torch.tensor([[1.0, 0, 0, 0]] * 2), torch.full((2, 3), 1e-4), torch.ones(2),
+                               torch.ones(2, 1), torch.eye(4)[None], K, 32, 24)
+    assert info["radii"].min() == 2  # the floor the rule meets
+    assert not screen_size_rule_applies(32, 24, 0.05) and screen_size_rule_applies(64, 48, 0.05)
+
+    n = 4
+    params = {"means": torch.zeros(n, 3)}
+    for (width, height), recorded in (((32, 24), False), ((64, 48), True)):
+        ours, theirs = (cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy))
+        states = [s.initialize_state() for s in (ours, theirs)]
+        means2d = torch.zeros(1, n, 2)
+        means2d.absgrad = torch.zeros(1, n, 2)  # no gradient: only the screen-size rule could split
+        info = {"width": width, "height": height, "n_cameras": 1, "radii": torch.full((1, n), 2, dtype=torch.int32),
+                "gaussian_ids": None, "means2d": means2d}
+        for strategy, state in zip((ours, theirs), states):
+            strategy._update_state(params, state, info)
+        assert bool((states[1]["radii"] > theirs.grow_scale2d).all()) is not recorded  # gsplat: all split at 32 px
+        assert bool((states[0]["radii"] > 0).all()) is recorded
+        assert not bool((states[0]["radii"] > ours.grow_scale2d).any())  # ours: none split by size
+
+
 def test_viewer_controls_pick_colormap_and_embedding():
     from thermal_wild_ns.data.palettes import palette_rgb
 

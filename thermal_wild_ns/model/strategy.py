@@ -7,6 +7,19 @@ from dataclasses import dataclass
 import torch
 from gsplat.strategy import DefaultStrategy
 
+MIN_SCREEN_RADIUS_PX = 2.0
+"""The smallest screen radius gsplat gives a visible Gaussian: ceil(3 sqrt(0.3)), its 3-sigma
+radius of the 0.3 px^2 blur (`eps2d`) every projected covariance gets."""
+
+
+def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bool:
+    """Whether gsplat's screen-size split rule (radius over `grow_scale2d` of the image's larger
+    side) can tell Gaussians apart in a `width` x `height` render. Below MIN_SCREEN_RADIUS_PX /
+    grow_scale2d pixels (40 at splatfacto's 0.05) every visible Gaussian passes it, so it splits
+    all of them at every refinement: stock splatfacto's 1/4-resolution warm-up on 128x96 frames
+    (32x24) grew to 51M Gaussians by step 352 (results/stress_gpu_5k)."""
+    return max(width, height) * grow_scale2d >= MIN_SCREEN_RADIUS_PX
+
 
 @dataclass
 class BudgetedDefaultStrategy(DefaultStrategy):
@@ -41,7 +54,8 @@ class BudgetedDefaultStrategy(DefaultStrategy):
     def _update_state(self, params, state, info, packed: bool = False):
         """gsplat's running statistics, computed with masks instead of gathering the visible
         Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
-        one camera per step (what splatfacto renders)."""
+        one camera per step (what splatfacto renders), except that a render too small for the
+        screen-size rule (`screen_size_rule_applies`) adds no screen radii."""
         if packed or info["n_cameras"] != 1:
             return super()._update_state(params, state, info, packed=packed)
         gradient = info[self.key_for_gradient]
@@ -55,6 +69,7 @@ class BudgetedDefaultStrategy(DefaultStrategy):
         visible = info["radii"][0] > 0.0  # [N]
         state["grad2d"] += torch.where(visible, grads[0].norm(dim=-1), 0.0)
         state["count"] += visible
-        if self.refine_scale2d_stop_iter > 0:  # screen radius normalised to [0, 1], as gsplat
+        if self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(info["width"], info["height"], self.grow_scale2d):
+            # screen radius normalised to [0, 1], as gsplat
             radii = torch.where(visible, info["radii"][0], 0) / float(max(info["width"], info["height"]))
             torch.maximum(state["radii"], radii, out=state["radii"])
