@@ -260,7 +260,7 @@ def test_sync_free_densification_statistics_equal_gsplats():
 
 def test_screen_size_rule_is_skipped_where_it_would_split_every_gaussian():
     """At 32x24 (the 1/4 warm-up of a 128x96 camera) the smallest radius a visible Gaussian can
-    have, 2 px from rasterization's 0.3 px^2 blur, already exceeds 5 % of 32 px: gsplat's rule then
+    have, 2 px from rasterization's blur, already exceeds 5 % of 32 px: gsplat's rule then
     marks every visible Gaussian for splitting. Ours records no screen radii there, and still
     does at 64x48, where the rule tells small from large."""
     from gsplat.strategy import DefaultStrategy

@@ -107,14 +107,13 @@ def evaluate(
         # the evaluation frame as cached (undistorted like the render), back in the original space
         to_original = (lambda x: x) if sequence is None else (lambda x: sequence.to_original_normalised(x, frame).astype(np.float32))
         gt, pred = to_original(training_space_gt), to_original(rendered)
-        as_novel_view = datamanager.novel_view_to_original(rendered)  # the median training LUT
         if mode == "wild":  # score only what the embedding did not see
             half = gt.shape[1] // 2
-            pred, gt, rendered, training_space_gt, as_novel_view = (x[:, half:] for x in (pred, gt, rendered, training_space_gt, as_novel_view))
+            pred, gt, rendered, training_space_gt = (x[:, half:] for x in (pred, gt, rendered, training_space_gt))
         row = {"frame": frame, **_scores(pred, gt)}
         if sequence is not None:
             row.update(_scores(rendered, training_space_gt, "_preprocessed"))
-            row.update(_scores(as_novel_view, gt, "_median_lut"))
+            row.update(_scores(datamanager.novel_view_to_original(rendered), gt, "_median_lut"))  # per pixel: the median training LUT
         rows.append(row)
         if out_dir is not None:
             _write_panel(out_dir / f"test_{i:02d}_{mode}.png", gt, pred)

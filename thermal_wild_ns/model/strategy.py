@@ -8,8 +8,11 @@ import torch
 from gsplat.strategy import DefaultStrategy
 
 MIN_SCREEN_RADIUS_PX = 2.0
-"""The smallest screen radius gsplat gives a visible Gaussian: ceil(3 sqrt(0.3)), its 3-sigma
-radius of the 0.3 px^2 blur (`eps2d`) every projected covariance gets."""
+"""The smallest screen radius gsplat's unpacked projection (splatfacto's) gives a visible Gaussian:
+ceil(3 sqrt(0.3 + 0.1)) = 2, the 3-sigma radius of the 0.3 px^2 blur (`eps2d`) every projected
+covariance gets, plus the 0.1 floor of its eigenvalue spread (fully_fused_projection_fwd.cu; the
+torch rasterizer's the same). The packed projection floors the spread at sqrt(0.1), hence 3 px;
+`_update_state` leaves packed renders to gsplat."""
 
 
 def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bool:
