@@ -100,12 +100,16 @@ def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeyp
 
 
 def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config
+    from thermal_wild_ns.benchmarks.bench import BenchArgs, run_label, trainer_config
 
     for method in ("splatfacto", "wild-thermal"):
         assert trainer_config(method, "demo", BenchArgs(output_dir=tmp_path), tmp_path).pipeline.model.num_downscales == 2  # the configs' own
         config = trainer_config(method, "demo", BenchArgs(output_dir=tmp_path, num_downscales=0), tmp_path)
         assert config.pipeline.model.num_downscales == 0, method
+        assert config.experiment_name == f"{method}_num-downscales_0"  # its own run folder beside the stock run's
+    # a changed warm-up is part of the run's name, so stock and changed runs merge side by side
+    assert run_label("splatfacto", BenchArgs()) == "splatfacto"
+    assert run_label("splatfacto", BenchArgs(num_downscales=1)) == "splatfacto (num-downscales 1)"
     config = trainer_config("wild-thermal", "demo", BenchArgs(output_dir=tmp_path, equalization_strength=0.5), tmp_path)
     assert config.pipeline.datamanager.preprocessing.equalization_strength == 0.5
 

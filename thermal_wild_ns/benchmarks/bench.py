@@ -24,6 +24,7 @@ import dataclasses
 import gc
 import json
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -165,7 +166,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
         config.pipeline.model.num_downscales = args.num_downscales
     config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
     config.output_dir = run_dir
-    config.experiment_name = method
+    config.experiment_name = file_slug(run_label(method, args))
     config.timestamp = "run"
     config.vis = "tensorboard"
     config.max_num_iterations = args.steps
@@ -176,6 +177,17 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     config.machine.seed = args.seed
     scale_schedule(config.pipeline.model, args.schedule or args.steps)
     return config
+
+
+def run_label(method: str, args: BenchArgs) -> str:
+    """The method's name in records, tables and charts; a run with its resolution warm-up changed says
+    so, so that e.g. stock splatfacto and splatfacto with `--num-downscales 1` merge side by side."""
+    return method if args.num_downscales is None else f"{method} (num-downscales {args.num_downscales})"
+
+
+def file_slug(label: str) -> str:
+    """`label` as a file name (no spaces or brackets)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", label).strip("_")
 
 
 def scene_name(scene: str) -> str:
@@ -242,19 +254,20 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         result = evaluate(pipeline, "fixed")
         curve.append({"step": stop, "seconds": round(seconds, 3), "psnr": result["psnr"], "gaussians": result["gaussians"]})
         print(f"  {method} on {scene_name(scene)}: step {stop}, {seconds:.1f} s, test PSNR {result['psnr']:.2f} dB, {result['gaussians']} Gaussians")
-    renders = args.output_dir / "renders" / scene_name(scene) / method
+    label = run_label(method, args)
+    renders = args.output_dir / "renders" / scene_name(scene) / file_slug(label)
     final = {mode: evaluate(pipeline, mode, renders, wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
     path = None
     if scene.startswith("stress:"):
         path = evaluate_path(pipeline, config.pipeline.datamanager.dataparser.data, keep_frames=STRIP_FRAMES)
         strips = args.output_dir / "strips" / scene_name(scene)
         strips.mkdir(parents=True, exist_ok=True)
-        for name, frames in ((method, path.pop("kept")), ("0-ground-truth", path.pop("kept_truth"))):
+        for name, frames in ((file_slug(label), path.pop("kept")), ("0-ground-truth", path.pop("kept_truth"))):
             np.save(strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16))
     trainer.save_checkpoint(args.steps - 1)
     fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
     return {
-        "method": method,
+        "method": label,
         "scene": scene_name(scene),
         "path": path,
         "steps": args.steps,
@@ -349,7 +362,7 @@ def chart(runs: List[Dict], scenes: List[str], path: Path) -> None:
         for r in (r for r in runs if r["scene"] == scene and "failed" not in r):
             xs = [p["seconds"] for p in r["curve"]]
             ys = [p["psnr"] for p in r["curve"]]
-            style = {"lw": 2.5, "color": "black"} if r["method"] == "wild-thermal" else ({"ls": "--"} if r["method"] == "splatfacto" else {})
+            style = {"lw": 2.5, "color": "black"} if r["method"] == "wild-thermal" else ({"ls": "--"} if r["method"].startswith("splatfacto") else {})
             label = r["method"] + (f" (falls to {min(ys):.0f} dB)" if min(ys) < floor else "")
             ax.plot(xs, np.maximum(ys, floor), marker="o", ms=3, label=label, **style)
         ax.set(title=f"{scene}: test PSNR vs training time", xlabel="training wall-clock seconds (evaluation excluded)", ylabel="PSNR (dB, original space)")
@@ -384,7 +397,7 @@ def main(args: BenchArgs) -> Dict:
             except (torch.OutOfMemoryError, RuntimeError, ValueError) as err:  # a method failing is a result, not the end of the bench
                 message = str(err).splitlines()[0][:300]
                 print(f"  {method} on {Path(scene).name} FAILED: {type(err).__name__}: {message}")
-                runs.append({"method": method, "scene": scene_name(scene), "steps": args.steps, "failed": f"{type(err).__name__}: {message}"})
+                runs.append({"method": run_label(method, args), "scene": scene_name(scene), "steps": args.steps, "failed": f"{type(err).__name__}: {message}"})
                 gc.collect()  # the failed trainer's tensors
                 if torch.cuda.is_available():
                     torch.cuda.empty_cache()
@@ -475,7 +488,7 @@ def _spread_over_gpus(args: BenchArgs) -> Dict:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
     merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
     finished = {(r["scene"], r["method"]) for r in merged["runs"]}
-    lost = [(scene, method) for scene, method in pairs if (scene_name(scene), method) not in finished]
+    lost = [(scene, method) for scene, method in pairs if (scene_name(scene), run_label(method, args)) not in finished]
     if lost:
         print("  no result (see its log.txt): " + ", ".join(f"{m} on {scene_name(s)}" for s, m in lost))
     return merged
