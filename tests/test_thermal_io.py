@@ -187,3 +187,25 @@ def test_constant_frames_have_no_range(tmp_path):
         cv2.imwrite(str(tmp_path / f"c{i}.png"), np.full((8, 8), 3700, np.uint16))
     with pytest.raises(ValueError, match=r"have no contrast: range \[3700.0, 3700.0\] is empty"):
         scan_frames(sorted(tmp_path.glob("c*.png")))
+
+
+def test_a_cache_folder_published_twice_keeps_the_first_copy(tmp_path):
+    from thermal_wild_ns.data.thermal_io import publish_cache_folder
+
+    final = tmp_path / "preprocessed-abc"
+    for name, text in (("first", "1"), ("second", "2")):  # two processes finishing the same cache folder
+        work = tmp_path / f".work-{name}"
+        work.mkdir()
+        (work / "meta.json").write_text(text)
+        publish_cache_folder(work, final, "meta.json")
+        assert not work.exists()
+    assert (final / "meta.json").read_text() == "1"
+    # a folder in the way that is not a finished cache folder is an error, not silently kept
+    other = tmp_path / "triangulation-x"
+    (other / "junk").mkdir(parents=True)
+    work = tmp_path / ".work-third"
+    (work).mkdir()
+    (work / "report.json").write_text("{}")
+    with pytest.raises(OSError):
+        publish_cache_folder(work, other, "report.json")
+    assert (work / "report.json").is_file()  # nothing lost

@@ -7,6 +7,7 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 
 from __future__ import annotations
 
+import shutil
 import threading
 import warnings
 from dataclasses import dataclass, replace
@@ -25,6 +26,18 @@ IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 # recursion depth in interpreter-wide state: two threads parsing at once can raise "SystemError: AST
 # constructor recursion depth mismatch" (cpython gh-106905). nerfstudio caches images from a thread pool.
 _NPY_HEADER_LOCK = threading.Lock()
+
+
+def publish_cache_folder(work: Path, final: Path, complete_marker: str) -> None:
+    """Move a finished cache folder `work` into place as `final` in one rename, so no reader sees it
+    half-written. Another process with the same inputs (a bench run on the next GPU) may have
+    published `final` first: its copy is kept, having the same content, and `work` discarded."""
+    try:
+        work.rename(final)
+    except OSError:
+        if not (final / complete_marker).is_file():
+            raise
+        shutil.rmtree(work, ignore_errors=True)
 
 
 def load_npy(path: Path, mmap_mode: Optional[str] = None) -> np.ndarray:

@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy
+from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, publish_cache_folder
 
 CACHE_VERSION = 1
 
@@ -194,7 +194,7 @@ def cached_triangulation(
         np.save(work / "points.npy", xyz)
         np.save(work / "reprojection_errors.npy", errors)
         (work / "report.json").write_text(json.dumps(report, indent=1))
-        work.rename(final)
+        publish_cache_folder(work, final, "report.json")
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)
         raise

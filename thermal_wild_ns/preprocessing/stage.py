@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, read_raw_frame
+from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, publish_cache_folder, read_raw_frame
 from thermal_wild_ns.preprocessing.photometric import LevelGrid, PhotometricConfig, apply_lut, frame_luts, invert_lut
 
 CACHE_VERSION = 1
@@ -119,7 +119,7 @@ def preprocess(frames: List[ThermalFrame], rng: RadiometricRange, config: Photom
         luts.flush()
         del luts
         (work / "meta.json").write_text(json.dumps({"config": asdict(config), "range": asdict(rng), "frames": [str(f.image) for f in frames]}, indent=1))
-        work.rename(folder)
+        publish_cache_folder(work, folder, "meta.json")
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)
         raise
