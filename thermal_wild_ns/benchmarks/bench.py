@@ -211,7 +211,7 @@ def train_steps(trainer, start: int, stop: int, seconds_left: Optional[float] = 
     loss = torch.tensor(float("nan"))
     deadline = None if seconds_left is None else time.perf_counter() + seconds_left
     for step in range(start, stop):
-        if deadline is not None and step > start and step % 100 == 0 and time.perf_counter() > deadline:
+        if deadline is not None and step % 100 == 0 and time.perf_counter() > deadline:  # also at a segment's start: time may be up already
             gaussians = getattr(trainer.pipeline.model, "num_points", "?")
             raise RunTooSlow(f"--time-limit reached at step {step} ({gaussians} Gaussians)")
         trainer.pipeline.train()
