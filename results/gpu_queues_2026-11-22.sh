@@ -1,6 +1,6 @@
 #!/bin/bash
 # The GPU runs of 2026-11-22 (issues 5 and 6), as the device tool ran them from the repository root:
-#   bash results/gpu_queues_2026-11-22.sh PLAN      (PLAN: demo | sweep | stress)
+#   bash results/gpu_queues_2026-11-22.sh PLAN      (PLAN: demo | sweep | stress | equalization)
 # Each PLAN runs up to four queues side by side, one per GPU of an nvidia-h200-x4 machine, each
 # queue a list of `wild-thermal-bench` commands run one after another (one run per GPU at a time:
 # two per GPU measured not to pay). After LIMIT seconds (default 560, the device allows 600 per
@@ -52,7 +52,11 @@ stress)  # issue 6: the plugin's methods again on clean/outlier, with the screen
   queue 2 "stress_rerun_stabbbhe|--scenes stress:clean stress:outlier --methods wild-thermal-3dgs-stab-bbhe $STRESS"
   queue 3 "stress_rerun_mlp|--scenes stress:clean stress:outlier --methods wild-thermal-emission-mlp $STRESS"
   ;;
-*) echo "unknown plan '$1' (demo | sweep | stress)" >&2; exit 2 ;;
+equalization)  # half-strength BBHE (--equalization-strength 0.5) for the full method, on one GPU (nvidia-h200)
+  queue 0 "eq05_dunr|--scenes $DUNR --methods wild-thermal --steps 30000 --equalization-strength 0.5" \
+    "eq05_stress|--scenes stress:clean stress:outlier --methods wild-thermal --equalization-strength 0.5 $STRESS"
+  ;;
+*) echo "unknown plan '$1' (demo | sweep | stress | equalization)" >&2; exit 2 ;;
 esac
 
 deadline=$((SECONDS + ${LIMIT:-560}))
