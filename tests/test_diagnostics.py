@@ -96,7 +96,7 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     assert result["summary"].startswith(demo_scene_dir.name + ": std dI_t")
     gain = written["inverse_lut_gain"]
     assert gain["median"] > 0 and gain["median_hottest"] > 0 and 0.0 <= gain["hottest_over_4x"] <= 1.0
-    assert written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 1.0
+    assert written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 0.5  # the default
     assert written["advice"].startswith("preprocessing makes the frames more consistent")  # the demo drifts
 
 
