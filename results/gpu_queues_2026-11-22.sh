@@ -6,6 +6,8 @@
 # two per GPU measured not to pay). After LIMIT seconds (default 560, the device allows 600 per
 # command) unfinished runs are stopped; every bench writes its bench.json after each run, so
 # finished runs are kept. The results (no renders, no checkpoints) go to $OUT/PLAN.tar.gz.
+# The queues do what `wild-thermal-bench --gpus N` does (run_in_gpu_queues), but for runs whose
+# bench arguments differ (steps, warm-up, budget, time limit), which one `--gpus` command cannot mix.
 source .devicebundle/setup.sh >/dev/null
 R=$PWD
 export PYTHONPATH=$R:$PYTHONPATH

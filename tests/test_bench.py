@@ -54,10 +54,9 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
 def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(tmp_path):
     from thermal_wild_ns.benchmarks.bench import BenchArgs, main
 
-    # 100 steps take far longer than 0.01 s: time is up when the second segment (after the evaluation
-    # at step 100) starts, and the run stops there, not 100 steps (on a GPU, for an exploding
-    # splatfacto, minutes) later
-    result = main(BenchArgs(methods=("wild-thermal-3dgs",), steps=300, eval_at=(100,), fps_frames=0, time_limit=0.01, output_dir=tmp_path))
+    # time is up during the first segment; the run stops when the second (after the evaluation at
+    # step 100) starts, not 100 steps (on a GPU, for an exploding splatfacto, minutes) later
+    result = main(BenchArgs(methods=("wild-thermal-3dgs",), steps=300, eval_at=(100,), fps_frames=0, time_limit=1e-9, output_dir=tmp_path))
     (run,) = result["runs"]
     assert run["failed"].startswith("RunTooSlow: --time-limit reached at step 100 (")
     assert "- wild-thermal-3dgs on demo: RunTooSlow" in (tmp_path / "bench.md").read_text()
@@ -113,6 +112,11 @@ def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
     # a changed warm-up is part of the run's name, so stock and changed runs merge side by side
     assert run_label("splatfacto", BenchArgs()) == "splatfacto"
     assert run_label("splatfacto", BenchArgs(num_downscales=1)) == "splatfacto (num-downscales 1)"
+    # so is a changed equalization strength, where the method has an equalization step to change
+    assert run_label("wild-thermal", BenchArgs(equalization_strength=1.0, num_downscales=1)) == "wild-thermal (num-downscales 1, equalization-strength 1)"
+    assert run_label("wild-thermal-3dgs-histeq", BenchArgs(equalization_strength=0.25)) == "wild-thermal-3dgs-histeq (equalization-strength 0.25)"
+    for unchanged in ("splatfacto", "wild-thermal-3dgs", "wild-thermal-emission-mlp", "wild-thermal-3dgs-stab"):
+        assert run_label(unchanged, BenchArgs(equalization_strength=1.0)) == unchanged
     config = trainer_config("wild-thermal", "demo", BenchArgs(output_dir=tmp_path, equalization_strength=0.5), tmp_path)
     assert config.pipeline.datamanager.preprocessing.equalization_strength == 0.5
 

@@ -180,9 +180,14 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
 
 
 def run_label(method: str, args: BenchArgs) -> str:
-    """The method's name in records, tables and charts; a run with its resolution warm-up changed says
-    so, so that e.g. stock splatfacto and splatfacto with `--num-downscales 1` merge side by side."""
-    return method if args.num_downscales is None else f"{method} (num-downscales {args.num_downscales})"
+    """The method's name in records, tables and charts, with the settings this bench changed in it
+    (warm-up; equalization strength, where the method equalizes), so that e.g. stock splatfacto and
+    splatfacto with `--num-downscales 1` merge side by side instead of one hiding the other. The
+    Gaussian budget is not named: a budget sweep compares one method across budgets by its args."""
+    changed = [] if args.num_downscales is None else [f"num-downscales {args.num_downscales}"]
+    if args.equalization_strength is not None and method in METHODS and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes:
+        changed.append(f"equalization-strength {args.equalization_strength:g}")
+    return f"{method} ({', '.join(changed)})" if changed else method
 
 
 def file_slug(label: str) -> str:
@@ -211,7 +216,9 @@ def train_steps(trainer, start: int, stop: int, seconds_left: Optional[float] = 
     loss = torch.tensor(float("nan"))
     deadline = None if seconds_left is None else time.perf_counter() + seconds_left
     for step in range(start, stop):
-        if deadline is not None and step % 100 == 0 and time.perf_counter() > deadline:  # also at a segment's start: time may be up already
+        # every 100 steps, a segment's first step included (time may be up when an evaluation ends),
+        # but not the run's first step, which has trained nothing yet
+        if deadline is not None and step > 0 and step % 100 == 0 and time.perf_counter() > deadline:
             gaussians = getattr(trainer.pipeline.model, "num_points", "?")
             raise RunTooSlow(f"--time-limit reached at step {step} ({gaussians} Gaussians)")
         trainer.pipeline.train()

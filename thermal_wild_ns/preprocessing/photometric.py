@@ -146,6 +146,11 @@ class PhotometricConfig:
     through the median LUT) and on the stress scenes clean and outlier (36.59 vs 33.46, 36.13 vs
     33.73), one seed each (results/equalization_half)."""
 
+    @property
+    def equalizes(self) -> bool:
+        """Whether this variant has an equalization step (which `equalization_strength` blends)."""
+        return self.variant in ("histeq", "bbhe", "stab+bbhe")
+
     def __post_init__(self):
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown preprocessing variant '{self.variant}' (one of {', '.join(VARIANTS)})")
@@ -177,10 +182,9 @@ def frame_luts(
             mapped = stabilize_mapping(cdf, reference, config.beta)
         else:
             mapped = identity
-        if config.variant in ("bbhe", "stab+bbhe"):
-            mapped = mapped + config.equalization_strength * (bbhe_mapping(mapped, hist, lo, hi) - mapped)
-        elif config.variant == "histeq":
-            mapped = mapped + config.equalization_strength * (equalize_mapping(hist, lo, hi) - mapped)
+        if config.equalizes:
+            equalized = equalize_mapping(hist, lo, hi) if config.variant == "histeq" else bbhe_mapping(mapped, hist, lo, hi)
+            mapped = mapped + config.equalization_strength * (equalized - mapped)
         if config.variant != "none":
             mapped = strictly_increasing(mapped, hist)
         yield grid.values(mapped)
