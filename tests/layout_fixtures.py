@@ -90,6 +90,20 @@ def write_thermalnerf(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndar
     return truth
 
 
+def write_nerfstudio(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndarray]]:
+    """nerfstudio transforms.json of 16-bit thermal frames, global intrinsics (every 8th held out)."""
+    (root / "images").mkdir(parents=True)
+    K = _K(55.0, 56.0, 32.0, 24.0)
+    frames, truth = [], []
+    for i, c2w in enumerate(cameras(n)):
+        cv2.imwrite(str(root / "images" / f"{i:04d}.png"), thermal_image(64, 48, i))
+        frames.append({"file_path": f"images/{i:04d}.png", "transform_matrix": opengl(c2w).tolist()})
+        truth.append((c2w, K))
+    meta = {"camera_model": "OPENCV", "fl_x": 55.0, "fl_y": 56.0, "cx": 32.0, "cy": 24.0, "w": 64, "h": 48, "frames": frames}
+    (root / "transforms.json").write_text(json.dumps(meta))
+    return truth
+
+
 def write_ye(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndarray]]:
     """Sequence folder; frames with i % 5 == 4 are test. Returns (c2w, K) in name order."""
     K = _K(250.0, 251.0, 191.0, 144.0)

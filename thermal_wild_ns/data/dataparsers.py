@@ -40,6 +40,8 @@ from thermal_wild_ns.data.thermal_io import RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
 
 DEMO_SCENE_DIR = Path("outputs/thermal-demo-scene")
+MIN_SEED_POINTS = 4
+"""Fewer seeds than this cannot initialise Gaussians (their scales come from 3 nearest neighbours)."""
 # Choices derived from the registries they name (tyro turns them into --help choices)
 LayoutName = Literal[("auto", *layouts.LAYOUTS)]  # type: ignore[valid-type]
 PaletteName = Literal[("auto", *PALETTE_NAMES)]  # type: ignore[valid-type]
@@ -145,10 +147,14 @@ class ThermalDataParser(DataParser):
             capture, route = self.capture(), self.config.seed_points
             train = [f for f in capture.frames if f.split == "train"]
             seeds = None
-            if route in ("auto", "sfm") and capture.points is not None:
-                seeds = capture.points
+            sparse = capture.points
+            if route in ("auto", "sfm") and sparse is not None and len(sparse.xyz) >= MIN_SEED_POINTS:
+                seeds = sparse
             elif route == "sfm":
-                raise ValueError(f"{capture.root}: seed_points='sfm' but the {capture.layout} layout has no sparse points")
+                found = "no sparse points" if sparse is None else f"only {len(sparse.xyz)} sparse points"
+                raise ValueError(f"{capture.root}: seed_points='sfm' but the {capture.layout} layout has {found}")
+            elif sparse is not None:
+                CONSOLE.log(f"[yellow]{capture.root}: the {capture.layout} layout's sparse model has only {len(sparse.xyz)} points; seeding otherwise")
             if seeds is None and route in ("auto", "triangulate"):
                 cache = self._cache_root()
                 xyz, report = cached_triangulation(train, self.radiometric_range(), cache, self.config.triangulation)
@@ -188,14 +194,19 @@ class ThermalDataParser(DataParser):
         if not indices:
             raise ValueError(f"{capture.root}: no '{wanted}' frames ({capture.split_rule})")
         chosen = [frames[i] for i in indices]
+        def column(name: str, dtype: torch.dtype) -> torch.Tensor:
+            # readers give numpy float64 (COLMAP) or Python numbers: cast, or gsplat's projection
+            # mixes float64 intrinsics with float32 Gaussians and fails at the first step
+            return torch.tensor([float(getattr(f, name)) for f in chosen], dtype=dtype)[:, None]
+
         cameras = Cameras(
             camera_to_worlds=poses[indices, :3, :4],
-            fx=torch.tensor([f.fx for f in chosen])[:, None],
-            fy=torch.tensor([f.fy for f in chosen])[:, None],
-            cx=torch.tensor([f.cx for f in chosen])[:, None],
-            cy=torch.tensor([f.cy for f in chosen])[:, None],
-            width=torch.tensor([f.width for f in chosen])[:, None],
-            height=torch.tensor([f.height for f in chosen])[:, None],
+            fx=column("fx", torch.float32),
+            fy=column("fy", torch.float32),
+            cx=column("cx", torch.float32),
+            cy=column("cy", torch.float32),
+            width=column("width", torch.float32).long(),
+            height=column("height", torch.float32).long(),
             distortion_params=torch.from_numpy(np.stack([f.distortion for f in chosen])).float(),
             camera_type=CameraType.PERSPECTIVE,
         )
