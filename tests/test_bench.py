@@ -21,7 +21,7 @@ def test_interpolated_embedding_is_linear_in_capture_order():
 
 
 def test_bench_runs_end_to_end_on_cpu(tmp_path):
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main
 
     out = tmp_path / "bench"
     main(BenchArgs(methods=("wild-thermal-3dgs", "wild-thermal"), steps=200, eval_at=(100, 200), wild_steps=3, fps_frames=2, output_dir=out))
@@ -52,7 +52,7 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
 
 
 def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(tmp_path):
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main
 
     # time is up during the first segment; the run stops when the second (after the evaluation at
     # step 100) starts, not 100 steps (on a GPU, for an exploding splatfacto, minutes) later
@@ -65,7 +65,7 @@ def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(t
 def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
     """--gpus N: one queue per GPU, one run at a time per queue, each in its own process (on a CPU
     machine the queues simply run side by side); the merged table has every run, in order."""
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main
 
     methods = ("wild-thermal-3dgs", "wild-thermal-3dgs-bbhe", "wild-thermal-3dgs-stab")
     result = main(BenchArgs(methods=methods, steps=20, eval_at=(20,), wild_steps=2, fps_frames=0, gpus=2, output_dir=tmp_path))
@@ -76,7 +76,7 @@ def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
     # each worker's command line carries every setting of its job
     import tyro
 
-    from thermal_wild_ns.benchmarks.bench import _command_line
+    from experiments.bench import _command_line
 
     job = BenchArgs(methods=methods[:1], steps=20, schedule=30000, time_limit=9.5, cache_dir=tmp_path / "cache", output_dir=tmp_path / "x")
     assert tyro.cli(BenchArgs, args=_command_line(job)[3:]) == job
@@ -88,7 +88,7 @@ def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeyp
     torch's default of one per core), and the merged results say their timings were shared."""
     import os
 
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 2)  # the parent's count sets the workers' share (torch caps it at the real cores)
@@ -102,7 +102,7 @@ def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeyp
 
 
 def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, run_label, trainer_config
+    from experiments.bench import BenchArgs, run_label, trainer_config
 
     for method in ("splatfacto", "wild-thermal"):
         assert trainer_config(method, "demo", BenchArgs(output_dir=tmp_path), tmp_path).pipeline.model.num_downscales == 2  # the configs' own
@@ -123,7 +123,7 @@ def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
 
 def test_unknown_method_and_mode_are_refused(tmp_path):
     from thermal_wild_ns.analysis.evaluation import evaluate
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, trainer_config
+    from experiments.bench import BenchArgs, trainer_config
 
     with pytest.raises(ValueError, match="unknown method 'nerfacto'"):
         trainer_config("nerfacto", "demo", BenchArgs(output_dir=tmp_path), tmp_path)
@@ -132,7 +132,7 @@ def test_unknown_method_and_mode_are_refused(tmp_path):
 
 
 def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main
 
     out = tmp_path / "bench"
     result = main(BenchArgs(scenes=("stress:outlier",), methods=("wild-thermal-3dgs",), steps=30, eval_at=(30,), wild_steps=2, fps_frames=0, output_dir=out))
@@ -149,7 +149,7 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
 
 
 def test_budget_knee_is_the_smallest_budget_near_the_best_run():
-    from thermal_wild_ns.benchmarks.budget_sweep import knee
+    from experiments.budget_sweep import knee
 
     rows = [{"budget": b, "psnr": p, "gaussians": b or 400_000} for b, p in ((50_000, 29.0), (100_000, 29.85), (150_000, 30.1), (0, 30.0))]
     assert knee(rows, 0.3)["budget"] == 100_000
@@ -162,7 +162,7 @@ def test_budget_knee_is_the_smallest_budget_near_the_best_run():
 
 
 def test_budget_sweep_runs_end_to_end_on_cpu(tmp_path):
-    from thermal_wild_ns.benchmarks.budget_sweep import SweepArgs, main
+    from experiments.budget_sweep import SweepArgs, main
 
     out = tmp_path / "sweep"
     result = main(SweepArgs(method="wild-thermal-3dgs", budgets=(2500, 0), steps=40, output_dir=out))
@@ -176,7 +176,7 @@ def test_budget_sweep_runs_end_to_end_on_cpu(tmp_path):
 
 
 def test_budget_sweep_spreads_budgets_over_gpus(tmp_path):
-    from thermal_wild_ns.benchmarks.budget_sweep import SweepArgs, main
+    from experiments.budget_sweep import SweepArgs, main
 
     result = main(SweepArgs(method="wild-thermal-3dgs", budgets=(2500, 0), steps=20, gpus=2, output_dir=tmp_path))
     assert [r["budget"] for r in result["rows"]] == [2500, 100_000_000] and all("psnr" in r for r in result["rows"])
@@ -187,7 +187,7 @@ def test_budget_sweep_spreads_budgets_over_gpus(tmp_path):
 def test_a_bench_of_only_skipped_runs_still_writes_its_table(tmp_path):
     """Stock splatfacto needs CUDA: on a CPU its run is skipped, and a bench of it alone writes an
     empty record and table instead of dying while drawing a chart with no scenes."""
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main
 
     result = main(BenchArgs(methods=("splatfacto",), steps=20, eval_at=(20,), wild_steps=2, fps_frames=0, output_dir=tmp_path))
     assert result["runs"] == []

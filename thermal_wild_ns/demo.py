@@ -33,7 +33,7 @@ class DemoArgs:
 
 def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method: str = "wild-thermal"):
     """A registered method's config (`wild-thermal` or one of its ablations), scheduled for the small demo scene."""
-    from method_configs.wild_thermal import method_trainer
+    from thermal_wild_ns.method_configs import method_trainer
     from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 
     config = method_trainer(method)

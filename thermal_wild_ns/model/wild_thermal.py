@@ -407,7 +407,7 @@ class WildThermalModel(SplatfactoModel):
         self.last_size = (H, W)
         frame_embed = self.frame_embedding(camera)
         fixed_pose = self.training and self.config.camera_optimizer.mode == "off" and camera.metadata and "cam_idx" in camera.metadata
-        with record_function("thermal/background"):  # named sections for wild-thermal-profile
+        with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
             background = self.background(
                 K[0], camera_to_world[0], frame_embed, W, H, int(camera.metadata["cam_idx"]) if fixed_pose else None
             )  # [H, W, 1]

@@ -152,7 +152,7 @@ class GuardedTrainer(Trainer):
 
         def guarded_step_some(grad_scaler, param_groups):
             model = self.pipeline.model
-            with record_function("thermal/guard_check"):  # named sections for wild-thermal-profile
+            with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
                 reason = self.guard.check_step(
                     getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups, getattr(model, "last_train_frame", None)
                 )

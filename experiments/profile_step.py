@@ -1,4 +1,4 @@
-"""`wild-thermal-profile`: where the time of a training step goes.
+"""`python -m experiments.profile_step`: where the time of a training step goes.
 
 Trains a method on a scene for `--warmup` steps of the full 30k schedule (densification has grown
 the model as in a real run by then), then
@@ -23,14 +23,14 @@ from typing import Dict, Optional
 import torch
 import tyro
 
-from thermal_wild_ns.benchmarks import device_name, synchronize
-from thermal_wild_ns.benchmarks.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, train_steps, trainer_config
+from experiments import device_name, synchronize
+from experiments.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, train_steps, trainer_config
 
 
 @dataclass
 class ProfileArgs:
     scene: str = "demo"
-    """'demo', 'stress:FAULT' or a dataset folder (as in wild-thermal-bench)."""
+    """'demo', 'stress:FAULT' or a dataset folder (as in python -m experiments.bench)."""
     method: str = "wild-thermal"
     """'splatfacto' or one of this plugin's methods."""
     warmup: int = 1500

@@ -1,4 +1,4 @@
-"""`wild-thermal-bench`: every ablation variant (and stock splatfacto) on the same scenes, under
+"""`python -m experiments.bench`: every ablation variant (and stock splatfacto) on the same scenes, under
 the same schedule and evaluation protocol (`analysis/evaluation.py`).
 
 For each scene x method it trains with nerfstudio's own Trainer components (same callbacks,
@@ -35,10 +35,10 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401
-from method_configs.wild_thermal import METHODS, method_trainer
+from thermal_wild_ns.method_configs import METHODS, method_trainer
 from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
-from thermal_wild_ns.benchmarks import device_name, synchronize
-from thermal_wild_ns.benchmarks.render_fps import measure_fps
+from experiments import device_name, synchronize
+from experiments.render_fps import measure_fps
 from thermal_wild_ns.data.thermal_io import load_npy
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
@@ -82,7 +82,7 @@ class BenchArgs:
     elsewhere to skip triangulation (e.g. on a machine without pycolmap)."""
     fps_frames: int = 300
     """Frames rendered to measure each trained model's render speed (baked vs unbaked emission, as
-    `wild-thermal-render-fps`); 0 skips it."""
+    `python -m experiments.render_fps`); 0 skips it."""
     seed: int = 0
     time_limit: Optional[float] = None
     """Training seconds a run may take; a run past it stops and is recorded as failed, with its step
@@ -433,7 +433,7 @@ def _command_line(settings: BenchArgs) -> List[str]:
     """`settings` as this bench's command line (every field but those that spread runs or merge them)."""
     import sys
 
-    command = [sys.executable, "-m", "thermal_wild_ns.benchmarks.bench"]
+    command = [sys.executable, "-m", "experiments.bench"]
     for field in dataclasses.fields(settings):
         value = getattr(settings, field.name)
         if field.name not in ("gpus", "runs_per_gpu", "merge") and value is not None:
@@ -452,7 +452,7 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
     import threading
 
     queues = gpus * runs_per_gpu
-    package_root = str(Path(__file__).resolve().parents[2])  # the workers import this same code
+    package_root = str(Path(__file__).resolve().parents[1])  # the workers import this same code
     env = {
         "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // queues)),
         **os.environ,

@@ -1,4 +1,4 @@
-"""`wild-thermal-render-fps`: how fast a trained model renders, baked vs unbaked emission.
+"""`python -m experiments.render_fps`: how fast a trained model renders, baked vs unbaked emission.
 
 Loads a trained run from its config.yml (as ns-render and ns-viewer do) and renders its test
 cameras, in three ways:
@@ -23,7 +23,7 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
-from thermal_wild_ns.benchmarks import device_name, synchronize
+from experiments import device_name, synchronize
 
 
 @dataclass

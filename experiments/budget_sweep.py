@@ -1,7 +1,7 @@
-"""`wild-thermal-budget-sweep`: how many Gaussians a scene needs.
+"""`python -m experiments.budget_sweep`: how many Gaussians a scene needs.
 
 Trains one method on one scene once per Gaussian budget (`--budgets`, 0 = uncapped) with
-`wild-thermal-bench`, or merges bench.json files of such runs made by separate commands
+`python -m experiments.bench`, or merges bench.json files of such runs made by separate commands
 (`--merge`, e.g. one GPU command per budget). Writes to `--output-dir`:
 - `sweep.json`: budget, final Gaussian count, test PSNR/SSIM (fixed embedding), ms/step per run,
   and the knee;
@@ -28,7 +28,7 @@ UNCAPPED = 100_000_000
 @dataclass
 class SweepArgs:
     scene: str = "demo"
-    """'demo', 'stress:FAULT' or a dataset folder (as in wild-thermal-bench)."""
+    """'demo', 'stress:FAULT' or a dataset folder (as in python -m experiments.bench)."""
     method: str = "wild-thermal"
     budgets: Tuple[int, ...] = (50_000, 100_000, 150_000, 300_000, 0)
     """Gaussian budgets (max_gaussians) to train with; 0 = uncapped."""
@@ -39,7 +39,7 @@ class SweepArgs:
     cache_dir: Optional[Path] = None
     gpus: int = 1
     """Train the budgets on this many GPUs side by side, one budget per GPU at a time (as
-    `wild-thermal-bench --gpus`)."""
+    `python -m experiments.bench --gpus`)."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: bench.json files of one method on one scene at several budgets."""
 
@@ -109,8 +109,8 @@ def _write(args: SweepArgs, rows: List[Dict]) -> Dict:
 def main(args: SweepArgs) -> Dict:
     if args.merge:
         return _write(args, _rows([json.loads(Path(p).read_text()) for p in args.merge]))
-    from thermal_wild_ns.benchmarks.bench import BenchArgs, run_in_gpu_queues
-    from thermal_wild_ns.benchmarks.bench import main as bench
+    from experiments.bench import BenchArgs, run_in_gpu_queues
+    from experiments.bench import main as bench
 
     jobs = [
         BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED, cache_dir=args.cache_dir,

@@ -4,7 +4,7 @@ On the demo scene (known clean frames) it measures how far the stabilized frames
 clean ones (RMSE in counts) and the drift left (std of dI_t, against the clean frames' own);
 on DUNR the drift left. Prints a table and writes JSON + Markdown:
 
-    python -m thermal_wild_ns.benchmarks.preprocessing_sweep --dunr ../shared/data/dunr --out results/preprocessing_sweep
+    python -m experiments.preprocessing_sweep --dunr ../shared/data/dunr --out results/preprocessing_sweep
 """
 
 from __future__ import annotations
