@@ -1,4 +1,9 @@
-"""Benchmarks: accuracy vs speed, training-step profiles, render speed, Gaussian budget."""
+"""Experiments beside the plugin (not installed): accuracy vs speed, training-step profiles,
+render speed, Gaussian budget, preprocessing sweeps. Run from a checkout: `python -m experiments.NAME --help`."""
+
+from __future__ import annotations
+
+from typing import Callable, Optional
 
 
 def device_name() -> str:
@@ -14,3 +19,28 @@ def synchronize() -> None:
 
     if torch.cuda.is_available():
         torch.cuda.synchronize()
+
+
+def train_with_hooks(
+    trainer, steps: int, after_step: Callable[[int], None], before_first_step: Optional[Callable[[], None]] = None
+) -> None:
+    """`steps` steps of nerfstudio's own `Trainer.train` (its loop, callbacks, logging and final
+    checkpoint, as `ns-train` runs them), with `after_step(step)` called after every training
+    iteration and `before_first_step()` before the first (e.g. to start a clock)."""
+    from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
+
+    hooks = [TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], lambda step: after_step(step))]
+    if before_first_step is not None:
+        start = trainer._start_step
+
+        def before(step: int) -> None:
+            if step == start:
+                before_first_step()
+
+        hooks.append(TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], before))
+    trainer.config.max_num_iterations = steps
+    trainer.callbacks = [*trainer.callbacks, *hooks]
+    try:
+        trainer.train()
+    finally:
+        trainer.callbacks = [c for c in trainer.callbacks if c not in hooks]

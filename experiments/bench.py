@@ -1,15 +1,16 @@
-"""`python -m experiments.bench`: every ablation variant (and stock splatfacto) on the same scenes, under
-the same schedule and evaluation protocol (`analysis/evaluation.py`).
+"""`python -m experiments.bench`: the methods (and stock splatfacto) on the same scenes, under
+the same schedule and the same leak-free evaluation protocols (`analysis/evaluation.py`), with
+several seeds per configuration.
 
-For each scene x method it trains with nerfstudio's own Trainer components (same callbacks,
-optimisers and strategies as `ns-train`), records test PSNR at the `--eval-at` steps against the
-wall-clock seconds spent training (evaluation time excluded), evaluates the final model in every
-embedding mode, and writes to `--output-dir`:
-- `bench.json`: everything, per run: curve, final metrics per mode, seconds, ms/step, peak GPU
-  memory, Gaussian count, model size;
-- `bench.md`: the paper's Tab. 2 layout (PSNR / SSIM per scene and mean, fixed embedding) and a
-  speed table;
-- `speed_accuracy.png`: test PSNR vs training seconds, one curve per method, one panel per scene.
+Each run trains with nerfstudio's own `Trainer.train` (its loop, callbacks and logging, as
+`ns-train` runs it; `experiments.train_with_hooks`), records the `novel`, `time` and `aligned`
+held-out PSNR at the `--eval-at` steps against the training seconds spent (evaluation excluded),
+then scores the final model under every protocol in the same process, and writes to `--output-dir`:
+- `bench.json`: everything, per run (one per seed): curve, final scores per protocol, seconds,
+  ms/step, peak GPU memory, Gaussian count, model size;
+- `bench.md`: per protocol, the mean over seeds and the min-max spread per scene and method;
+  `oracle` (the held-out frame's own state) apart and labelled; the cost table;
+- `speed_accuracy.png`: `aligned` PSNR vs training seconds, mean over seeds with the spread as a band.
 
 Stock splatfacto sees the frames as 3 equal channels without preprocessing; its LPIPS metric
 (which downloads AlexNet weights) is replaced by a stub, it is never used here. It needs CUDA
@@ -35,11 +36,11 @@ import torch
 import tyro
 
 import thermal_wild_ns.compat  # noqa: F401
-from thermal_wild_ns.method_configs import METHODS, method_trainer
-from thermal_wild_ns.analysis.evaluation import EMBEDDING_MODES, evaluate, evaluate_path
-from experiments import device_name, synchronize
+from experiments import device_name, synchronize, train_with_hooks
 from experiments.render_fps import measure_fps
+from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, PROTOCOLS, evaluate, evaluate_path
 from thermal_wild_ns.data.thermal_io import load_npy
+from thermal_wild_ns.method_configs import METHODS, method_trainer
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
 """How many runs share this run's GPU (set by `--runs-per-gpu`'s queues for their workers)."""
@@ -51,6 +52,8 @@ STRIP_FRAMES = (10, 20, 30, 40, 50)
 FULL_SCHEDULE = 30_000
 """Splatfacto's schedule (warm-up, refinement, opacity reset, split stop) is defined for this many
 steps; shorter runs scale it proportionally, the same for every method."""
+HEADLINE_PROTOCOLS = ("novel", "time", "aligned", "half")
+"""The leak-free protocols the tables lead with; `oracle` is shown apart."""
 
 
 @dataclass
@@ -61,21 +64,24 @@ class BenchArgs:
     methods: Tuple[str, ...] = VARIANTS
     steps: int = 30_000
     eval_at: Tuple[int, ...] = (1000, 2000, 5000, 10000, 20000, 30000)
-    """Steps at which test PSNR (fixed embedding) is recorded for the speed-accuracy chart."""
+    """Steps at which the `novel`, `time` and `aligned` scores are recorded for the speed-accuracy chart."""
+    seeds: int = 1
+    """Runs per scene and method, with seeds `seed`, `seed` + 1, ...: tables give their mean and spread."""
+    seed: int = 0
+    """First seed (torch/numpy/random, and the order training frames are visited in)."""
     schedule: Optional[int] = None
     """Length of run the densification schedule is laid out for (default: --steps, i.e. a short run
     compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first 3000 steps of a full run."""
     max_gaussians: Optional[int] = None
     """Gaussian budget of the wild-thermal variants (default: their config's)."""
     equalization_strength: Optional[float] = None
-    """Strength of the preprocessed variants' equalization step, 0-1 (default: their config's, the
-    paper's full BBHE); see `wild-thermal-diagnose`'s error amplification for what it trades."""
+    """Strength of the preprocessed variants' equalization step, 0-1 (default: their config's)."""
     num_downscales: Optional[int] = None
     """Resolution warm-up of every method, splatfacto included: train at 1/2^n resolution first,
     halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
     128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
-    wild_steps: int = 100
-    """Embedding optimisation steps of the in-the-wild protocol."""
+    fit_steps: int = 100
+    """Embedding optimisation steps per view of the `half` and `oracle` protocols."""
     output_dir: Path = Path("outputs/bench")
     cache_dir: Optional[Path] = None
     """Triangulation / preprocessing cache (default: `output_dir/cache`); point it at a cache made
@@ -83,7 +89,6 @@ class BenchArgs:
     fps_frames: int = 300
     """Frames rendered to measure each trained model's render speed (baked vs unbaked emission, as
     `python -m experiments.render_fps`); 0 skips it."""
-    seed: int = 0
     time_limit: Optional[float] = None
     """Training seconds a run may take; a run past it stops and is recorded as failed, with its step
     and Gaussian count (so one exploding method cannot use up a GPU session). Default: no limit."""
@@ -92,9 +97,7 @@ class BenchArgs:
     a time in its own process (`CUDA_VISIBLE_DEVICES`), then their results merged into `output_dir`."""
     runs_per_gpu: int = 1
     """Runs trained at once on each GPU, each in its own process with an equal share of the CPU
-    cores as its torch threads; their timings are labelled as shared. Measured not to pay: two
-    per H200 made each 5,000-step stress run take 87-114 s instead of 46-70 s alone
-    (results/stress_gpu_5k)."""
+    cores as its torch threads; their timings are labelled as shared (docs/ says what it cost)."""
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
     machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
@@ -135,14 +138,16 @@ def scale_schedule(model_config, steps: int) -> None:
     model_config.resolution_schedule = max(int(model_config.resolution_schedule * f), 1)
 
 
-def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
-    """The method's registered config on this scene, with the shared bench schedule."""
+def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed: Optional[int] = None):
+    """The method's registered config on this scene, with the shared bench schedule and `seed`
+    (default: `args.seed`) for torch and for the order the training frames are visited in."""
     from nerfstudio.configs.method_configs import method_configs
 
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
+    seed = args.seed if seed is None else seed
     if scene == "demo":
         dataparser = ThermalDemoDataParserConfig(data=args.output_dir / "demo-scene")
     elif scene.startswith("stress:"):
@@ -165,8 +170,9 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     if args.num_downscales is not None:
         config.pipeline.model.num_downscales = args.num_downscales
     config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
+    config.pipeline.datamanager.train_order_seed = seed
     config.output_dir = run_dir
-    config.experiment_name = file_slug(run_label(method, args))
+    config.experiment_name = file_slug(run_label(method, args)) + f"_seed{seed}"
     config.timestamp = "run"
     config.vis = "tensorboard"
     config.max_num_iterations = args.steps
@@ -174,7 +180,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path):
     config.steps_per_eval_image = config.steps_per_eval_batch = config.steps_per_eval_all_images = 1 << 30
     config.save_only_latest_checkpoint = True
     config.machine.device_type = "cuda" if torch.cuda.is_available() else "cpu"
-    config.machine.seed = args.seed
+    config.machine.seed = seed
     scale_schedule(config.pipeline.model, args.schedule or args.steps)
     return config
 
@@ -207,29 +213,6 @@ class RunTooSlow(RuntimeError):
     """A bench run went past `--time-limit`."""
 
 
-def train_steps(trainer, start: int, stop: int, seconds_left: Optional[float] = None) -> torch.Tensor:
-    """Steps [start, stop) exactly as `ns-train` runs them (callbacks included, no evaluation,
-    no logging); returns the last loss. Once `seconds_left` have passed (checked every 100 steps)
-    it raises RunTooSlow."""
-    from nerfstudio.engine.callbacks import TrainingCallbackLocation
-
-    loss = torch.tensor(float("nan"))
-    deadline = None if seconds_left is None else time.perf_counter() + seconds_left
-    for step in range(start, stop):
-        # every 100 steps, a segment's first step included (time may be up when an evaluation ends),
-        # but not the run's first step, which has trained nothing yet
-        if deadline is not None and step > 0 and step % 100 == 0 and time.perf_counter() > deadline:
-            gaussians = getattr(trainer.pipeline.model, "num_points", "?")
-            raise RunTooSlow(f"--time-limit reached at step {step} ({gaussians} Gaussians)")
-        trainer.pipeline.train()
-        for callback in trainer.callbacks:
-            callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
-        loss, _, _ = trainer.train_iteration(step)
-        for callback in trainer.callbacks:
-            callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
-    return loss
-
-
 def setup_trainer(config):
     """nerfstudio's Trainer for `config`, set up (LPIPS never built)."""
     with no_lpips_download():
@@ -238,44 +221,70 @@ def setup_trainer(config):
     return trainer
 
 
-def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
+class CurveRecorder:
+    """Called after every training step (`train_with_hooks`): keeps the training clock (paused
+    while it evaluates), scores the cheap protocols at the checkpoint steps, and stops a run past
+    its time limit (checked every 100 steps)."""
+
+    def __init__(self, pipeline, checkpoints, time_limit: Optional[float], describe: str):
+        self.pipeline, self.checkpoints, self.time_limit, self.describe = pipeline, set(checkpoints), time_limit, describe
+        self.seconds, self.started, self.curve = 0.0, None, []
+
+    def start(self) -> None:
+        synchronize()
+        self.started = time.perf_counter()
+
+    def elapsed(self) -> float:
+        return self.seconds + (time.perf_counter() - self.started if self.started is not None else 0.0)
+
+    def __call__(self, step: int) -> None:
+        done = step + 1  # steps trained so far
+        if self.time_limit is not None and done % 100 == 0 and self.elapsed() > self.time_limit:
+            raise RunTooSlow(f"--time-limit reached at step {done} ({getattr(self.pipeline.model, 'num_points', '?')} Gaussians)")
+        if done not in self.checkpoints:
+            return
+        synchronize()
+        self.seconds, self.started = self.elapsed(), None
+        result = evaluate(self.pipeline, protocols=CHEAP_PROTOCOLS)
+        self.pipeline.train()
+        point = {"step": done, "seconds": round(self.seconds, 3), "gaussians": result["gaussians"]}
+        point.update({f"psnr_{p}": result[f"psnr_{p}"] for p in CHEAP_PROTOCOLS})
+        self.curve.append(point)
+        print(f"  {self.describe}: step {done}, {self.seconds:.1f} s, PSNR novel {point['psnr_novel']:.2f} / time "
+              f"{point['psnr_time']:.2f} / aligned {point['psnr_aligned']:.2f} dB, {point['gaussians']} Gaussians", flush=True)
+        self.start()
+
+
+def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
     run_dir = args.output_dir / "runs" / scene_name(scene)
-    config = trainer_config(method, scene, args, run_dir)
+    config = trainer_config(method, scene, args, run_dir, seed)
     cuda = torch.cuda.is_available()
     if cuda:
         torch.cuda.reset_peak_memory_stats()
     config.save_config()  # ns-eval / ns-render / ns-viewer load the run from its config.yml
     trainer = setup_trainer(config)
     pipeline = trainer.pipeline
-    checkpoints = sorted({s for s in args.eval_at if 0 < s <= args.steps} | {args.steps})
-    curve, seconds, step = [], 0.0, 0
-    losses_finite = True
-    for stop in checkpoints:
-        synchronize()
-        start = time.perf_counter()
-        loss = train_steps(trainer, step, stop, None if args.time_limit is None else args.time_limit - seconds)
-        step = stop
-        synchronize()
-        seconds += time.perf_counter() - start
-        losses_finite = losses_finite and bool(torch.isfinite(loss))
-        result = evaluate(pipeline, "fixed")
-        curve.append({"step": stop, "seconds": round(seconds, 3), "psnr": result["psnr"], "gaussians": result["gaussians"]})
-        print(f"  {method} on {scene_name(scene)}: step {stop}, {seconds:.1f} s, test PSNR {result['psnr']:.2f} dB, {result['gaussians']} Gaussians")
     label = run_label(method, args)
-    renders = args.output_dir / "renders" / scene_name(scene) / file_slug(label)
-    final = {mode: evaluate(pipeline, mode, renders, wild_steps=args.wild_steps) for mode in EMBEDDING_MODES}
+    checkpoints = sorted({s for s in args.eval_at if 0 < s <= args.steps} | {args.steps})
+    recorder = CurveRecorder(pipeline, checkpoints, args.time_limit, f"{label} on {scene_name(scene)} (seed {seed})")
+    train_with_hooks(trainer, args.steps, recorder, recorder.start)
+    renders = args.output_dir / "renders" / scene_name(scene) / f"{file_slug(label)}_seed{seed}"
+    final = evaluate(pipeline, renders, fit_steps=args.fit_steps)
     path = None
     if scene.startswith("stress:"):
         path = evaluate_path(pipeline, config.pipeline.datamanager.dataparser.data, keep_frames=STRIP_FRAMES)
         strips = args.output_dir / "strips" / scene_name(scene)
         strips.mkdir(parents=True, exist_ok=True)
-        for name, frames in ((file_slug(label), path.pop("kept")), ("0-ground-truth", path.pop("kept_truth"))):
-            np.save(strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16))
-    trainer.save_checkpoint(args.steps - 1)
+        kept, truth = path.pop("kept"), path.pop("kept_truth")
+        if seed == args.seed:  # one strip per method: the first seed's
+            for name, frames in ((file_slug(label), kept), ("0-ground-truth", truth)):
+                np.save(strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16))
     fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
+    seconds = recorder.seconds
     return {
         "method": label,
         "scene": scene_name(scene),
+        "seed": seed,
         "path": path,
         "steps": args.steps,
         "train_seconds": round(seconds, 2),
@@ -286,78 +295,107 @@ def run_one(method: str, scene: str, args: BenchArgs) -> Dict:
         "runs_per_gpu": int(os.environ.get(RUNS_PER_GPU_VARIABLE, "1")),
         "gaussians": int(pipeline.model.num_points),
         "model_mb": round(_model_megabytes(pipeline.model), 2),
-        "final_loss_finite": losses_finite,
         "render_fps": fps,
-        "curve": curve,
-        "final": final,
+        "curve": recorder.curve,
+        **{key: value for key, value in final.items() if key.startswith(("psnr_", "ssim_"))},
+        "per_view": final["per_view"],
         "config": str(config.get_base_dir() / "config.yml"),
     }
 
 
+def spread(values: List[float]) -> Dict[str, float]:
+    """Mean, min and max of one score over seeds."""
+    return {"mean": float(np.mean(values)), "min": float(np.min(values)), "max": float(np.max(values)), "n": len(values)}
+
+
+def aggregate(runs: List[Dict]) -> Dict[Tuple[str, str], Dict]:
+    """(method, scene) -> per score key, its spread over the finished runs (seeds); 'failed': count."""
+    groups: Dict[Tuple[str, str], List[Dict]] = {}
+    for r in runs:
+        groups.setdefault((r["method"], r["scene"]), []).append(r)
+    out = {}
+    for key, group in groups.items():
+        done = [r for r in group if "failed" not in r]
+        keys = [k for k in (done[0] if done else {}) if k.startswith(("psnr_", "ssim_")) or k in ("ms_per_step", "train_seconds", "gaussians", "model_mb")]
+        out[key] = {k: spread([r[k] for r in done]) for k in keys}
+        out[key]["failed"] = len(group) - len(done)
+    return out
+
+
+def _cell(stats: Optional[Dict], key: str, digits: int = 2) -> str:
+    if stats is None or key not in stats:
+        return "—" if stats is None or not stats.get("failed") else "failed"
+    s = stats[key]
+    text = f"{s['mean']:.{digits}f}"
+    if s["n"] > 1:
+        text += f" ({s['min']:.{digits}f}–{s['max']:.{digits}f})"
+    return text + (f", {stats['failed']} failed" if stats.get("failed") else "")
+
+
 def markdown(runs: List[Dict], scenes: List[str]) -> str:
     methods = list(dict.fromkeys(r["method"] for r in runs))
-    by = {(r["method"], r["scene"]): r for r in runs}
-    head = "| method | " + " | ".join(f"{s} PSNR / SSIM" for s in scenes) + " | mean PSNR / SSIM |"
-    lines = ["Test views, original radiometric space, fixed inference embedding:", "", head, "|" + " --- |" * (len(scenes) + 2)]
-    for m in methods:
-        cells, ps, ss = [], [], []
-        for s in scenes:
-            r = by.get((m, s))
-            if r is None or "failed" in r:
-                cells.append("—" if r is None else "failed")
-                continue
-            f = r["final"]["fixed"]
-            ps.append(f["psnr"])
-            ss.append(f["ssim"])
-            cells.append(f"{f['psnr']:.2f} / {f['ssim']:.3f}")
-        mean = f"{np.mean(ps):.2f} / {np.mean(ss):.3f}" if ps else "—"
-        lines.append(f"| {m} | " + " | ".join(cells) + f" | {mean} |")
-    lines += ["", "Embedding modes (PSNR; `wild` scores the right half only; preprocessed renders mapped back through the test frame's LUT, "
-              "or, in the last column, through the median training LUT, as every rendered novel view is):", "",
-              "| method | scene | fixed | interpolate | wild (right half) | preprocessed space (fixed) | median training LUT (fixed) |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    done = [r for r in runs if "failed" not in r]
-    for r in done:
-        f = r["final"]
-        optional = [f["fixed"].get(key) for key in ("psnr_preprocessed", "psnr_median_lut")]
-        lines.append(
-            f"| {r['method']} | {r['scene']} | {f['fixed']['psnr']:.2f} | {f['interpolate']['psnr']:.2f} | {f['wild']['psnr']:.2f} | "
-            + " | ".join(f"{v:.2f}" if v is not None else "—" for v in optional)
-            + " |"
-        )
-    lines += ["", "Cost (render FPS: test cameras; baked = the fixed embedding's emission cached, as the viewer renders; unbaked = emission MLP every frame):", "",
-              "| method | scene | steps | train s | ms/step | peak GPU MB | Gaussians | model MB | render FPS baked / unbaked |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for r in done:
+    stats = aggregate(runs)
+    seeds = sorted({r.get("seed", 0) for r in runs})
+    lines = [f"Held-out views, original radiometric space; mean over seeds (min–max) where a configuration ran more than "
+             f"once (seeds here: {', '.join(map(str, seeds))}). Protocols: analysis/evaluation.py.", ""]
+    titles = {
+        "novel": "`novel` (canonical state: what a rendered novel view is)",
+        "time": "`time` (state predicted from the neighbouring training frames)",
+        "aligned": "`aligned` (novel + per-view least-squares gain/offset)",
+        "half": "`half` (NeRF-W: state fitted on the left half, right half scored)",
+        "oracle": "`oracle` — uses the held-out frame's own pixels (its LUT, an embedding fitted on all of it): an upper bound, not a result",
+    }
+    for protocol in (*HEADLINE_PROTOCOLS, "oracle"):
+        lines += [f"PSNR / SSIM, {titles[protocol]}:", "", "| method | " + " | ".join(scenes) + " |", "|" + " --- |" * (len(scenes) + 1)]
+        for m in methods:
+            cells = []
+            for s in scenes:
+                st = stats.get((m, s))
+                cells.append(_cell(st, f"psnr_{protocol}") + (" / " + _cell(st, f"ssim_{protocol}", 3) if st and f"ssim_{protocol}" in st else ""))
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += ["Cost (mean over seeds; render FPS: test cameras, first seed; baked = the canonical emission cached, as the viewer renders; "
+              "unbaked = emission MLP every frame):", "",
+              "| method | scene | seeds | steps | train s | ms/step | peak GPU MB | Gaussians | model MB | render FPS baked / unbaked |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    first = {}
+    for r in runs:
+        if "failed" not in r:
+            first.setdefault((r["method"], r["scene"]), r)
+    for (m, s), r in first.items():
+        st = stats[(m, s)]
         mem = "—" if r["peak_gpu_memory_mb"] is None else f"{r['peak_gpu_memory_mb']:.0f}"
         fps = r.get("render_fps") or {}
         fps_cell = " / ".join(f"{fps[k]:.0f}" for k in ("baked", "unbaked") if k in fps) or "—"
         shared = f" ({r['runs_per_gpu']} runs per GPU)" if r.get("runs_per_gpu", 1) > 1 else ""  # not the timing of a run alone
-        lines.append(f"| {r['method']} | {r['scene']} | {r['steps']} | {r['train_seconds']:.1f}{shared} | {r['ms_per_step']:.2f} | {mem} | {r['gaussians']} | {r['model_mb']:.1f} | {fps_cell} |")
-    stress = [r for r in runs if r["scene"].startswith("stress-")]
+        lines.append(f"| {m} | {s} | {st['ms_per_step']['n']} | {r['steps']} | {_cell(st, 'train_seconds', 1)}{shared} | "
+                     f"{_cell(st, 'ms_per_step')} | {mem} | {_cell(st, 'gaussians', 0)} | {_cell(st, 'model_mb', 1)} | {fps_cell} |")
+    stress = [r for r in runs if r["scene"].startswith("stress-") and "failed" not in r and r.get("path")]
     if stress:
-        faults = list(dict.fromkeys(r["scene"] for r in stress))
-        lines += ["", "Stress scenes along the smooth camera path (fixed embedding): PSNR dB / floater pixels % (of them, with an error "
-                  "above 0.1: the visible ones) / excess flicker x1e3 (per pixel):", ""]
+        faults = list(dict.fromkeys(r["scene"] for r in runs if r["scene"].startswith("stress-")))
+        lines += ["", "Stress scenes along the smooth camera path (canonical state), mean over seeds: PSNR dB / floater pixels % "
+                  "(of them, with an error above 0.1: the visible ones) / excess flicker x1e3 (per pixel):", ""]
         lines += ["| method | " + " | ".join(f[len("stress-"):] for f in faults) + " |", "|" + " --- |" * (len(faults) + 1)]
         for m in dict.fromkeys(r["method"] for r in stress):
             cells = []
             for f in faults:
-                r = by.get((m, f))
-                if r is None:
-                    cells.append("—")
-                elif "failed" in r:
-                    cells.append("diverged" if "Diverged" in r["failed"] else "failed")
-                else:
-                    p = r["path"]
-                    visible = f"{100 * p['visible_floater_fraction']:.1f}" if "visible_floater_fraction" in p else "—"  # runs before the measure
-                    cells.append(f"{p['psnr']:.2f} / {100 * p['floater_fraction']:.1f} ({visible}) / {1000 * p['flicker_pixel_excess']:.2f}")
+                paths = [r["path"] for r in stress if r["method"] == m and r["scene"] == f]
+                if not paths:
+                    cells.append("failed" if any(r["method"] == m and r["scene"] == f for r in runs) else "—")
+                    continue
+                mean = {k: float(np.mean([p[k] for p in paths])) for k in ("psnr", "floater_fraction", "visible_floater_fraction", "flicker_pixel_excess")}
+                cells.append(f"{mean['psnr']:.2f} / {100 * mean['floater_fraction']:.1f} ({100 * mean['visible_floater_fraction']:.1f}) / "
+                             f"{1000 * mean['flicker_pixel_excess']:.2f}")
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
     failed = [r for r in runs if "failed" in r]
     if failed:
-        lines += ["", "Failed runs:", ""] + [f"- {r['method']} on {r['scene']}: {r['failed']}" for r in failed]
+        lines += ["", "Failed runs:", ""] + [f"- {r['method']} on {r['scene']} (seed {r.get('seed', 0)}): {r['failed']}" for r in failed]
     return "\n".join(lines) + "\n"
 
 
-def chart(runs: List[Dict], scenes: List[str], path: Path) -> None:
+def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "aligned") -> None:
+    """`protocol` PSNR against training seconds per scene: per method the mean over seeds at each
+    checkpoint step, the min-max over seeds as a band."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -366,13 +404,20 @@ def chart(runs: List[Dict], scenes: List[str], path: Path) -> None:
     fig, axes = plt.subplots(1, len(scenes), figsize=(6 * len(scenes), 4.5), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
         floor = 10.0  # a diverged run (PSNR far below) would squash every other curve
-        for r in (r for r in runs if r["scene"] == scene and "failed" not in r):
-            xs = [p["seconds"] for p in r["curve"]]
-            ys = [p["psnr"] for p in r["curve"]]
-            style = {"lw": 2.5, "color": "black"} if r["method"] == "wild-thermal" else ({"ls": "--"} if r["method"].startswith("splatfacto") else {})
-            label = r["method"] + (f" (falls to {min(ys):.0f} dB)" if min(ys) < floor else "")
-            ax.plot(xs, np.maximum(ys, floor), marker="o", ms=3, label=label, **style)
-        ax.set(title=f"{scene}: test PSNR vs training time", xlabel="training wall-clock seconds (evaluation excluded)", ylabel="PSNR (dB, original space)")
+        done = [r for r in runs if r["scene"] == scene and "failed" not in r and r["curve"] and f"psnr_{protocol}" in r["curve"][0]]
+        for method in dict.fromkeys(r["method"] for r in done):
+            curves = [r["curve"] for r in done if r["method"] == method]
+            steps = sorted(set.intersection(*({p["step"] for p in c} for c in curves)))
+            at = lambda c, key: [next(p[key] for p in c if p["step"] == s) for s in steps]  # noqa: E731
+            xs = np.mean([at(c, "seconds") for c in curves], axis=0)
+            ys = np.array([at(c, f"psnr_{protocol}") for c in curves])
+            style = {"lw": 2.5, "color": "black"} if method == "wild-thermal" else ({"ls": "--"} if method.startswith("splatfacto") else {})
+            label = f"{method} ({len(curves)} seed{'s' if len(curves) > 1 else ''})" + (f" (falls to {ys.min():.0f} dB)" if ys.min() < floor else "")
+            line, = ax.plot(xs, np.maximum(ys.mean(0), floor), marker="o", ms=3, label=label, **style)
+            if len(curves) > 1:
+                ax.fill_between(xs, np.maximum(ys.min(0), floor), np.maximum(ys.max(0), floor), color=line.get_color(), alpha=0.2, lw=0)
+        ax.set(title=f"{scene}: held-out {protocol} PSNR vs training time", xlabel="training wall-clock seconds (evaluation excluded)",
+               ylabel=f"PSNR (dB, original space, {protocol})")
         ax.set_xscale("log")
         ax.set_ylim(bottom=floor)
         ax.grid(alpha=0.3)
@@ -399,16 +444,18 @@ def main(args: BenchArgs) -> Dict:
             if method == "splatfacto" and not torch.cuda.is_available():
                 print("  splatfacto skipped: stock splatfacto needs CUDA")
                 continue
-            try:
-                runs.append(run_one(method, scene, args))
-            except (torch.OutOfMemoryError, RuntimeError, ValueError) as err:  # a method failing is a result, not the end of the bench
-                message = str(err).splitlines()[0][:300]
-                print(f"  {method} on {Path(scene).name} FAILED: {type(err).__name__}: {message}")
-                runs.append({"method": run_label(method, args), "scene": scene_name(scene), "steps": args.steps, "failed": f"{type(err).__name__}: {message}"})
-                gc.collect()  # the failed trainer's tensors
-                if torch.cuda.is_available():
-                    torch.cuda.empty_cache()
-            _write(args, runs)  # after every run: a crash later keeps what finished
+            for seed in range(args.seed, args.seed + args.seeds):
+                try:
+                    runs.append(run_one(method, scene, args, seed))
+                except (torch.OutOfMemoryError, RuntimeError, ValueError) as err:  # a method failing is a result, not the end of the bench
+                    message = str(err).splitlines()[0][:300]
+                    print(f"  {method} on {scene_name(scene)} (seed {seed}) FAILED: {type(err).__name__}: {message}")
+                    runs.append({"method": run_label(method, args), "scene": scene_name(scene), "seed": seed, "steps": args.steps,
+                                 "failed": f"{type(err).__name__}: {message}"})
+                    gc.collect()  # the failed trainer's tensors
+                    if torch.cuda.is_available():
+                        torch.cuda.empty_cache()
+                _write(args, runs)  # after every run: a crash later keeps what finished
     return _write(args, runs)
 
 
@@ -482,22 +529,22 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
 
 
 def _spread_over_gpus(args: BenchArgs) -> Dict:
-    """Every scene x method run in `output_dir/gpuI/NN_SCENE_METHOD/`, over `args.gpus` GPUs, then merged."""
-    pairs = [(scene, method) for scene in args.scenes for method in args.methods]
+    """Every scene x method x seed run in `output_dir/gpuI/NN_SCENE_METHOD_seedS/`, over `args.gpus` GPUs, then merged."""
+    triples = [(scene, method, seed) for scene in args.scenes for method in args.methods for seed in range(args.seed, args.seed + args.seeds)]
     cache = args.cache_dir or args.output_dir / "cache"  # one cache for all (triangulation once)
     jobs = [
-        dataclasses.replace(args, scenes=(scene,), methods=(method,), cache_dir=cache, gpus=1, runs_per_gpu=1,
-                            output_dir=args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}")
-        for k, (scene, method) in enumerate(pairs)
+        dataclasses.replace(args, scenes=(scene,), methods=(method,), seed=seed, seeds=1, cache_dir=cache, gpus=1, runs_per_gpu=1,
+                            output_dir=args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}_seed{seed}")
+        for k, (scene, method, seed) in enumerate(triples)
     ]
     done = run_in_gpu_queues(jobs, args.gpus, args.runs_per_gpu)
     if not done:
         raise RuntimeError(f"no run finished; see the logs under {args.output_dir}/gpu*/")
     merged = main(BenchArgs(merge=tuple(done), output_dir=args.output_dir))
-    finished = {(r["scene"], r["method"]) for r in merged["runs"]}
-    lost = [(scene, method) for scene, method in pairs if (scene_name(scene), run_label(method, args)) not in finished]
+    finished = {(r["scene"], r["method"], r.get("seed")) for r in merged["runs"]}
+    lost = [(s, m, seed) for s, m, seed in triples if (scene_name(s), run_label(m, args), seed) not in finished]
     if lost:
-        print("  no result (see its log.txt): " + ", ".join(f"{m} on {scene_name(s)}" for s, m in lost))
+        print("  no result (see its log.txt): " + ", ".join(f"{m} on {scene_name(s)} (seed {seed})" for s, m, seed in lost))
     return merged
 
 

@@ -23,8 +23,8 @@ from typing import Dict, Optional
 import torch
 import tyro
 
-from experiments import device_name, synchronize
-from experiments.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, train_steps, trainer_config
+from experiments import device_name, synchronize, train_with_hooks
+from experiments.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, trainer_config
 
 
 @dataclass
@@ -66,21 +66,52 @@ def _kernel_microseconds(prof) -> float:
     )
 
 
-def _count_syncs(trainer, start: int, steps: int) -> Dict[str, int]:
-    """Host syncs per call site over `steps` steps (CUDA only)."""
-    counts: Dict[str, int] = collections.Counter()
-    torch.cuda.set_sync_debug_mode("warn")
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            train_steps(trainer, start, start + steps)
-            torch.cuda.synchronize()
-    finally:
-        torch.cuda.set_sync_debug_mode(0)
-    for w in caught:
-        if "synchroniz" in str(w.message):
-            counts[f"{w.filename}:{w.lineno}"] += 1
-    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
+class _Phases:
+    """After-step hook of one `Trainer.train` run: after `warmup` steps it times `steps` steps,
+    then (CUDA) counts host syncs over `SYNC_STEPS` steps, then records `profile_steps` steps
+    with torch.profiler."""
+
+    SYNC_STEPS = 5
+
+    def __init__(self, args: ProfileArgs, cuda: bool):
+        from torch.profiler import ProfilerActivity, profile as torch_profile
+
+        self.cuda = cuda
+        self.timed = (args.warmup, args.warmup + args.steps)
+        self.synced = (self.timed[1], self.timed[1] + (self.SYNC_STEPS if cuda else 0))
+        self.profiled = (self.synced[1], self.synced[1] + args.profile_steps)
+        self.total = self.profiled[1]
+        self.prof = torch_profile(activities=[ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else []))
+        self.ms_per_step = self.profiled_ms = 0.0
+        self.syncs: Dict[str, int] = collections.Counter()
+
+    def __call__(self, step: int) -> None:
+        done = step + 1
+        if done == self.timed[0]:
+            synchronize()
+            self.clock = time.perf_counter()
+        if done == self.timed[1]:
+            synchronize()
+            self.ms_per_step = 1000 * (time.perf_counter() - self.clock) / (self.timed[1] - self.timed[0])
+            if self.cuda:
+                self._warnings = warnings.catch_warnings(record=True)
+                self._caught = self._warnings.__enter__()
+                warnings.simplefilter("always")
+                torch.cuda.set_sync_debug_mode("warn")
+        if done == self.synced[1]:
+            if self.cuda:
+                torch.cuda.synchronize()
+                torch.cuda.set_sync_debug_mode(0)
+                self._warnings.__exit__(None, None, None)
+                for w in self._caught:
+                    if "synchroniz" in str(w.message):
+                        self.syncs[f"{w.filename}:{w.lineno}"] += 1
+            self.clock = time.perf_counter()
+            self.prof.start()
+        if done == self.profiled[1]:
+            synchronize()
+            self.prof.stop()
+            self.profiled_ms = 1000 * (time.perf_counter() - self.clock) / (self.profiled[1] - self.profiled[0])
 
 
 def profile(args: ProfileArgs) -> Dict:
@@ -89,25 +120,10 @@ def profile(args: ProfileArgs) -> Dict:
                            output_dir=args.output_dir, cache_dir=args.cache_dir)
     trainer = setup_trainer(trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs"))
     cuda = torch.cuda.is_available()
-    step = args.warmup
-    train_steps(trainer, 0, step)
-    synchronize()
-    start = time.perf_counter()
-    train_steps(trainer, step, step + args.steps)
-    synchronize()
-    ms_per_step = 1000 * (time.perf_counter() - start) / args.steps
-    step += args.steps
-    syncs = _count_syncs(trainer, step, 5) if cuda else {}
-    step += 5 if cuda else 0
-
-    from torch.profiler import ProfilerActivity, profile as torch_profile
-
-    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
-    start = time.perf_counter()
-    with torch_profile(activities=activities) as prof:
-        train_steps(trainer, step, step + args.profile_steps)
-        synchronize()
-    profiled_ms = 1000 * (time.perf_counter() - start) / args.profile_steps
+    phases = _Phases(args, cuda)
+    train_with_hooks(trainer, phases.total, phases)
+    prof, ms_per_step, profiled_ms = phases.prof, phases.ms_per_step, phases.profiled_ms
+    syncs = dict(sorted(phases.syncs.items(), key=lambda kv: -kv[1]))
     events = prof.key_averages()
     n = args.profile_steps
     gpu_ms = _kernel_microseconds(prof) / 1000 / n
@@ -123,7 +139,7 @@ def profile(args: ProfileArgs) -> Dict:
         "scene": args.scene, "method": args.method, "device": device_name(),
         "torch": torch.__version__, "warmup": args.warmup, "gaussians": int(trainer.pipeline.model.num_points),
         "ms_per_step": round(ms_per_step, 3), "profiled_ms_per_step": round(profiled_ms, 3), "gpu_kernel_ms_per_step": round(gpu_ms, 3),
-        "host_syncs_per_step": {k: v / 5 for k, v in syncs.items()},
+        "host_syncs_per_step": {k: v / _Phases.SYNC_STEPS for k, v in syncs.items()},
         "sections": [{"name": e.key, "cpu_ms": e.cpu_time_total / 1000 / n, "gpu_ms": _inclusive_device_time(e) / 1000 / n} for e in sections],
         "top_gpu": [row(e) for e in by_gpu], "top_cpu": [row(e) for e in by_cpu],
     }

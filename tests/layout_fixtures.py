@@ -136,9 +136,11 @@ def write_llff(root: Path, n: int = 10, folder: str = "images") -> List[Tuple[np
 
 
 def write_colmap_model(
-    folder: Path, names: List[str], poses: List[np.ndarray], K: np.ndarray, size: Tuple[int, int], binary: bool = True, with_point: bool = True
+    folder: Path, names: List[str], poses: List[np.ndarray], K: np.ndarray, size: Tuple[int, int], binary: bool = True,
+    with_point: bool = True, extra_points: int = 0,
 ) -> None:
-    """A COLMAP model of these posed images, with KNOWN_POINT as its one 3D point (or none)."""
+    """A COLMAP model of these posed images, with KNOWN_POINT as its first 3D point (or none) and
+    `extra_points` more around it."""
     import pycolmap
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -151,6 +153,8 @@ def write_colmap_model(
         rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=1, image_id=i + 1), pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]))
     if with_point:
         rec.add_point3D(KNOWN_POINT, pycolmap.Track(), np.array([200, 200, 200], np.uint8))
+        for offset in np.random.default_rng(0).normal(0.0, 0.2, (extra_points, 3)):
+            rec.add_point3D(KNOWN_POINT + offset, pycolmap.Track(), np.array([100, 100, 100], np.uint8))
     rec.write_binary(str(folder)) if binary else rec.write_text(str(folder))
 
 
@@ -182,12 +186,12 @@ def write_thermalmix(root: Path, n: int = 24) -> List[Tuple[np.ndarray, np.ndarr
     return [(c2w, K) for c2w in poses]
 
 
-def write_colmap(root: Path, n: int = 17, binary: bool = True, with_point: bool = True) -> List[Tuple[np.ndarray, np.ndarray]]:
+def write_colmap(root: Path, n: int = 17, binary: bool = True, with_point: bool = True, extra_points: int = 0) -> List[Tuple[np.ndarray, np.ndarray]]:
     K = _K(60.0, 61.0, 31.5, 24.5)
     (root / "images").mkdir(parents=True)
     names = [f"frame_{i}.png" for i in range(n)]  # natural order: frame_2 before frame_10
     for i, name in enumerate(names):
         cv2.imwrite(str(root / "images" / name), thermal_image(64, 48, i))
     poses = cameras(n)
-    write_colmap_model(root / "sparse" / "0", names, poses, K, (64, 48), binary=binary, with_point=with_point)
+    write_colmap_model(root / "sparse" / "0", names, poses, K, (64, 48), binary=binary, with_point=with_point, extra_points=extra_points)
     return [(c2w, K) for c2w in poses]

@@ -91,12 +91,12 @@ def test_thermalmix_keeps_published_celsius_bounds(tmp_path):
 
 
 def test_colmap_text_model_and_sfm_seeds(tmp_path):
-    fx.write_colmap(tmp_path / "s", binary=False)
+    fx.write_colmap(tmp_path / "s", binary=False, extra_points=7)
     outputs = ThermalDataParserConfig(data=tmp_path / "s", layout="colmap").setup().get_dataparser_outputs("train")
-    assert outputs.metadata["seed_points"] == {"source": "colmap", "count": 1}
-    xyz = outputs.metadata["points3D_xyz"][0]
+    assert outputs.metadata["seed_points"] == {"source": "colmap", "count": 8}
+    xyz = outputs.metadata["points3D_xyz"]
     expected = (outputs.dataparser_transform @ torch.tensor([*fx.KNOWN_POINT, 1.0]).float()) * outputs.dataparser_scale
-    torch.testing.assert_close(xyz, expected)
+    assert float((xyz - expected).norm(dim=-1).min()) < 1e-5  # the known point, in the parsed world
 
 
 def test_layouts_train_through_the_datamanager(tmp_path):
@@ -131,3 +131,13 @@ def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
     camera, batch = datamanager.next_train(0)
     assert float(camera.distortion_params[0, 0]) == pytest.approx(0.05)
     assert batch["image"].shape == (int(camera.height), int(camera.width), 1)
+
+
+def test_a_sparse_model_too_small_to_seed_is_not_used(tmp_path):
+    """One SfM point cannot initialise Gaussians (scales come from 3 neighbours): 'auto' seeds
+    otherwise, 'sfm' says why it cannot."""
+    fx.write_colmap(tmp_path / "s")  # KNOWN_POINT only
+    auto = ThermalDataParserConfig(data=tmp_path / "s", layout="colmap", num_random_points=50).setup().get_dataparser_outputs("train")
+    assert auto.metadata["seed_points"]["source"] != "colmap" and auto.metadata["seed_points"]["count"] >= 4
+    with pytest.raises(ValueError, match="seed_points='sfm' but the colmap layout has only 1 sparse points"):
+        ThermalDataParserConfig(data=tmp_path / "s", layout="colmap", seed_points="sfm").setup().get_dataparser_outputs("train")

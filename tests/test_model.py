@@ -305,11 +305,26 @@ def test_viewer_controls_pick_colormap_and_embedding():
         model.viewer_colormap.cb_hook(model.viewer_colormap)
         assert torch.equal(model.get_outputs(camera)["rgb"][..., 0], level.float() / 255)
         mean_view = model.get_outputs(camera)["thermal"]
-        model.viewer_embedding.value = "3"
-        model.viewer_embedding.cb_hook(model.viewer_embedding)
-        assert model.config.inference_embedding == "3"
+        changes = []
+        model.on_photometric_state_change = lambda: changes.append(model.capture_time)
+        model.viewer_time.value = 3.0  # the capture-time slider, at training image 3's position ...
+        model.viewer_time.cb_hook(model.viewer_time)
+        assert model.capture_time is None and changes == [None]  # ... does nothing while the state is canonical
+        model.viewer_state.value = "capture time"
+        model.viewer_state.cb_hook(model.viewer_state)
+        assert model.capture_time == 3.0 and changes == [None, 3.0]  # the pipeline updates its colour bar
         frame_view = model.get_outputs(camera)["thermal"]
         assert not torch.equal(frame_view, mean_view)
-        model.embedding_override = model.frame_embed.weight[3]
+        model.embedding_override = model.frame_embed.weight[3]  # training image 3's own state
         assert torch.equal(model.get_outputs(camera)["thermal"], frame_view)
-    assert set(model.viewer_embedding.options[:2]) == {"mean", "zero"} and len(model.viewer_embedding.options) == 7
+        model.embedding_override = None
+        model.viewer_time.value = 3.5  # between two training frames: their average state
+        model.viewer_time.cb_hook(model.viewer_time)
+        between = model.get_outputs(camera)["thermal"]
+        model.embedding_override = 0.5 * (model.frame_embed.weight[3] + model.frame_embed.weight[4])
+        torch.testing.assert_close(model.get_outputs(camera)["thermal"], between)
+        model.embedding_override = None
+        model.viewer_state.value = "canonical"
+        model.viewer_state.cb_hook(model.viewer_state)
+        assert model.capture_time is None and torch.equal(model.get_outputs(camera)["thermal"], mean_view)
+    assert model.viewer_state.options == ["canonical", "capture time"] and model.viewer_time.max == model.frame_times[-1] == len(model.frame_times) - 1

@@ -1,6 +1,7 @@
 """Photometric stabilization + BBHE: properties of the LUTs, the cached stage, the datamanager."""
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,7 +158,9 @@ def test_stage_caches_and_rebuilds_when_parameters_change(demo_scene_dir, tmp_pa
     processed = np.load(first.frame_path(3))
     assert processed.dtype == np.float32 and len(np.unique(processed)) > 256  # no 8-bit re-quantisation
     raw = rng.read(frames[3].image)
-    np.testing.assert_allclose(first.to_original_normalised(processed, 3), raw, atol=1.0 / (rng.high - rng.low))
+    np.testing.assert_allclose(first.to_original_normalised(processed, first.lut(3)), raw, atol=1.0 / (rng.high - rng.low))
+    # and forward again: the training-space value of a raw frame at a state
+    np.testing.assert_allclose(first.to_processed_normalised(raw, first.lut(3)), processed, atol=1e-5)
 
     monkeypatch.setattr(stage, "frame_luts", lambda *a, **k: (_ for _ in ()).throw(AssertionError("recomputed")))
     assert stage.preprocess(frames, rng, PhotometricConfig(), tmp_path).folder == first.folder  # from the cache
@@ -207,22 +210,115 @@ def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_can
         # full-strength BBHE, where one frame moves the mean LUT most (at half strength the mean's
         # path PSNR is 47.8 dB)
         config = PhotometricConfig(equalization_strength=1.0)
-        return parser, preprocess(parser.capture().frames, parser.radiometric_range(), config, tmp_path / "cache"), frames
+        train = [i in frames for i in range(len(parser.capture().frames))]
+        return parser, preprocess(parser.capture().frames, parser.radiometric_range(), config, tmp_path / "cache", train=train), frames
 
     clean_parser, clean, frames = scene("clean")
     _, outlier, outlier_frames = scene("outlier")
     assert frames == outlier_frames
     rng, grid = clean_parser.radiometric_range(), clean.grid
-    median = outlier.lut(frames)
+    median = outlier.median_lut()
     assert np.all(np.diff(median) > 0)  # still invertible
     np.testing.assert_array_equal(median, np.median(np.asarray(outlier.luts)[frames], axis=0))
 
     path = json.loads((tmp_path / "clean" / "transforms.json").read_text())["path"][::6]
     truth = np.stack([rng.read(tmp_path / "clean" / view["file_path"]) for view in path])  # normalised original
-    processed = np.interp(rng.to_native(truth), grid.values(np.arange(grid.num_levels)), clean.lut(frames))
+    processed = np.interp(rng.to_native(truth), grid.values(np.arange(grid.num_levels)), clean.median_lut())
 
     def psnr(lut):
         return -10 * np.log10(np.mean((rng.normalize(invert_lut(lut, processed, grid)) - truth) ** 2))
 
     assert psnr(median) > 45.0  # 46.6 when written
     assert psnr(np.asarray(outlier.luts)[frames].mean(axis=0)) < 40.0  # 36.5: the one bright frame moves the mean
+
+
+# --------------------------------------------------------------------------- photometric state in time
+def test_time_weights_give_a_training_frames_own_state_and_interpolate_between():
+    from thermal_wild_ns.preprocessing.photometric import time_weights
+
+    times = [1.0, 3.0, 7.0]
+    assert time_weights(times, 3.0) == (1, 1, 0.0)  # a training frame: exactly its own
+    assert time_weights(times, 2.0) == (0, 1, 0.5)
+    assert time_weights(times, 6.0) == (1, 2, 0.75)
+    assert time_weights(times, 0.0) == (0, 0, 0.0) and time_weights(times, 9.5) == (2, 2, 0.0)  # nearest, no extrapolation
+    with pytest.raises(ValueError, match="strictly increasing"):
+        time_weights([3.0, 1.0], 2.0)
+
+
+def test_interpolated_luts_are_strictly_increasing_and_exact_at_training_frames(demo_scene_dir, tmp_path):
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+    from thermal_wild_ns.preprocessing.stage import preprocess
+
+    parser = ThermalDataParserConfig(data=demo_scene_dir, layout="nerfstudio").setup()
+    frames = parser.capture().frames
+    train = [f.split == "train" for f in frames]
+    sequence = preprocess(frames, parser.radiometric_range(), PhotometricConfig(equalization_strength=1.0), tmp_path, train=train)
+    held_out = [t for t, is_train in enumerate(train) if not is_train]
+    assert sequence.train_indices == [t for t, is_train in enumerate(train) if is_train]
+    for t in held_out[1:]:  # frame 0 lies before every training frame
+        lut = sequence.lut_at(t)
+        assert np.all(np.diff(lut) > 0)
+        np.testing.assert_allclose(lut, 0.5 * (sequence.lut(t - 1) + sequence.lut(t + 1)))  # every 8th is held out: midway
+        for fraction in (0.25, 0.9):
+            assert np.all(np.diff(sequence.lut_at(t - 1 + fraction)) > 0)
+        with pytest.raises(KeyError, match="held out"):  # its own LUT is the oracle's, never a state
+            sequence.lut(t)
+        assert not np.array_equal(sequence.oracle_lut(t), lut)
+    for t in sequence.train_indices[:5]:
+        np.testing.assert_array_equal(sequence.lut_at(t), sequence.lut(t))
+        np.testing.assert_array_equal(sequence.lut_at(float(t)), np.asarray(sequence.luts[t]))
+
+
+def test_held_out_frames_never_change_training_or_the_predicted_renders(tmp_path):
+    """Multiply a held-out frame by 2, or fill it with noise: every training frame's processed
+    pixels, the radiometric range and the seeds stay bit-identical, and so do the trained model's
+    `novel` and `time` renders of that view after a short training run."""
+    import shutil
+
+    import cv2
+    import torch
+
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+    from thermal_wild_ns.data.demo_scene import generate_demo_scene
+    from thermal_wild_ns.demo import demo_trainer_config
+    from thermal_wild_ns.pipeline.photometric_state import canonical_state, render, state_at
+
+    original = generate_demo_scene(tmp_path / "scene")
+    held_out = Path("images") / "frame_00008.png"  # every 8th frame is held out
+    variants = {}
+    for name, change in (("same", None), ("double", lambda f: (f.astype(np.uint32) * 2).clip(0, 65535).astype(np.uint16)),
+                         ("noise", lambda f: np.random.default_rng(0).integers(0, 65535, f.shape, dtype=np.uint16))):
+        root = tmp_path / name
+        shutil.copytree(original, root, ignore=shutil.ignore_patterns(".thermal_wild_ns"))
+        if change is not None:
+            frame = cv2.imread(str(root / held_out), cv2.IMREAD_UNCHANGED)
+            assert frame is not None and frame.dtype == np.uint16
+            cv2.imwrite(str(root / held_out), change(frame))
+        config = demo_trainer_config(tmp_path / f"run-{name}", steps=20, max_gaussians=2000)
+        config.pipeline.datamanager.dataparser = ThermalDataParserConfig(data=root, layout="nerfstudio", seed_points="random", num_random_points=300)
+        torch.manual_seed(0)
+        trainer = config.setup(local_rank=0, world_size=1)
+        trainer.setup()
+        trainer.train()
+        pipeline = trainer.pipeline
+        datamanager = pipeline.datamanager
+        sequence = datamanager.preprocessed
+        view = list(datamanager.eval_dataset.metadata["frame_indices"]).index(8)
+        camera, _ = datamanager.fixed_indices_eval_dataloader[view]
+        variants[name] = (
+            datamanager.dataparser.radiometric_range(),
+            {t: sequence.read_frame(t) for t in sequence.train_indices},
+            np.asarray(sequence.luts[sequence.train_indices]),
+            datamanager.train_dataparser_outputs.metadata["points3D_xyz"],
+            render(pipeline, camera, canonical_state(pipeline))[1],
+            render(pipeline, camera, state_at(pipeline, 8))[1],
+        )
+    same = variants["same"]
+    for name in ("double", "noise"):
+        rng, frames, luts, seeds, novel, timed = variants[name]
+        assert rng == same[0], name
+        assert frames.keys() == same[1].keys() and all(np.array_equal(frames[t], same[1][t]) for t in frames), name
+        np.testing.assert_array_equal(luts, same[2])
+        assert torch.equal(seeds, same[3])
+        np.testing.assert_array_equal(novel, same[4])
+        np.testing.assert_array_equal(timed, same[5])

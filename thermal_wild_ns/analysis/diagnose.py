@@ -162,14 +162,14 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         "preprocessing": asdict(args.preprocessing),
         # the stored processed frames mapped back through their inverse LUTs, against the raw frames
         "lut_round_trip_max_levels": max(
-            float(np.abs(sequence.to_original_normalised(p, t) - r).max()) * (rng.high - rng.low) / sequence.grid.step
+            float(np.abs(sequence.to_original_normalised(p, sequence.lut(t)) - r).max()) * (rng.high - rng.low) / sequence.grid.step
             for t, (p, r) in enumerate(zip(processed, raw))
         ),
         # a render's error at a pixel grows by this much when mapped back (hot, rare levels most)
         "inverse_lut_gain": gain_summary(
             [inverse_lut_gain(np.asarray(sequence.lut(t)), sequence.grid.levels(rng.to_native(r))) for t, r in enumerate(raw)], raw
         ),
-        "error_amplification": error_amplification(processed, raw, sequence.to_original_normalised),
+        "error_amplification": error_amplification(processed, raw, lambda values, t: sequence.to_original_normalised(values, sequence.lut(t))),
         "before": _frames_stats(raw, native(raw), args.spectrum_frames),
         "after": _frames_stats(processed, native(processed), args.spectrum_frames),
     }

@@ -1,125 +1,162 @@
-"""One evaluation protocol for every variant (and stock splatfacto), so numbers are comparable.
+"""One set of evaluation protocols for every method (stock splatfacto included), none of which
+lets a held-out frame's pixels into what it scores, except the one labelled oracle.
 
-- Space: the ORIGINAL radiometric space, dataset-normalised. Renders of variants trained on
-  preprocessed frames are mapped back through the test frame's inverse LUT; the target is the
-  evaluation frame as the dataset gives it (the raw held-out frame; clean ground truth for
-  generated scenes). The model's own numbers in the preprocessed space are kept as
-  `*_preprocessed` (what the paper most likely reported). The test frame's LUT carries that
-  frame's photometric state, which no rendered novel view has: `*_median_lut` scores the same
-  renders mapped back through the median training LUT instead, as `ns-render` maps every view.
-- Held-out frame embedding (`EmbeddingMode`):
-  `fixed`: the model's inference embedding (mean of the training frames');
-  `interpolate`: linear in capture order between the neighbouring training frames' embeddings
-  (thermal drift is temporal);
-  `wild`: the NeRF-in-the-wild protocol: the embedding is optimised on the left half of the test
-  frame, and only the right half is scored (every mode is scored on the right half then, so
-  models without embeddings are comparable).
-Models without frame embeddings render the same image in every mode.
+Every score is in the ORIGINAL radiometric space, dataset-normalised: renders go back through the
+LUT of the state they were rendered at; the target is the held-out frame as the dataset gives it
+(raw, never preprocessed; the clean ground truth for generated scenes). Per held-out view:
+
+- `novel`: the canonical state (`pipeline/photometric_state.py`): what any rendered novel view is.
+- `time`: state(t) of the view's capture position, from the neighbouring training frames.
+- `aligned`: the `novel` render after a per-view least-squares gain + offset fit to the frame
+  (2 numbers per view, the colour-corrected score RawNeRF uses for raw sensor data).
+- `half`: the NeRF-W protocol. From the `time` state, the frame embedding is optimised on the LEFT
+  half of the frame (mapped to the training space through the time state's LUT), then a gain +
+  offset is fitted on the left half; only the RIGHT half is scored. No right-half pixel is read
+  before scoring.
+- `oracle`: the frame's own LUT (from its own histogram) and an embedding optimised on the whole
+  frame: an upper bound of knowing the frame's state. It uses the test pixels: never a headline.
+
+Models without frame embeddings or preprocessing have no state to predict: their `novel`, `time`
+and `oracle` renders are the same image.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Dict, List, Literal, Optional, Sequence, get_args
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 import torch
 
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.model.losses import psnr, ssim
+from thermal_wild_ns.pipeline.photometric_state import (
+    PhotometricState,
+    canonical_state,
+    render,
+    rendering_at,
+    state_at,
+    thermal_output,
+    to_original,
+    to_training_space,
+)
 
-EmbeddingMode = Literal["fixed", "interpolate", "wild"]
-EMBEDDING_MODES = get_args(EmbeddingMode)
-
-
-def interpolated_embedding(weight: torch.Tensor, train_frames: Sequence[int], frame: int) -> torch.Tensor:
-    """Embedding [Df] for capture index `frame`, linear between the nearest training frames
-    before and after it (`weight[k]` belongs to capture index `train_frames[k]`)."""
-    order = np.asarray(train_frames)
-    before, after = np.flatnonzero(order < frame), np.flatnonzero(order > frame)
-    if len(before) == 0 or len(after) == 0:
-        return weight[int(after[0] if len(before) == 0 else before[-1])]
-    lo, hi = int(before[order[before].argmax()]), int(after[order[after].argmin()])
-    t = (frame - order[lo]) / (order[hi] - order[lo])
-    return (1 - t) * weight[lo] + t * weight[hi]
-
-
-def _render(model, camera) -> torch.Tensor:
-    """[H, W, 1] in the model's training space (grey mean of RGB for RGB models)."""
-    outputs = model.get_outputs_for_camera(camera)
-    return outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(dim=-1, keepdim=True)
+PROTOCOLS = ("novel", "time", "aligned", "half", "oracle")
+"""Every protocol `evaluate` scores; `oracle` uses the held-out frame's pixels."""
+CHEAP_PROTOCOLS = ("novel", "time", "aligned")
+"""The protocols that need no optimisation per view (training curves use these)."""
 
 
-def _optimise_on_left_half(model, camera, target: torch.Tensor, steps: int, lr: float) -> torch.Tensor:
-    """The frame embedding that best explains the left half of `target` ([H, W, 1], training space)."""
-    start = model.frame_embed.weight.detach().mean(dim=0)
-    embedding = start.clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
-    optimizer = torch.optim.Adam([embedding], lr=lr)
-    half = target.shape[1] // 2
-    model.embedding_override = embedding
-    for _ in range(steps):
-        optimizer.zero_grad()
-        pred = model.get_outputs(camera)["thermal"]
-        loss = (pred[:, :half] - target[:, :half]).abs().mean()
-        loss.backward()
-        optimizer.step()
-    model.zero_grad(set_to_none=True)  # the Gaussians' gradients from these steps are not training's
-    return embedding.detach()
+def fit_gain_offset(pred: np.ndarray, target: np.ndarray) -> Tuple[float, float]:
+    """Least-squares (a, b) minimising |a pred + b - target|^2 over the pixels given."""
+    p, t = np.asarray(pred, dtype=np.float64).reshape(-1), np.asarray(target, dtype=np.float64).reshape(-1)
+    variance = p.var()
+    if variance <= 1e-20:  # a flat render: only the offset can be fitted
+        return 0.0, float(t.mean())
+    a = float(((p - p.mean()) * (t - t.mean())).mean() / variance)
+    return a, float(t.mean() - a * p.mean())
 
 
-def _scores(pred: np.ndarray, gt: np.ndarray, suffix: str = "") -> Dict[str, float]:
+def scores(pred: np.ndarray, gt: np.ndarray) -> Dict[str, float]:
+    """PSNR and SSIM of two [H, W] images of the dataset-normalised space (data range 1)."""
+
     def tensor(x):
         return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[..., None]
 
-    return {f"psnr{suffix}": float(psnr(tensor(pred), tensor(gt))), f"ssim{suffix}": float(ssim(tensor(pred), tensor(gt), data_range=1.0))}
+    return {"psnr": float(psnr(tensor(pred), tensor(gt))), "ssim": float(ssim(tensor(pred), tensor(gt), data_range=1.0))}
 
 
-def evaluate(
-    pipeline, mode: EmbeddingMode = "fixed", out_dir: Optional[Path] = None, wild_steps: int = 100, wild_lr: float = 1e-2
-) -> Dict:
-    """Mean test-view PSNR/SSIM under the protocol above (per-view rows in `per_view`); with
-    `out_dir`, a PNG per view: target | render | 5x error (inferno, original space)."""
-    if mode not in EMBEDDING_MODES:
-        raise ValueError(f"unknown embedding mode '{mode}' (one of {', '.join(EMBEDDING_MODES)})")
+def fit_embedding(model, camera, target: torch.Tensor, columns: slice, start: torch.Tensor, steps: int, lr: float) -> torch.Tensor:
+    """The frame embedding that best explains `target` ([H, W] training space) within `columns`,
+    by Adam on the L1 loss from `start`. Only those columns of the render enter the loss."""
+    embedding = start.detach().clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
+    optimizer = torch.optim.Adam([embedding], lr=lr)
+    saved = model.embedding_override
+    model.embedding_override = embedding
+    try:
+        with torch.enable_grad():
+            for _ in range(steps):
+                optimizer.zero_grad()
+                pred = thermal_output(model.get_outputs(camera))[..., 0]
+                loss = (pred[:, columns] - target[:, columns]).abs().mean()
+                loss.backward()
+                optimizer.step()
+    finally:
+        model.embedding_override = saved
+        model.zero_grad(set_to_none=True)  # the Gaussians' gradients from these steps are not training's
+    return embedding.detach()
+
+
+def half_protocol(pipeline, camera, left: np.ndarray, state: PhotometricState, steps: int, lr: float) -> np.ndarray:
+    """The NeRF-W prediction of a whole view [H, W] (original space) from its LEFT half only
+    (`left`, [H, W // 2] original space): the embedding fitted on the left half from `state`, then
+    a gain + offset fitted on the left half. The right half is never given, so it cannot be read."""
+    model = pipeline.model
+    cols = left.shape[1]
+    if state.embedding is not None and steps > 0:
+        target = torch.from_numpy(to_training_space(pipeline, left, state)).to(model.device)
+        width = int(camera.width.reshape(-1)[0])
+        padded = torch.zeros((target.shape[0], width), device=model.device)
+        padded[:, :cols] = target
+        embedding = fit_embedding(model, camera, padded, slice(0, cols), state.embedding, steps, lr)
+        state = PhotometricState(state.label + "+left-half", embedding, state.lut)
+    _, pred = render(pipeline, camera, state)
+    a, b = fit_gain_offset(pred[:, :cols], left)
+    return (a * pred + b).astype(np.float32)
+
+
+def oracle_state(pipeline, camera, frame: int, gt: np.ndarray, start: PhotometricState, steps: int, lr: float) -> PhotometricState:
+    """The held-out frame's own state, fitted on ALL its pixels (an upper bound, never a headline):
+    its own LUT, and the embedding optimised on the whole frame."""
+    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    lut = None if sequence is None else sequence.oracle_lut(frame)
+    state = PhotometricState(f"oracle:{frame}", start.embedding, lut)
+    if state.embedding is not None and steps > 0:
+        target = torch.from_numpy(to_training_space(pipeline, gt, state)).to(pipeline.model.device)
+        state = PhotometricState(state.label, fit_embedding(pipeline.model, camera, target, slice(None), state.embedding, steps, lr), lut)
+    return state
+
+
+def evaluate(pipeline, out_dir: Optional[Path] = None, protocols=PROTOCOLS, fit_steps: int = 100, fit_lr: float = 1e-2) -> Dict:
+    """Mean held-out PSNR/SSIM under each protocol (`psnr_novel`, `ssim_time`, ...; per-view rows in
+    `per_view`). With `out_dir`, a PNG per view: target | `time` render | 5x error (inferno)."""
+    unknown = set(protocols) - set(PROTOCOLS)
+    if unknown:
+        raise ValueError(f"unknown protocol(s) {sorted(unknown)} (one of {', '.join(PROTOCOLS)})")
     model, datamanager = pipeline.model, pipeline.datamanager
-    sequence = getattr(datamanager, "preprocessed", None)
     dataset = datamanager.eval_dataset
-    train_frames: List[int] = list(datamanager.train_dataset.metadata["frame_indices"])
-    has_embedding = hasattr(model, "frame_embed") and (model.emission_mlp is not None or model.background_mlp is not None)
     pipeline.eval()
     rows = []
     for i, (camera, batch) in enumerate(datamanager.fixed_indices_eval_dataloader):
-        image_idx = int(batch["image_idx"])
-        frame = int(dataset.metadata["frame_indices"][image_idx])
-        if has_embedding and mode == "interpolate":
-            model.embedding_override = interpolated_embedding(model.frame_embed.weight.detach(), train_frames, frame)
-        elif has_embedding and mode == "wild":
-            target = batch["image"].to(model.device)
-            with torch.enable_grad():
-                model.embedding_override = _optimise_on_left_half(model, camera, target, wild_steps, wild_lr)
-        try:
-            with torch.no_grad():
-                rendered = _render(model, camera)[..., 0].float().cpu().numpy()
-        finally:
-            if has_embedding:
-                model.embedding_override = None
-        training_space_gt = batch["image"].float().mean(dim=-1).cpu().numpy()  # what the model was trained on
-        # the evaluation frame as cached (undistorted like the render), back in the original space
-        to_original = (lambda x: x) if sequence is None else (lambda x: sequence.to_original_normalised(x, frame).astype(np.float32))
-        gt, pred = to_original(training_space_gt), to_original(rendered)
-        if mode == "wild":  # score only what the embedding did not see
+        frame = int(dataset.metadata["frame_indices"][int(batch["image_idx"])])
+        gt = batch["image"].float().mean(dim=-1).cpu().numpy()  # raw held-out frame, original space
+        row: Dict[str, float] = {"frame": frame}
+        novel = None
+        if {"novel", "aligned"} & set(protocols):
+            _, novel = render(pipeline, camera, canonical_state(pipeline))
+        time_state = state_at(pipeline, frame)
+        if "novel" in protocols:
+            row.update({f"{k}_novel": v for k, v in scores(novel, gt).items()})
+        if "time" in protocols or out_dir is not None:
+            _, timed = render(pipeline, camera, time_state)
+            row.update({f"{k}_time": v for k, v in scores(timed, gt).items()})
+            if out_dir is not None:
+                _write_panel(out_dir / f"test_{i:02d}.png", gt, timed)
+        if "aligned" in protocols:
+            a, b = fit_gain_offset(novel, gt)
+            row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt).items()})
+        if "half" in protocols:
             half = gt.shape[1] // 2
-            pred, gt, rendered, training_space_gt = (x[:, half:] for x in (pred, gt, rendered, training_space_gt))
-        row = {"frame": frame, **_scores(pred, gt)}
-        if sequence is not None:
-            row.update(_scores(rendered, training_space_gt, "_preprocessed"))
-            row.update(_scores(datamanager.novel_view_to_original(rendered), gt, "_median_lut"))  # per pixel: the median training LUT
+            pred = half_protocol(pipeline, camera, gt[:, :half].copy(), time_state, fit_steps, fit_lr)
+            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], gt[:, half:]).items()})
+        if "oracle" in protocols:
+            state = oracle_state(pipeline, camera, frame, gt, time_state, fit_steps, fit_lr)
+            _, pred = render(pipeline, camera, state)
+            row.update({f"{k}_oracle": v for k, v in scores(pred, gt).items()})
         rows.append(row)
-        if out_dir is not None:
-            _write_panel(out_dir / f"test_{i:02d}_{mode}.png", gt, pred)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}
-    return {**summary, "mode": mode, "per_view": rows, "gaussians": int(model.num_points)}
+    return {**summary, "per_view": rows, "gaussians": int(model.num_points)}
 
 
 def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
@@ -133,12 +170,11 @@ def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     cv2.imwrite(str(path), cv2.resize(panel, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
 
 
-def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -> Dict:
+def evaluate_path(pipeline, scene_root: Path, keep_frames=()) -> Dict:
     """Renders along a generated scene's smooth camera path (`transforms.json` "path": clean views
-    with true depth) with the fixed embedding, scored with the stability measures. Preprocessed
-    renders are mapped back through the median training LUT (no frame was captured there).
-    Returns the means, the flicker measures, and the renders and ground truth at `keep_frames`
-    (original space; `kept`, `kept_truth`)."""
+    with true depth) at the canonical state, scored with the stability measures. Returns the means,
+    the flicker measures, and the renders and ground truth at `keep_frames` (original space;
+    `kept`, `kept_truth`)."""
     import json
 
     from nerfstudio.cameras.cameras import Cameras, CameraType
@@ -154,6 +190,7 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
     reference = datamanager.train_dataset.cameras[0]
     rng = datamanager.train_dataset.thermal_range
     pipeline.eval()
+    canonical = canonical_state(pipeline)
     preds, gts, rows, kept, kept_truth = [], [], [], {}, {}
     for k, view in enumerate(meta["path"]):
         c2w = torch.tensor(view["transform_matrix"], dtype=torch.float32)
@@ -163,16 +200,15 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames: Sequence[int] = ()) -
             camera_to_worlds=c2w[None], fx=reference.fx[None], fy=reference.fy[None], cx=reference.cx[None], cy=reference.cy[None],
             width=reference.width[None], height=reference.height[None], camera_type=CameraType.PERSPECTIVE,
         ).to(model.device)
-        with torch.no_grad():
+        with rendering_at(model, canonical), torch.no_grad():
             outputs = model.get_outputs_for_camera(camera)
-        pred = (outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(-1, keepdim=True))[..., 0].float().cpu().numpy()
-        pred = datamanager.novel_view_to_original(pred)
+        pred = to_original(pipeline, thermal_output(outputs)[..., 0].float().cpu().numpy(), canonical)
         gt = rng.read(Path(scene_root) / view["file_path"])
         true_depth = load_npy(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's
         depth = outputs["depth"][..., 0].float().cpu().numpy()
         alpha = outputs["accumulation"][..., 0].float().cpu().numpy()
         rows.append({
-            **_scores(pred, gt),
+            **scores(pred, gt),
             "floater_fraction": floater_fraction(depth, alpha, true_depth),
             "visible_floater_fraction": visible_floater_fraction(depth, alpha, true_depth, pred, gt, 0.1),
             "error_exceedance": error_exceedance(pred, gt, 0.1),

@@ -39,9 +39,9 @@ class ThermalDataset(InputDataset):
 
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
         sequence: Optional[PreprocessedSequence] = self.metadata.get("preprocessed")
-        if sequence is not None:
-            image = sequence.read_frame(self.frame_index(image_idx), self.metadata["is_ground_truth"][image_idx])
-        else:
+        if sequence is not None:  # training frames of preprocessed methods
+            image = sequence.read_frame(self.frame_index(image_idx))
+        else:  # raw frames (held-out views are always read raw: they are never preprocessed)
             image = self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx])
         if self.scale_factor != 1.0:
             import cv2
@@ -96,23 +96,19 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
 
     @cached_property
     def preprocessed(self) -> Optional[PreprocessedSequence]:
-        """LUTs and processed frames (None for variant 'none'); `to_original_normalised` maps renders back."""
+        """LUTs and processed training frames (None for variant 'none'). Only training frames shape
+        the stabilization reference; held-out frames are never preprocessed for training or scoring."""
         if self.config.preprocessing.variant == "none":
             return None
         capture = self.dataparser.capture()
-        return preprocess(capture.frames, self.dataparser.radiometric_range(), self.config.preprocessing, self.config.preprocessing_cache)
+        train = set(self.train_dataparser_outputs.metadata["frame_indices"])
+        return preprocess(
+            capture.frames, self.dataparser.radiometric_range(), self.config.preprocessing, self.config.preprocessing_cache,
+            train=[t in train for t in range(len(capture.frames))],
+        )
 
-    def novel_view_to_original(self, values: np.ndarray) -> np.ndarray:
-        """Renders of views where no frame was captured (paths, the viewer's colour bar, exports),
-        from the training space back to the dataset-normalised original space: through the median
-        training LUT when the frames were preprocessed."""
-        sequence = self.preprocessed
-        if sequence is None:
-            return values
-        return sequence.to_original_normalised(values, list(self.train_dataset.metadata["frame_indices"])).astype(np.float32)
-
-    def _with_preprocessing(self, outputs: DataparserOutputs) -> DataparserOutputs:
-        outputs.metadata["preprocessed"] = self.preprocessed
+    def _with_metadata(self, outputs: DataparserOutputs, preprocessed: bool) -> DataparserOutputs:
+        outputs.metadata["preprocessed"] = self.preprocessed if preprocessed else None
         outputs.metadata["grey_rgb"] = self.config.grey_rgb
         return outputs
 
@@ -137,10 +133,10 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
         return camera, data
 
     def create_train_dataset(self) -> ThermalDataset:
-        return ThermalDataset(self._with_preprocessing(self.train_dataparser_outputs), scale_factor=self.config.camera_res_scale_factor)
+        return ThermalDataset(self._with_metadata(self.train_dataparser_outputs, True), scale_factor=self.config.camera_res_scale_factor)
 
     def create_eval_dataset(self) -> ThermalDataset:
-        outputs = self._with_preprocessing(self.dataparser.get_dataparser_outputs(split=self.test_split))
+        outputs = self._with_metadata(self.dataparser.get_dataparser_outputs(split=self.test_split), False)
         return ThermalDataset(outputs, scale_factor=self.config.camera_res_scale_factor)
 
     def _load_images(self, split, cache_images_device):

@@ -117,7 +117,7 @@ class ThermalDataParser(DataParser):
         return self._capture
 
     def radiometric_range(self) -> RadiometricRange:
-        """Dataset-level range: declared by the dataset or measured over every frame, once."""
+        """Dataset-level range: declared by the dataset or measured over the training frames, once."""
         if self._range is None:
             capture = self.capture()
             palette = None if self.config.palette == "auto" else self.config.palette
@@ -127,6 +127,7 @@ class ThermalDataParser(DataParser):
                 declared=capture.declared_range,
                 palette=palette or capture.palette,
                 percentiles=self.config.range_percentiles,
+                measure=[f.split != "test" for f in capture.frames],  # held-out pixels never set the scale
             )
         return self._range
 

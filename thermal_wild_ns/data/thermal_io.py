@@ -137,6 +137,7 @@ def scan_frames(
     declared: Optional[RadiometricRange] = None,
     palette: Optional[str] = None,
     percentiles: Tuple[float, float] = (0.1, 99.9),
+    measure: Optional[Sequence[bool]] = None,
 ) -> RadiometricRange:
     """Read every frame once: check it, and measure the dataset-level range unless one is declared.
 
@@ -146,13 +147,19 @@ def scan_frames(
     frames (integers histogrammed exactly, floats sampled on a strided grid). Frames with more than
     `OUT_OF_RANGE_SHARE` of their pixels outside the range (declared or measured) are named in a
     warning: preprocessing clips those pixels, and a frame mostly outside the range is saturated.
+    `measure[i]`: whether frame i counts towards the measured range and the palette detection
+    (default: all). The dataparser passes the training frames: a held-out frame's pixels must not
+    shape the scale the model trains in.
     """
     if not paths:
         raise ValueError("No thermal frames to read")
     if palette is None and declared is not None:
         palette = declared.palette
+    measure = [True] * len(paths) if measure is None else list(measure)
+    if not any(measure):
+        raise ValueError(f"{Path(paths[0]).parent}: no frames to measure the radiometric range from")
     if palette is None:
-        palette = frame_palette(paths[0])
+        palette = frame_palette(paths[measure.index(True)])
     dtype = None
     hist = None
     samples = []
@@ -167,13 +174,15 @@ def scan_frames(
             raise ValueError(f"{path}: image is {raw.shape[1]}x{raw.shape[0]} but its camera says {sizes[i][0]}x{sizes[i][1]}")
         if raw.dtype in (np.uint8, np.uint16):
             counts = np.bincount(raw.reshape(-1), minlength=1 << (8 * raw.dtype.itemsize))
-            hist = counts if hist is None else hist + counts
+            if measure[i]:
+                hist = counts if hist is None else hist + counts
             cdf = np.cumsum(counts) / raw.size
             tails.append((float(np.searchsorted(cdf, OUT_OF_RANGE_SHARE)), float(np.searchsorted(cdf, 1.0 - OUT_OF_RANGE_SHARE))))
         else:
             if not np.all(np.isfinite(raw)):
                 raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
-            samples.append(raw.reshape(-1)[:: max(1, raw.size // 65536)])
+            if measure[i]:
+                samples.append(raw.reshape(-1)[:: max(1, raw.size // 65536)])
             tails.append(tuple(float(v) for v in np.quantile(raw, [OUT_OF_RANGE_SHARE, 1.0 - OUT_OF_RANGE_SHARE])))
     if declared is not None:
         if declared.dtype != str(np.dtype(dtype)):

@@ -38,18 +38,21 @@ def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
 
 
 def thermal_values(pipeline) -> np.ndarray:
-    """Baked emission of every Gaussian in the dataset's native units [N]."""
+    """Baked emission of every Gaussian at the canonical state, in the dataset's native units [N]."""
+    from thermal_wild_ns.pipeline.photometric_state import canonical_state, rendering_at, to_original
+
     model, datamanager = pipeline.model, pipeline.datamanager
-    with torch.no_grad():
+    state = canonical_state(pipeline)
+    with rendering_at(model, state), torch.no_grad():
         emission = model.gaussian_emission(model.inference_embedding())[:, 0].float().cpu().numpy()
-    return datamanager.train_dataset.thermal_range.to_native(datamanager.novel_view_to_original(emission)).astype(np.float32)
+    return datamanager.train_dataset.thermal_range.to_native(to_original(pipeline, emission, state)).astype(np.float32)
 
 
 def header_comments(pipeline) -> List[str]:
     rng = pipeline.datamanager.train_dataset.thermal_range
     lines = [
         f"frame_embedding {pipeline.model.config.inference_embedding} (the emission MLP was baked with this frame embedding)",
-        f"thermal: baked emission in native units ({rng.dtype}), through the median training LUT",
+        f"thermal: baked emission in native units ({rng.dtype}) at the canonical photometric state (median training LUT)",
         "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",
         f"native_range {rng.low:g} {rng.high:g}",
     ]

@@ -141,8 +141,15 @@ class WildThermalModel(SplatfactoModel):
 
         num_frames = max(self.num_train_data, 1)
         self.frame_embed = nn.Embedding(num_frames, cfg.frame_embed_dim)
+        indices = self.kwargs.get("metadata", {}).get("frame_indices")
+        self.frame_times: List[float] = [float(t) for t in indices] if indices is not None else [float(k) for k in range(num_frames)]
+        """Capture position (capture-order frame index) of each training image, i.e. of each row of
+        `frame_embed`: the time axis along which the photometric state is interpolated."""
         self.embedding_override: Optional[Tensor] = None
         """Frame embedding [Df] to render with outside training, instead of `inference_embedding`."""
+        self.capture_time: Optional[float] = None
+        """Render outside training at the photometric state of this capture position (the viewer's
+        capture-time slider) instead of the canonical `inference_embedding`."""
         self.last_train_loss: Optional[Tensor] = None  # read by the divergence guard (training/guard.py) ...
         self.last_train_frame: Optional[int] = None  # ... with the image it came from
         self.skip_densification_step = False  # ... which sets this when it skips a step
@@ -186,41 +193,54 @@ class WildThermalModel(SplatfactoModel):
 
     def _add_viewer_controls(self, num_frames: int) -> None:
         """ns-viewer finds these on the model and shows them under "Custom Elements": the colormap,
-        the frame embedding to render with, and the colour bar in the data's units."""
-        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerText
+        the photometric state to render with (canonical, or any capture time on a slider), and the
+        colour bar in the data's units at that state."""
+        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerSlider, ViewerText
 
         def set_colormap(element):
             self.config.colormap = element.value
 
-        def set_embedding(element):
-            self.config.inference_embedding = element.value
+        def set_state(_element):
+            self.capture_time = float(self.viewer_time.value) if self.viewer_state.value == "capture time" else None
+            if self.on_photometric_state_change is not None:
+                self.on_photometric_state_change()
 
+        self.on_photometric_state_change = None
+        """Called after the viewer changes the state (the pipeline updates the colour bar)."""
         self.viewer_colormap = ViewerDropdown(
             "Thermal colormap", self.config.colormap, ["iron", "inferno", "grey"], cb_hook=set_colormap, hint="colours of the rgb output"
         )
-        choices = ["mean", "zero", *(str(i) for i in range(num_frames))]
-        default = self.config.inference_embedding if self.config.inference_embedding in choices else "mean"
-        self.viewer_embedding = ViewerDropdown(
-            "Frame embedding", default, choices, cb_hook=set_embedding,
-            hint="mean of the training frames' embeddings (the inference default), zero, or one training frame's",
+        self.viewer_state = ViewerDropdown(
+            "Photometric state", "canonical", ["canonical", "capture time"], cb_hook=set_state,
+            hint="canonical: the state every novel view renders with; capture time: the sensor's state at the slider's position",
+        )
+        first, last = min(self.frame_times), max(self.frame_times)
+        self.viewer_time = ViewerSlider(
+            "Capture time", first, first, max(last, first + 1e-3), step=0.1, cb_hook=set_state,
+            hint="capture position (frame index); between training frames the state is interpolated",
         )
         self.viewer_colour_bar = ViewerText("Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap")
         self.viewer_control = _OnViewerConnect(  # the viewer opens looking at the scene, not from an arbitrary pose
-            lambda client: self._look_through_training_camera(self.viewer_embedding.value, client)
+            lambda client: self._look_through_training_camera(self._nearest_training_image(), client)
         )
         self.viewer_go_to_frame = ViewerButton(
-            "Look through the chosen frame's camera", cb_hook=lambda _: self._look_through_training_camera(self.viewer_embedding.value)
+            "Look through the nearest training camera", cb_hook=lambda _: self._look_through_training_camera(self._nearest_training_image())
         )
 
-    def _look_through_training_camera(self, choice: str, client=None) -> None:
-        """Put a viewer client (default: all) at a training camera, the chosen frame's or else the
-        first one, as clicking its frustum does."""
+    def _nearest_training_image(self) -> int:
+        """The training image closest in capture time to the viewer's state (the first one when canonical)."""
+        if self.capture_time is None:
+            return 0
+        return min(range(len(self.frame_times)), key=lambda k: abs(self.frame_times[k] - self.capture_time))
+
+    def _look_through_training_camera(self, image: int, client=None) -> None:
+        """Put a viewer client (default: all) at training image `image`'s camera (or else the first
+        one), as clicking its frustum does."""
         viewer = getattr(self.viewer_control, "viewer", None)
         handles = getattr(viewer, "camera_handles", None)
         if not handles:
             return
-        handle = handles.get(int(choice), None) if choice.isdigit() else None
-        handle = handle or handles[min(handles)]
+        handle = handles.get(image) or handles[min(handles)]
         import numpy as np
         import viser.transforms as vtf
 
@@ -286,19 +306,37 @@ class WildThermalModel(SplatfactoModel):
             return weight[int(camera.metadata["cam_idx"])]
         return self.inference_embedding()
 
+    @property
+    def uses_frame_embedding(self) -> bool:
+        """Whether renders depend on the frame embedding (through either MLP)."""
+        return self.emission_mlp is not None or self.background_mlp is not None
+
+    def embedding_at(self, t: float) -> Tensor:
+        """The frame embedding [Df] at capture position `t`: linear between the neighbouring
+        training frames' embeddings, exactly a training frame's own at its position."""
+        from thermal_wild_ns.preprocessing.photometric import time_weights
+
+        i, j, w = time_weights(self.frame_times, t)
+        weight = self.frame_embed.weight  # [F, Df]
+        return weight[i] if w == 0.0 else (1.0 - w) * weight[i] + w * weight[j]
+
     def inference_embedding(self) -> Tensor:
         """The frame embedding [Df] used outside training: `embedding_override` when set (evaluation
-        protocols), otherwise the configured `inference_embedding`. Outside autograd the same tensor
-        is returned until the embeddings change, so the baked emission keyed on it stays valid."""
+        protocols, `wild-thermal-render --photometric-state`), else the state at `capture_time`
+        when set (the viewer), else the configured canonical `inference_embedding`. Outside
+        autograd the same tensor is returned until the embeddings change, so the baked emission
+        keyed on it stays valid."""
         weight = self.frame_embed.weight  # [F, Df]
-        if self.embedding_override is not None:  # set by evaluation protocols (interpolated / optimised)
+        if self.embedding_override is not None:
             return self.embedding_override
-        choice = self.config.inference_embedding
+        choice = self.config.inference_embedding if self.capture_time is None else f"time:{self.capture_time}"
         cached = getattr(self, "_inference_embedding", None)
         key = (choice, self.step, weight._version)  # the step: fused Adam does not bump tensor versions
         if cached is not None and cached[0] == key and cached[1] is weight:
             return cached[2]
-        if choice == "mean":
+        if self.capture_time is not None:
+            value = self.embedding_at(self.capture_time)
+        elif choice == "mean":
             value = weight.mean(dim=0)
         elif choice == "zero":
             value = torch.zeros_like(weight[0])

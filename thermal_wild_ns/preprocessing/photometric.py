@@ -25,7 +25,7 @@ sequence beyond the LUTs themselves.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Iterator, Literal, Optional, get_args
+from typing import Iterable, Iterator, Literal, Optional, Sequence, Tuple, get_args
 
 import numpy as np
 
@@ -161,11 +161,20 @@ class PhotometricConfig:
 
 
 def frame_luts(
-    frames: Iterable[np.ndarray], grid: LevelGrid, low: float, high: float, config: PhotometricConfig
+    frames: Iterable[np.ndarray],
+    grid: LevelGrid,
+    low: float,
+    high: float,
+    config: PhotometricConfig,
+    in_reference: Optional[Sequence[bool]] = None,
 ) -> Iterator[np.ndarray]:
     """One LUT per frame (float64 [num_levels], native values), streaming in capture order.
 
     `low`/`high`: the dataset's radiometric range in native values (the equalization target).
+    `in_reference[t]`: whether frame t updates the stabilization reference (default: every frame).
+    Held-out frames must not: their histograms would shape the LUTs of the training frames after
+    them. Such a frame still gets a LUT, from its own histogram and the reference of the training
+    frames before it; only an oracle may use it (it is built from the frame's own pixels).
     """
     reference: Optional[np.ndarray] = None
     lo, hi = (low - grid.offset) / grid.step, (high - grid.offset) / grid.step  # in levels
@@ -178,8 +187,10 @@ def frame_luts(
         hist = histogram(grid.levels(frame), grid.num_levels)
         cdf = cdf_of(hist)
         if config.variant in ("stab", "stab+bbhe"):
-            reference = cdf if reference is None else (1.0 - config.alpha) * reference + config.alpha * cdf
-            mapped = stabilize_mapping(cdf, reference, config.beta)
+            if in_reference is None or in_reference[t]:
+                reference = cdf if reference is None else (1.0 - config.alpha) * reference + config.alpha * cdf
+            # a held-out frame before the first training frame has no reference yet: its own CDF (identity)
+            mapped = stabilize_mapping(cdf, cdf if reference is None else reference, config.beta)
         else:
             mapped = identity
         if config.equalizes:
@@ -199,3 +210,35 @@ def invert_lut(lut: np.ndarray, values: np.ndarray, grid: LevelGrid) -> np.ndarr
     """Processed values -> original native values (the LUT is strictly increasing; values
     outside its range clamp to the end levels)."""
     return grid.values(np.interp(values, lut, np.arange(len(lut), dtype=np.float64)))
+
+
+def time_weights(times: Sequence[float], t: float) -> Tuple[int, int, float]:
+    """Where capture position `t` falls among the increasing capture positions `times` (of the
+    training frames): (i, j, w) such that a per-frame quantity x at t is (1 - w) x[i] + w x[j].
+    At a training frame's own position i == j and w == 0, so its state is returned exactly;
+    before the first or after the last training frame, the nearest one's state (no extrapolation)."""
+    times = np.asarray(times, dtype=np.float64)
+    if len(times) == 0:
+        raise ValueError("no training frames to interpolate between")
+    if not np.all(np.diff(times) > 0):
+        raise ValueError("training frame positions must be strictly increasing")
+    if not np.isfinite(t):
+        raise ValueError(f"capture position must be finite, got {t}")
+    j = int(np.searchsorted(times, t, side="left"))
+    if j < len(times) and times[j] == t:
+        return j, j, 0.0
+    if j == 0:
+        return 0, 0, 0.0
+    if j == len(times):
+        return j - 1, j - 1, 0.0
+    return j - 1, j, float((t - times[j - 1]) / (times[j] - times[j - 1]))
+
+
+def blend_luts(lut_a: np.ndarray, lut_b: np.ndarray, weight: float) -> np.ndarray:
+    """Level-by-level blend (1 - w) a + w b of two LUTs: strictly increasing when both are (a convex
+    combination of increasing functions), so the blend has an exact inverse too."""
+    if weight == 0.0:
+        return lut_a
+    if not 0.0 <= weight <= 1.0:
+        raise ValueError(f"blend weight must be in [0, 1], got {weight}")
+    return (1.0 - weight) * lut_a + weight * lut_b

@@ -1,11 +1,16 @@
 """The preprocessing stage: run the photometric LUTs over a capture once, cache the result.
 
-Frames are processed in capture order (train and held-out frames alike: they are one sensor
-stream). The cache folder, keyed by the frames' files, the radiometric range and the parameters,
-holds `luts.npy` ([T, levels] float64, memory-mapped when read back), the processed frames
-(normalised float32 `.npy`, no 8-bit re-quantisation) and a `meta.json`; it is written to a
-temporary folder and renamed into place, so it is never half-written and is rebuilt when the
-data or parameters change.
+Frames are processed in capture order. Only training frames update the stabilization reference
+and only their processed frames are stored: a held-out frame never shapes what the model trains
+on. Each held-out frame still gets a LUT from its own histogram, kept apart as an oracle
+(`oracle_lut`): it is built from that frame's pixels, so a leak-free score never uses it. A
+held-out or novel view's leak-free LUT is `lut_at(t)`, interpolated from the training frames.
+
+The cache folder, keyed by the frames' files, the split, the radiometric range and the parameters,
+holds `luts.npy` ([T, levels] float64, memory-mapped when read back), the processed training
+frames (normalised float32 `.npy`, no 8-bit re-quantisation) and a `meta.json`; it is written to
+a temporary folder and renamed into place, so it is never half-written and is rebuilt when the
+data, split or parameters change.
 """
 
 from __future__ import annotations
@@ -15,70 +20,105 @@ import json
 import shutil
 import tempfile
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Union
+from typing import List, Optional, Sequence
 
 import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
 from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, publish_cache_folder, read_raw_frame
-from thermal_wild_ns.preprocessing.photometric import LevelGrid, PhotometricConfig, apply_lut, frame_luts, invert_lut
+from thermal_wild_ns.preprocessing.photometric import (
+    LevelGrid,
+    PhotometricConfig,
+    apply_lut,
+    blend_luts,
+    frame_luts,
+    invert_lut,
+    time_weights,
+)
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 @dataclass
 class PreprocessedSequence:
-    """LUTs and processed frames of one capture (index = capture-order frame index)."""
+    """LUTs and processed training frames of one capture (index = capture-order frame index)."""
 
     folder: Path
     grid: LevelGrid
     radiometric_range: RadiometricRange
     config: PhotometricConfig
-    _median_luts: Dict[tuple, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+    _median: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+
+    @cached_property
+    def train_indices(self) -> List[int]:
+        """Capture indices of the training frames (increasing): the frames whose LUTs are a state."""
+        return json.loads((self.folder / "meta.json").read_text())["train_indices"]
 
     @property
     def luts(self) -> np.ndarray:
-        """[T, levels] float64 native values (memory-mapped)."""
+        """[T, levels] float64 native values (memory-mapped); held-out rows are oracle LUTs."""
         return load_npy(self.folder / "luts.npy", mmap_mode="r")
 
-    def frame_path(self, index: int, ground_truth: bool = False) -> Path:
-        return self.folder / ("ground_truth" if ground_truth else "frames") / f"{index:05d}.npy"
+    def frame_path(self, index: int) -> Path:
+        return self.folder / "frames" / f"{index:05d}.npy"
 
-    def read_frame(self, index: int, ground_truth: bool = False) -> np.ndarray:
-        """Processed frame `index` ([H, W] float32, normalised; thread-safe)."""
-        return load_npy(self.frame_path(index, ground_truth))
+    def read_frame(self, index: int) -> np.ndarray:
+        """Processed training frame `index` ([H, W] float32, normalised; thread-safe)."""
+        if index not in set(self.train_indices):
+            raise KeyError(f"frame {index} is held out: only training frames are preprocessed")
+        return load_npy(self.frame_path(index))
 
-    def lut(self, index: Union[int, Sequence[int]]) -> np.ndarray:
-        """Frame `index`'s LUT, or the level-wise median of several frames' LUTs: a canonical scale
-        for a view no frame was captured at. The median of strictly increasing LUTs is strictly
-        increasing, and one photometric outlier frame cannot move it; on the outlier stress scene the
-        mean alone capped a novel view at 36.5 dB, the median gives 46.6 (tests/test_preprocessing.py).
-        Computed once per set."""
-        if isinstance(index, int):
-            return np.asarray(self.luts[index])
-        key = tuple(index)
-        if key not in self._median_luts:
-            self._median_luts[key] = np.median(np.asarray(self.luts[list(key)]), axis=0)
-        return self._median_luts[key]
+    def lut(self, index: int) -> np.ndarray:
+        """Training frame `index`'s LUT."""
+        if index not in set(self.train_indices):
+            raise KeyError(
+                f"frame {index} is held out: its own LUT is built from its pixels (oracle_lut); "
+                "a leak-free LUT for it is lut_at(index)"
+            )
+        return np.asarray(self.luts[index])
 
-    def to_native(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
-        """Processed values in the normalised scale -> original native values, through `lut(index)`'s inverse."""
-        return invert_lut(self.lut(index), self.radiometric_range.to_native(normalised), self.grid)
+    def oracle_lut(self, index: int) -> np.ndarray:
+        """A held-out frame's LUT from its own histogram: an upper bound that uses the frame's
+        pixels, never part of a leak-free score."""
+        return np.asarray(self.luts[index])
 
-    def to_original_normalised(self, normalised: np.ndarray, index: Union[int, Sequence[int]]) -> np.ndarray:
-        """Processed values -> the dataset-normalised ORIGINAL scale (where raw frames live)."""
-        return self.radiometric_range.normalize(self.to_native(normalised, index))
+    def lut_at(self, t: float) -> np.ndarray:
+        """The LUT at capture position `t`: level by level between the neighbouring training
+        frames' LUTs (exactly a training frame's own at its index), strictly increasing."""
+        i, j, w = time_weights(self.train_indices, t)
+        luts = self.luts
+        return blend_luts(np.asarray(luts[self.train_indices[i]]), np.asarray(luts[self.train_indices[j]]), w)
+
+    def median_lut(self) -> np.ndarray:
+        """Level-wise median of the training frames' LUTs: a canonical scale for a view no frame was
+        captured at. The median of strictly increasing LUTs is strictly increasing, and one
+        photometric outlier frame cannot move it (tests/test_preprocessing.py). Computed once."""
+        if self._median is None:
+            self._median = np.median(np.asarray(self.luts[self.train_indices]), axis=0)
+        return self._median
+
+    def to_original_normalised(self, normalised: np.ndarray, lut: np.ndarray) -> np.ndarray:
+        """Processed values (normalised training space) -> the dataset-normalised ORIGINAL scale
+        (where raw frames live), through `lut`'s inverse."""
+        rng = self.radiometric_range
+        return rng.normalize(invert_lut(lut, rng.to_native(normalised), self.grid))
+
+    def to_processed_normalised(self, normalised: np.ndarray, lut: np.ndarray) -> np.ndarray:
+        """Original values (dataset-normalised) -> the training space, through `lut` (linear
+        between levels): what a frame at that state would have been preprocessed to."""
+        rng, grid = self.radiometric_range, self.grid
+        levels = (rng.to_native(np.asarray(normalised, dtype=np.float64)) - grid.offset) / grid.step
+        return rng.normalize(np.interp(levels, np.arange(grid.num_levels, dtype=np.float64), lut))
 
 
-def _key(frames: Sequence[ThermalFrame], rng: RadiometricRange, config: PhotometricConfig) -> str:
-    h = hashlib.sha256(json.dumps({"v": CACHE_VERSION, "range": asdict(rng), "config": asdict(config)}, sort_keys=True).encode())
+def _key(frames: Sequence[ThermalFrame], train: Sequence[bool], rng: RadiometricRange, config: PhotometricConfig) -> str:
+    h = hashlib.sha256(json.dumps({"v": CACHE_VERSION, "range": asdict(rng), "config": asdict(config), "train": list(train)}, sort_keys=True).encode())
     for f in frames:
-        for path in (f.image, f.ground_truth):
-            if path is not None:
-                stat = path.stat()
-                h.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+        stat = f.image.stat()
+        h.update(f"{f.image.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
     return h.hexdigest()[:16]
 
 
@@ -89,10 +129,23 @@ def _checked(path: Path, palette: Optional[str]) -> np.ndarray:
     return frame
 
 
-def preprocess(frames: List[ThermalFrame], rng: RadiometricRange, config: PhotometricConfig, cache_root: Path) -> PreprocessedSequence:
-    """LUTs + processed frames for `frames` (capture order), from the cache when up to date."""
+def preprocess(
+    frames: List[ThermalFrame],
+    rng: RadiometricRange,
+    config: PhotometricConfig,
+    cache_root: Path,
+    train: Optional[Sequence[bool]] = None,
+) -> PreprocessedSequence:
+    """LUTs for `frames` (capture order) and the processed training frames, from the cache when up
+    to date. `train[t]`: whether frame t is a training frame (default: all are, as for diagnostics
+    of a whole capture); the others never touch the stabilization reference."""
+    train = [True] * len(frames) if train is None else [bool(x) for x in train]
+    if len(train) != len(frames):
+        raise ValueError(f"{len(train)} training flags for {len(frames)} frames")
+    if not any(train):
+        raise ValueError("no training frames to preprocess")
     grid = LevelGrid.for_dtype(rng.dtype, rng.low, rng.high)
-    folder = Path(cache_root) / f"preprocessed-{_key(frames, rng, config)}"
+    folder = Path(cache_root) / f"preprocessed-{_key(frames, train, rng, config)}"
     sequence = PreprocessedSequence(folder, grid, rng, config)
     if (folder / "meta.json").is_file():
         return sequence
@@ -100,7 +153,6 @@ def preprocess(frames: List[ThermalFrame], rng: RadiometricRange, config: Photom
     work = Path(tempfile.mkdtemp(prefix=".preprocessing-", dir=cache_root))
     try:
         (work / "frames").mkdir()
-        (work / "ground_truth").mkdir()
         luts = np.lib.format.open_memmap(work / "luts.npy", mode="w+", dtype=np.float64, shape=(len(frames), grid.num_levels))
         current: List[np.ndarray] = []  # the frame frame_luts is on: each file is read once
 
@@ -109,16 +161,20 @@ def preprocess(frames: List[ThermalFrame], rng: RadiometricRange, config: Photom
                 current[:] = [_checked(f.image, rng.palette)]
                 yield current[0]
 
-        stream = frame_luts(raw_frames(), grid, rng.low, rng.high, config)
-        for t, (frame, lut) in enumerate(tqdm(zip(frames, stream), total=len(frames), desc=f"Preprocessing ({config.variant})")):
+        stream = frame_luts(raw_frames(), grid, rng.low, rng.high, config, in_reference=train)
+        for t, lut in enumerate(tqdm(stream, total=len(frames), desc=f"Preprocessing ({config.variant})")):
             luts[t] = lut
-            np.save(work / "frames" / f"{t:05d}.npy", rng.normalize(apply_lut(lut, current[0], grid)))
-            if frame.ground_truth is not None:
-                gt = apply_lut(lut, _checked(frame.ground_truth, rng.palette), grid)
-                np.save(work / "ground_truth" / f"{t:05d}.npy", rng.normalize(gt))
+            if train[t]:
+                np.save(work / "frames" / f"{t:05d}.npy", rng.normalize(apply_lut(lut, current[0], grid)))
         luts.flush()
         del luts
-        (work / "meta.json").write_text(json.dumps({"config": asdict(config), "range": asdict(rng), "frames": [str(f.image) for f in frames]}, indent=1))
+        meta = {
+            "config": asdict(config),
+            "range": asdict(rng),
+            "frames": [str(f.image) for f in frames],
+            "train_indices": [t for t, is_train in enumerate(train) if is_train],
+        }
+        (work / "meta.json").write_text(json.dumps(meta, indent=1))
         publish_cache_folder(work, folder, "meta.json")
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)

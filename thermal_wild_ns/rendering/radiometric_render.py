@@ -2,13 +2,14 @@
 
 ns-render writes every output through its 8-bit colormap writer (video, PNG or JPEG), so it
 cannot hand a thermal user their data back. These commands are ns-render's own (same options;
-the video or images are ns-render's, in the model's thermal colormap, with the fixed frame
-embedding and the background model) with one more option, `--radiometric`:
-- `uint16`: each frame's thermal render mapped back through the median training LUT (no frame was
-  captured on the path) to the dataset's native levels, as 16-bit PNGs;
-- `celsius`: the same as float32 degC arrays (.npy), for datasets that document their
-  temperature bounds;
-- `none`: only what ns-render writes.
+the video or images are ns-render's, in the model's thermal colormap, with the background model)
+with two more options:
+- `--photometric-state`: the sensor state every frame is rendered at (`pipeline/photometric_state.py`):
+  `canonical` (default: the state of a novel view), `frame:N` (training frame N's own) or `time:T`
+  (capture position T, interpolated between the training frames around it);
+- `--radiometric`: `uint16` writes each frame's thermal render mapped back through that state's
+  LUT to the dataset's native levels, as 16-bit PNGs; `celsius` the same as float32 degC arrays
+  (.npy), for datasets that document their temperature bounds; `none` only what ns-render writes.
 The frames go to `--radiometric-dir` (default: the output path with `_radiometric` appended),
 beside a `radiometry.json` that states the mapping.
 """
@@ -32,6 +33,8 @@ import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6
 
 @dataclass
 class RadiometricOptions:
+    photometric_state: str = "canonical"
+    """Sensor state to render at: canonical, frame:N (a training frame's index) or time:T (a capture position)."""
     radiometric: Literal["none", "uint16", "celsius"] = "uint16"
     """Also write each frame's thermal values: native 16-bit levels (PNG), degC (float32 .npy) or nothing."""
     radiometric_dir: Optional[Path] = None
@@ -44,27 +47,30 @@ class RadiometricOptions:
 class RadiometricFrameWriter:
     """Writes the thermal values of each frame a model renders, in the dataset's units."""
 
-    def __init__(self, datamanager, folder: Path, mode: str):
+    def __init__(self, pipeline, state, folder: Path, mode: str):
+        datamanager = pipeline.datamanager
         rng = datamanager.train_dataset.thermal_range
         if mode == "celsius" and (rng.celsius_low is None or rng.celsius_high is None):
             raise ValueError(f"{datamanager.config.dataparser.data}: the dataset documents no temperature bounds; use --radiometric uint16")
         if mode == "uint16" and not (rng.low >= 0 and rng.high <= 65535):
             raise ValueError(f"{datamanager.config.dataparser.data}: native range {rng.low}..{rng.high} ({rng.dtype}) does not fit 16 bits; use --radiometric celsius")
-        self.datamanager, self.rng, self.folder, self.mode, self.frames = datamanager, rng, folder, mode, 0
+        self.pipeline, self.state, self.rng, self.folder, self.mode, self.frames = pipeline, state, rng, folder, mode, 0
         folder.mkdir(parents=True, exist_ok=True)
 
     def write(self, thermal: torch.Tensor) -> None:
         """thermal [H, W, 1], the model's training space -> the next frame file."""
         import cv2
 
-        normalised = np.clip(self.datamanager.novel_view_to_original(thermal[..., 0].float().cpu().numpy()), 0.0, 1.0)
+        from thermal_wild_ns.pipeline.photometric_state import to_original
+
+        normalised = np.clip(to_original(self.pipeline, thermal[..., 0].float().cpu().numpy(), self.state), 0.0, 1.0)
         if self.mode == "uint16":
             cv2.imwrite(str(self.folder / f"{self.frames:05d}.png"), np.round(self.rng.to_native(normalised)).astype(np.uint16))
         else:
             np.save(self.folder / f"{self.frames:05d}.npy", self.rng.to_celsius(normalised).astype(np.float32))
         self.frames += 1
 
-    def close(self, frame_embedding: str) -> None:
+    def close(self) -> None:
         rng = self.rng
         (self.folder / "radiometry.json").write_text(json.dumps({
             "frames": self.frames,
@@ -72,8 +78,8 @@ class RadiometricFrameWriter:
             "native_range": [rng.low, rng.high],
             "native_dtype": rng.dtype,
             "celsius_range": [rng.celsius_low, rng.celsius_high],
-            "mapping": "render -> median training LUT inverse -> dataset range" if self.datamanager.preprocessed is not None else "render -> dataset range",
-            "frame_embedding": frame_embedding,
+            "mapping": "render -> the state's LUT inverse -> dataset range" if self.state.lut is not None else "render -> dataset range",
+            "photometric_state": self.state.label,
         }, indent=1))
 
 
@@ -81,14 +87,18 @@ class RadiometricFrameWriter:
 def _radiometric_too(options: RadiometricOptions, output_path: Path):
     """While ns-render's command runs, every frame its trajectory writer renders also goes to a
     RadiometricFrameWriter: the same renders as the video, not a second pass."""
+    from thermal_wild_ns.pipeline.photometric_state import parse_state, rendering_at, resolve_state
+
+    parse_state(options.photometric_state)  # a bad name fails before the model loads
     original = ns_render._render_trajectory_video
-    if options.radiometric == "none":
-        yield
-        return
 
     def trajectory_writer(pipeline, *args, **kwargs):
         model = pipeline.model
-        frames = RadiometricFrameWriter(pipeline.datamanager, options.radiometric_folder(output_path), options.radiometric)
+        state = resolve_state(pipeline, options.photometric_state)
+        if options.radiometric == "none":
+            with rendering_at(model, state):
+                return original(pipeline, *args, **kwargs)
+        frames = RadiometricFrameWriter(pipeline, state, options.radiometric_folder(output_path), options.radiometric)
         render = model.get_outputs_for_camera
 
         def recording(*render_args, **render_kwargs):
@@ -98,10 +108,11 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
 
         model.get_outputs_for_camera = recording
         try:
-            return original(pipeline, *args, **kwargs)
+            with rendering_at(model, state):
+                return original(pipeline, *args, **kwargs)
         finally:
             del model.get_outputs_for_camera  # back to the class's method
-            frames.close(model.config.inference_embedding)
+            frames.close()
 
     ns_render._render_trajectory_video = trajectory_writer
     try:

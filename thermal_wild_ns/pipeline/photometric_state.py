@@ -1,0 +1,137 @@
+"""The photometric state of a frame, continuous in capture time, and rendering at a state.
+
+A thermal frame's photometric condition (drift, flat-field jumps, gain) is modelled twice: by
+its frame embedding (the emission and background MLPs) and, for preprocessed methods, by the LUT
+that took its raw levels to the training space. state(t) = (embedding, LUT) at any capture
+position t: a training frame's own at its index, linear between the neighbouring training frames
+in between (level by level for the LUT, which keeps it strictly increasing). No held-out pixel
+enters a state: a held-out frame's state is predicted from its neighbours.
+
+States by name (`--photometric-state` of `wild-thermal-render`; `parse_state`):
+- `canonical`: the model's inference embedding (mean of the training frames' by default) and the
+  level-wise median of the training LUTs: what every novel view renders with;
+- `frame:N`: training frame N's own state (N in capture order);
+- `time:T`: the state at capture position T (a float; between frames, interpolated).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class PhotometricState:
+    label: str
+    """What the state is, for records ('canonical', 'frame:12', 'time:12.5', 'oracle:12', ...)."""
+    embedding: Optional[Tensor]
+    """Frame embedding [Df] to render with; None: the model has none (or keeps its own choice)."""
+    lut: Optional[np.ndarray]
+    """LUT [levels] from raw levels to the training space; None: frames are not preprocessed."""
+
+
+def parse_state(spec: str) -> Tuple[str, Optional[float]]:
+    """'canonical' -> ('canonical', None); 'frame:N' -> ('frame', N); 'time:T' -> ('time', T)."""
+    kind, _, value = spec.partition(":")
+    try:
+        if kind == "canonical" and not value:
+            return kind, None
+        if kind == "frame":
+            return kind, float(int(value))
+        if kind == "time":
+            position = float(value)
+            if np.isfinite(position):
+                return kind, position
+    except ValueError:
+        pass
+    raise ValueError(f"photometric state '{spec}': expected canonical, frame:N (a training frame's index) or time:T (a capture position)")
+
+
+def _model_embedding(model, t: Optional[float]) -> Optional[Tensor]:
+    if not getattr(model, "uses_frame_embedding", False):
+        return None
+    with torch.no_grad():
+        return (model.inference_embedding() if t is None else model.embedding_at(t)).detach()
+
+
+def canonical_state(pipeline) -> PhotometricState:
+    """The state every novel view renders with."""
+    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    model = pipeline.model
+    viewer_time = getattr(model, "capture_time", None)  # the viewer's slider must not move the canonical state
+    if viewer_time is not None:
+        model.capture_time = None
+    try:
+        embedding = _model_embedding(model, None)
+    finally:
+        if viewer_time is not None:
+            model.capture_time = viewer_time
+    return PhotometricState("canonical", embedding, None if sequence is None else sequence.median_lut())
+
+
+def state_at(pipeline, t: float) -> PhotometricState:
+    """state(t) from the training frames around capture position `t`."""
+    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    return PhotometricState(f"time:{t:g}", _model_embedding(pipeline.model, t), None if sequence is None else sequence.lut_at(t))
+
+
+def resolve_state(pipeline, spec: str) -> PhotometricState:
+    """The state a name (`parse_state`) stands for in this pipeline."""
+    kind, value = parse_state(spec)
+    if kind == "canonical":
+        return canonical_state(pipeline)
+    if kind == "frame":
+        train = list(pipeline.datamanager.train_dataset.metadata["frame_indices"])
+        if int(value) not in train:
+            raise ValueError(f"photometric state '{spec}': frame {int(value)} is not a training frame (use time:{int(value)} for its interpolated state)")
+        state = state_at(pipeline, value)
+        return PhotometricState(f"frame:{int(value)}", state.embedding, state.lut)
+    return state_at(pipeline, value)
+
+
+def to_original(pipeline, values: np.ndarray, state: PhotometricState) -> np.ndarray:
+    """Training-space values -> the dataset-normalised original space at `state` (float32)."""
+    if state.lut is None:
+        return np.asarray(values, dtype=np.float32)
+    return pipeline.datamanager.preprocessed.to_original_normalised(values, state.lut).astype(np.float32)
+
+
+def to_training_space(pipeline, values: np.ndarray, state: PhotometricState) -> np.ndarray:
+    """Original (dataset-normalised) values -> what the model trains on, at `state` (float32)."""
+    if state.lut is None:
+        return np.asarray(values, dtype=np.float32)
+    return pipeline.datamanager.preprocessed.to_processed_normalised(values, state.lut).astype(np.float32)
+
+
+class rendering_at:
+    """`with rendering_at(model, state):` renders outside training use the state's embedding."""
+
+    def __init__(self, model, state: PhotometricState):
+        self.model, self.embedding = model, state.embedding
+
+    def __enter__(self):
+        self.saved = getattr(self.model, "embedding_override", None)
+        if self.embedding is not None:
+            self.model.embedding_override = self.embedding
+        return self.model
+
+    def __exit__(self, *exc):
+        if self.embedding is not None:
+            self.model.embedding_override = self.saved
+
+
+def thermal_output(outputs: dict) -> Tensor:
+    """[H, W, 1] training-space render of any model (grey mean of RGB for RGB models)."""
+    return outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(dim=-1, keepdim=True)
+
+
+def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.ndarray]:
+    """One view at `state`: ([H, W] training space, [H, W] original space), float32 numpy."""
+    model = pipeline.model
+    with rendering_at(model, state), torch.no_grad():
+        rendered = thermal_output(model.get_outputs_for_camera(camera))[..., 0].float().cpu().numpy()
+    return rendered, to_original(pipeline, rendered, state)
