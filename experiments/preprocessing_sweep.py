@@ -4,7 +4,7 @@ On the demo scene (known clean frames) it measures how far the stabilized frames
 clean ones (RMSE in counts) and the drift left (std of dI_t, against the clean frames' own);
 on DUNR the drift left. Prints a table and writes JSON + Markdown:
 
-    python -m experiments.preprocessing_sweep --dunr ../shared/data/dunr --out results/preprocessing_sweep
+    python -m experiments.preprocessing_sweep --dunr ../shared/data/dunr --out docs/results/preprocessing_sweep
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from thermal_wild_ns.preprocessing.photometric import LevelGrid, PhotometricConf
 
 @dataclass
 class SweepArgs:
-    out: Path = Path("results/preprocessing_sweep")
+    out: Path = Path("outputs/preprocessing_sweep")
     """Output prefix (.json and .md are added)."""
     dunr: Optional[Path] = None
     """DUNR folder (../shared/data/dunr); skipped if not given."""

@@ -2,7 +2,7 @@
 
 Random scenes of ~1k Gaussians at 128x96: images, alphas, and the gradients of every input and
 of means2d (grad and absgrad, which densification reads) must agree. The measured errors are
-written to $PARITY_OUT (JSON) when set; results/gpu_parity.json holds the committed device run.
+written to $PARITY_OUT (JSON) when set; docs/results/gpu_parity.json holds the committed device run.
 """
 
 import json

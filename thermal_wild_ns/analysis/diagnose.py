@@ -86,9 +86,8 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
 
 def preprocessing_advice(before: Dict, after: Dict) -> str:
     """Which method the measurements point to. Stabilization exists to make consecutive frames
-    consistent; where it makes them less so, the capture was already stable, and there (stress-clean,
-    results/stress_gpu_5k) the full method trailed plain 3DGS by 5.7 dB, while on drifting DUNR it led
-    it by 11.8 dB (30.57 vs 18.77, results/bench_gpu_dunr_full)."""
+    consistent; where it makes them less so, the capture was already stable and preprocessing
+    costs accuracy (the measurements behind this rule: docs/results.md)."""
     b, a = before["std_delta_i"], after["std_delta_i"]
     if a < b:
         return f"preprocessing makes the frames more consistent (std dI_t {b:.4f} -> {a:.4f}): `wild-thermal` (the full method) fits this capture"

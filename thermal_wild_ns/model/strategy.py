@@ -19,8 +19,8 @@ def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bo
     """Whether gsplat's screen-size split rule (radius over `grow_scale2d` of the image's larger
     side) can tell Gaussians apart in a `width` x `height` render. Below MIN_SCREEN_RADIUS_PX /
     grow_scale2d pixels (40 at splatfacto's 0.05) every visible Gaussian passes it, so it splits
-    all of them at every refinement: stock splatfacto's 1/4-resolution warm-up on 128x96 frames
-    (32x24) grew to 51M Gaussians by step 352 (results/stress_gpu_5k)."""
+    all of them at every refinement (stock splatfacto's 1/4-resolution warm-up on 128x96 frames
+    explodes so: docs/design.md)."""
     return max(width, height) * grow_scale2d >= MIN_SCREEN_RADIUS_PX
 
 

@@ -94,10 +94,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     sh_degree: int = 0
     """No spherical harmonics: thermal emission is a scalar."""
     max_gaussians: int = 100_000
-    """Densification never grows the model past this many Gaussians. The default is the knee of
-    the budget sweep on DUNR (45 frames, 640x512; results/budget_sweep_dunr): 100k scored best
-    there (31.39 dB); uncapped, the model grew to 410k and scored 30.41 dB at 10.2 instead of
-    7.8 ms/step. Raise it for captures with much more to see than DUNR."""
+    """Densification never grows the model past this many Gaussians. The default is the knee of a
+    budget sweep on DUNR (docs/results.md); raise it for captures with much more to see."""
 
 
 class WildThermalModel(SplatfactoModel):

@@ -131,20 +131,16 @@ class PhotometricConfig:
     variant: Variant = "stab+bbhe"
     alpha: float = 0.01
     """Reference CDF update rate: F*_t = (1-alpha) F*_{t-1} + alpha F_t (time constant ~1/alpha frames).
-    Measured (results/preprocessing_sweep.md): on the demo scene alpha=0.01, beta=0.5 brings the
-    frames from 34.7 to 24.0 counts RMSE of the clean truth (best of the grid: 22.2 at 0.005/0.4) and
-    cuts DUNR's std of dI_t from 0.0140 to 0.0086; larger alpha follows the drift, beta=1 overcorrects
-    real content changes as the camera moves."""
+    Larger alpha follows the drift instead of removing it (the alpha/beta sweep: docs/results.md)."""
     beta: float = 0.5
-    """Blend of the stabilized mapping: I' = (1-beta) x + beta F*_t^{-1}(F_t(x))."""
+    """Blend of the stabilized mapping: I' = (1-beta) x + beta F*_t^{-1}(F_t(x)); 1 overcorrects real
+    content changes as the camera moves."""
     equalization_strength: float = 0.5
     """Blend of the equalization step (BBHE or histeq) with its input: y = s + k (eq(s) - s); 1 is
     the paper's full equalization. Equalization squeezes rare levels (hot objects, the gaps of a
     bimodal scene), so a rendering error there grows when mapped back: `wild-thermal-diagnose`
-    reports by how much (`error_amplification`). Lower k trades contrast for that. Default 0.5:
-    the full method scored higher at 0.5 than at 1 on DUNR (31.77 vs 31.39 dB; 25.73 vs 25.36
-    through the median LUT) and on the stress scenes clean and outlier (36.59 vs 33.46, 36.13 vs
-    33.73), one seed each (results/equalization_half)."""
+    reports by how much (`error_amplification`). Lower k trades contrast for that. The default
+    0.5 is chosen by a measurement (docs/results.md)."""
 
     @property
     def equalizes(self) -> bool:
