@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# The GPU runs of 2026-11-23, one plan per device command (each must end inside 10 minutes):
+#     bash experiments/gpu_2026-11-23.sh PLAN
+# run from the repository root on the GPU machine, with `.devicebundle` (../shared/device/prepare.sh
+# plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
+# image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
+set -uo pipefail
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+
+bundle() {  # the prebuilt route: wheels + gsplat's prebuilt extension into /tmp/site
+  source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+}
+
+bench() {  # bench ARGS...: one bench command, its files copied to $OUT even when it is cut short
+  local dir=/tmp/bench-$plan
+  timeout 540 python3 -m experiments.bench --output-dir "$dir" "$@" 2>&1 | tee "$OUT/$plan.log" | grep -E "step [0-9]+,|FAILED|Error" | tail -40
+  for f in bench.json bench.md speed_accuracy.png; do [ -f "$dir/$f" ] && cp "$dir/$f" "$OUT/$plan-$f"; done
+}
+
+# DUNR: the first 10,000 steps of the 30k schedule, 3 seeds per method, one method per command
+dunr() {
+  bundle
+  bench --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods "$1" --seeds 3 --steps 10000 --schedule 30000 \
+    --eval-at 1000 2000 5000 10000
+}
+
+case "$plan" in
+  setup)  # the README's GPU route (light nerfstudio closure, wheels from the carried folder), then the main job
+    python3 -m pip list 2>/dev/null > "$OUT/image_pip_list.txt"
+    export PIP_NO_INDEX=1 PIP_FIND_LINKS="$PWD/.devicebundle/wheels"
+    { time GPU=1 NERFSTUDIO_DEPS=light GSPLAT_PREBUILT=.devicebundle/gsplat_csrc.so bash thermal_wild_ns/install/setup_env.sh; } \
+      > "$OUT/gpu_setup.log" 2>&1
+    { time timeout 400 .venv/bin/wild-thermal-demo --output-dir /tmp/demo; } > "$OUT/gpu_demo.log" 2>&1
+    cp /tmp/demo/metrics.json "$OUT/gpu_demo_metrics.json" 2>/dev/null
+    tail -5 "$OUT/gpu_setup.log" "$OUT/gpu_demo.log"
+    ;;
+  dunr-splatfacto) dunr splatfacto ;;
+  dunr-3dgs) dunr wild-thermal-3dgs ;;
+  dunr-emission-mlp) dunr wild-thermal-emission-mlp ;;
+  dunr-wild-thermal) dunr wild-thermal ;;
+  # the demo scene: 5,000 steps (the 30k schedule compressed), 3 seeds; splatfacto's 1/4-resolution
+  # warm-up on 128x96 frames explodes (docs/), so every method starts at 1/2
+  demo-a)
+    bundle
+    bench --scenes demo --methods splatfacto wild-thermal-3dgs --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000
+    ;;
+  demo-b)
+    bundle
+    bench --scenes demo --methods wild-thermal-emission-mlp wild-thermal --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000
+    ;;
+  *) echo "unknown plan $plan" >&2; exit 2 ;;
+esac
