@@ -35,6 +35,10 @@ case "$plan" in
     { time timeout 400 .venv/bin/wild-thermal-demo --output-dir /tmp/demo; } > "$OUT/gpu_demo.log" 2>&1
     cp /tmp/demo/metrics.json "$OUT/gpu_demo_metrics.json" 2>/dev/null
     tail -5 "$OUT/gpu_setup.log" "$OUT/gpu_demo.log"
+    # a short bench of splatfacto and the full method through that environment (catches a broken bench early)
+    timeout 150 .venv/bin/python -m experiments.bench --scenes demo --methods splatfacto wild-thermal --steps 300 --eval-at 300 \
+      --num-downscales 1 --fit-steps 5 --fps-frames 20 --output-dir /tmp/smoke > "$OUT/smoke.log" 2>&1
+    tail -3 "$OUT/smoke.log"; cp /tmp/smoke/bench.md "$OUT/smoke-bench.md" 2>/dev/null
     ;;
   dunr-splatfacto) dunr splatfacto ;;
   dunr-3dgs) dunr wild-thermal-3dgs ;;
