@@ -404,6 +404,7 @@ def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "alig
     fig, axes = plt.subplots(1, len(scenes), figsize=(6 * len(scenes), 4.5), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
         floor = 10.0  # a diverged run (PSNR far below) would squash every other curve
+        minima = []
         done = [r for r in runs if r["scene"] == scene and "failed" not in r and r["curve"] and f"psnr_{protocol}" in r["curve"][0]]
         for method in dict.fromkeys(r["method"] for r in done):
             curves = [r["curve"] for r in done if r["method"] == method]
@@ -414,12 +415,13 @@ def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "alig
             style = {"lw": 2.5, "color": "black"} if method == "wild-thermal" else ({"ls": "--"} if method.startswith("splatfacto") else {})
             label = f"{method} ({len(curves)} seed{'s' if len(curves) > 1 else ''})" + (f" (falls to {ys.min():.0f} dB)" if ys.min() < floor else "")
             line, = ax.plot(xs, np.maximum(ys.mean(0), floor), marker="o", ms=3, label=label, **style)
+            minima.append(float(ys.min()))
             if len(curves) > 1:
                 ax.fill_between(xs, np.maximum(ys.min(0), floor), np.maximum(ys.max(0), floor), color=line.get_color(), alpha=0.2, lw=0)
         ax.set(title=f"{scene}: held-out {protocol} PSNR vs training time", xlabel="training wall-clock seconds (evaluation excluded)",
                ylabel=f"PSNR (dB, original space, {protocol})")
         ax.set_xscale("log")
-        ax.set_ylim(bottom=floor)
+        ax.set_ylim(bottom=max([floor, min(minima) - 1.0] if minima else [floor]))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
