@@ -35,8 +35,8 @@ import numpy as np
 import torch
 import tyro
 
-import thermal_wild_ns.compat  # noqa: F401
 from experiments import device_name, synchronize, train_with_hooks
+from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
 from experiments.render_fps import measure_fps
 from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, PROTOCOLS, evaluate, evaluate_path
 from thermal_wild_ns.data.thermal_io import load_npy
@@ -101,28 +101,6 @@ class BenchArgs:
     merge: Tuple[Path, ...] = ()
     """Instead of training: combine these bench.json files (runs split over several commands or
     machines) into one bench.json / bench.md / speed_accuracy.png in `output_dir`."""
-
-
-class _NoLPIPS(torch.nn.Module):
-    """Stands in for torchmetrics' LPIPS, whose constructor downloads AlexNet weights."""
-
-    def __init__(self, *args, **kwargs):
-        super().__init__()
-
-    def forward(self, *args, **kwargs):
-        return torch.tensor(float("nan"))
-
-
-@contextlib.contextmanager
-def no_lpips_download():
-    import torchmetrics.image.lpip as lpip
-
-    original = lpip.LearnedPerceptualImagePatchSimilarity
-    lpip.LearnedPerceptualImagePatchSimilarity = _NoLPIPS
-    try:
-        yield
-    finally:
-        lpip.LearnedPerceptualImagePatchSimilarity = original
 
 
 def scale_schedule(model_config, steps: int) -> None:
@@ -215,6 +193,7 @@ class RunTooSlow(RuntimeError):
 
 def setup_trainer(config):
     """nerfstudio's Trainer for `config`, set up (LPIPS never built)."""
+    prepare_checkpoint_commands()  # stock splatfacto's checkpoints too
     with no_lpips_download():
         trainer = config.setup(local_rank=0, world_size=1)
         trainer.setup()

@@ -22,7 +22,6 @@ from typing import Callable, Dict
 import torch
 import tyro
 
-import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
 from experiments import device_name, synchronize
 
 
@@ -49,9 +48,8 @@ def _fps(render: Callable[[int], torch.Tensor], frames: int) -> float:
 def measure_fps(pipeline, frames: int) -> Dict:
     """Frames per second over the pipeline's test cameras: `baked`, `unbaked` and `splat_only` for
     this plugin's models (the first only for others), and the largest baked/unbaked difference."""
-    from nerfstudio.models.splatfacto import get_viewmat
 
-    from thermal_wild_ns.rendering import rasterization
+    from thermal_wild_ns.rendering import rasterization, world_to_camera
 
     model = pipeline.model
     pipeline.eval()
@@ -79,7 +77,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 means=model.means, quats=model.quats, scales=torch.exp(model.scales),
                 opacities=torch.sigmoid(model.opacities).squeeze(-1), colors=model.gaussian_emission(model.inference_embedding()),
             )
-            views = [(get_viewmat(c.camera_to_worlds), model.intrinsics(c)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
+            views = [(world_to_camera(c.camera_to_worlds), model.intrinsics(c)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
 
             def splat_only(i: int) -> torch.Tensor:
                 viewmat, K = views[i % len(views)]
@@ -93,6 +91,9 @@ def measure_fps(pipeline, frames: int) -> Dict:
 def measure(args: FpsArgs) -> Dict:
     from nerfstudio.utils.eval_utils import eval_setup
 
+    from thermal_wild_ns._upstream import prepare_checkpoint_commands
+
+    prepare_checkpoint_commands()  # stock splatfacto's run too, whose pipeline is nerfstudio's
     _, pipeline, _, _ = eval_setup(args.load_config, test_mode="test")
     result = {
         "config": str(args.load_config),

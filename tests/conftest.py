@@ -5,7 +5,6 @@ os.environ.setdefault("TORCHDYNAMO_DISABLE", "1")
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-import thermal_wild_ns.compat  # noqa: E402,F401
 
 
 def random_scene(n: int, width: int, height: int, seed: int = 0, dtype=torch.float32, device="cpu"):

@@ -19,7 +19,6 @@ from typing import Optional
 import torch
 import tyro
 
-import thermal_wild_ns.compat  # noqa: F401
 
 
 @dataclass

@@ -9,7 +9,6 @@ import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
-import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
 from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig

@@ -9,11 +9,12 @@ from typing import Dict, List, Optional, Type
 
 import numpy as np
 import torch
-from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, FullImageDatamanagerConfig
+from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanagerConfig
 from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
 
+from thermal_wild_ns._upstream import set_training_order, single_channel_datamanager_class
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
@@ -88,11 +89,20 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     number): the order is a function of the step, so a resumed run sees what the uninterrupted one would."""
 
 
-class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
+class ThermalDatamanager(single_channel_datamanager_class()):
     """nerfstudio's full-image datamanager over `ThermalDataset`, with the preprocessing stage:
     the chosen variant runs once over the whole capture (capture order) before caching images."""
 
     config: ThermalDatamanagerConfig
+
+    def __init__(self, config: ThermalDatamanagerConfig, *args, **kwargs):
+        if config.train_cameras_sampling_strategy != "random":
+            raise ValueError(
+                f"train_cameras_sampling_strategy '{config.train_cameras_sampling_strategy}' is not supported by the thermal "
+                "datamanager: it visits the training frames in a seeded random order per pass (train_order_seed), so that a "
+                "resumed run sees what the uninterrupted one would"
+            )
+        super().__init__(config, *args, **kwargs)
 
     @cached_property
     def preprocessed(self) -> Optional[PreprocessedSequence]:
@@ -120,11 +130,11 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
         return self._order[1]
 
     def next_train(self, step: int):
-        # nerfstudio's next_train pops the head of `train_unseen_cameras`: make that the rest of this
+        # nerfstudio's next_train takes the head of its list of unseen cameras: make that the rest of this
         # pass from `step` on, so the image is a function of the step and a resumed run sees what the
         # uninterrupted one would (no per-step reshuffle: the list only refills at a pass's end)
         epoch, position = divmod(step, len(self.train_dataset))
-        self.train_unseen_cameras = self.train_order(epoch)[position:]
+        set_training_order(self, self.train_order(epoch)[position:])
         camera, data = super().next_train(step)
         if self.config.host_cameras:
             image_idx = camera.metadata["cam_idx"]
@@ -138,10 +148,3 @@ class ThermalDatamanager(FullImageDatamanager[ThermalDataset]):
     def create_eval_dataset(self) -> ThermalDataset:
         outputs = self._with_metadata(self.dataparser.get_dataparser_outputs(split=self.test_split), False)
         return ThermalDataset(outputs, scale_factor=self.config.camera_res_scale_factor)
-
-    def _load_images(self, split, cache_images_device):
-        images = super()._load_images(split, cache_images_device)
-        for cache in images:  # OpenCV's undistortion returns [H, W] for a 1-channel frame
-            if cache["image"].ndim == 2:
-                cache["image"] = cache["image"][..., None]
-        return images

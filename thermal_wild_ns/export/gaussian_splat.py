@@ -24,7 +24,6 @@ import tyro
 from nerfstudio.scripts import exporter as ns_export
 from typing_extensions import Annotated
 
-import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6)
 
 
 def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
@@ -66,32 +65,17 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
     """ns-export gaussian-splat, plus a `thermal` property and header comments."""
 
     def main(self) -> None:
-        captured = {}
-        original_setup, original_write = ns_export.eval_setup, ns_export.ExportGaussianSplat.write_ply
+        from thermal_wild_ns._upstream import gaussian_splat_export_hooks
 
-        def eval_setup(*args, **kwargs):
-            result = original_setup(*args, **kwargs)
-            captured["pipeline"] = result[1]
-            return result
+        loaded = {}
 
-        def write_ply(filename, count, map_to_tensors):
-            pipeline = captured["pipeline"]
+        def add_thermal(map_to_tensors):
+            pipeline = loaded["pipeline"]
             means = pipeline.model.means.detach().cpu().numpy()
             exported = np.concatenate([map_to_tensors[k][:, None] if map_to_tensors[k].ndim == 1 else map_to_tensors[k] for k in "xyz"], 1)
             map_to_tensors["thermal"] = thermal_values(pipeline)[_kept_rows(means, exported)]
-            partial = Path(filename).with_suffix(".partial.ply")
-            original_write(str(partial), count, map_to_tensors)
-            data = partial.read_bytes()
-            anchor = b"comment Vertical Axis: z\n"
-            comments = "".join(f"comment {line}\n" for line in header_comments(pipeline)).encode()
-            partial.write_bytes(data.replace(anchor, anchor + comments, 1))
-            partial.replace(filename)  # never a half-written PLY under the final name
 
-        with contextlib.ExitStack() as stack:
-            ns_export.eval_setup = eval_setup
-            stack.callback(setattr, ns_export, "eval_setup", original_setup)
-            ns_export.ExportGaussianSplat.write_ply = staticmethod(write_ply)
-            stack.callback(setattr, ns_export.ExportGaussianSplat, "write_ply", staticmethod(original_write))
+        with gaussian_splat_export_hooks(lambda pipeline: loaded.update(pipeline=pipeline), add_thermal, lambda: header_comments(loaded["pipeline"])):
             super().main()
 
 

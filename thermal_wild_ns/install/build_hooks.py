@@ -1,14 +1,14 @@
-"""setuptools hook (see [tool.setuptools.cmdclass] in pyproject.toml): ships the torchvision CPU
-shim (`thermal_wild_ns_torchvision_cpu.py`) and the `.pth` file that imports it at interpreter
-start into the root of site-packages. They live outside the package so that starting Python
-never imports (and pins) `thermal_wild_ns` itself."""
+"""setuptools hook (see [tool.setuptools.cmdclass] in pyproject.toml): ships
+`thermal_wild_ns_torchvision_cpu.pth` into the root of site-packages. At interpreter start it
+loads `thermal_wild_ns/_upstream.py` on its own (not the package) and installs the torchvision
+CPU shim there (`install_torchvision_cpu_shim`), which must act before anything imports torchvision."""
 
 from pathlib import Path
 
 from setuptools.command.build_py import build_py
 
 _HERE = Path(__file__).parent
-ROOT_FILES = ("thermal_wild_ns_torchvision_cpu.pth", "thermal_wild_ns_torchvision_cpu.py")
+ROOT_FILES = ("thermal_wild_ns_torchvision_cpu.pth",)
 
 
 class BuildPyWithStartupShim(build_py):

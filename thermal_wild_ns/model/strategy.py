@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from gsplat.strategy import DefaultStrategy
+
+from thermal_wild_ns._upstream import strategy_with_hooks_class
 
 MIN_SCREEN_RADIUS_PX = 2.0
 """The smallest screen radius gsplat's unpacked projection (splatfacto's) gives a visible Gaussian:
@@ -25,18 +26,18 @@ def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bo
 
 
 @dataclass
-class BudgetedDefaultStrategy(DefaultStrategy):
+class BudgetedDefaultStrategy(strategy_with_hooks_class()):
     """DefaultStrategy whose growth step keeps only the strongest candidates within `max_gaussians`.
 
     Candidates are ranked by how far they exceed their growth rule (mean 2D gradient over
     `grow_grad2d`, or screen radius over `grow_scale2d`); the rest are left out of this round
-    by masking their statistics before gsplat's own `_grow_gs` runs. Without a cap, small
+    by masking their statistics before gsplat grows (`before_growth`). Without a cap, small
     images make the screen-size rule split nearly every Gaussian at every refinement.
     """
 
     max_gaussians: int = 1_000_000
 
-    def _grow_gs(self, params, optimizers, state, step):
+    def before_growth(self, params, state, step) -> None:
         n = params["means"].shape[0]
         room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian
         grads = state["grad2d"] / state["count"].clamp_min(1)
@@ -52,15 +53,14 @@ class BudgetedDefaultStrategy(DefaultStrategy):
             state["grad2d"] = torch.where(keep, state["grad2d"], torch.zeros_like(state["grad2d"]))
             if uses_radii:
                 state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
-        return super()._grow_gs(params, optimizers, state, step)
 
-    def _update_state(self, params, state, info, packed: bool = False):
+    def update_statistics(self, params, state, info, packed: bool) -> bool:
         """gsplat's running statistics, computed with masks instead of gathering the visible
         Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
         one camera per step (what splatfacto renders), except that a render too small for the
         screen-size rule (`screen_size_rule_applies`) adds no screen radii."""
         if packed or info["n_cameras"] != 1:
-            return super()._update_state(params, state, info, packed=packed)
+            return False  # gsplat's own
         gradient = info[self.key_for_gradient]
         grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [1, N, 2]
         grads[..., 0] *= info["width"] / 2.0 * info["n_cameras"]
@@ -76,3 +76,4 @@ class BudgetedDefaultStrategy(DefaultStrategy):
             # screen radius normalised to [0, 1], as gsplat
             radii = torch.where(visible, info["radii"][0], 0) / float(max(info["width"], info["height"]))
             torch.maximum(state["radii"], radii, out=state["radii"])
+        return True

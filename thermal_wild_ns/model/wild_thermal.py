@@ -21,28 +21,16 @@ import torch
 from torch.profiler import record_function
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, get_viewmat, random_quat_tensor
+from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, random_quat_tensor
 from nerfstudio.utils.rich_utils import CONSOLE
-from nerfstudio.viewer.viewer_elements import ViewerControl
 from torch import Tensor, nn
 from torch.nn import Parameter
 
+from thermal_wild_ns._upstream import viewer_control_class
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
-from thermal_wild_ns.rendering import Backend, rasterization
-
-
-class _OnViewerConnect(ViewerControl):
-    """nerfstudio's ViewerControl (the viewer hands it itself when it starts) that also calls
-    `on_connect(client)` for every browser that connects."""
-
-    def __init__(self, on_connect):
-        self.on_connect = on_connect
-
-    def _setup(self, viewer) -> None:
-        super()._setup(viewer)
-        viewer.viser_server.on_client_connect(self.on_connect)
+from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
 
 
 @dataclass
@@ -218,7 +206,7 @@ class WildThermalModel(SplatfactoModel):
             hint="capture position (frame index); between training frames the state is interpolated",
         )
         self.viewer_colour_bar = ViewerText("Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap")
-        self.viewer_control = _OnViewerConnect(  # the viewer opens looking at the scene, not from an arbitrary pose
+        self.viewer_control = viewer_control_class()(  # the viewer opens looking at the scene, not from an arbitrary pose
             lambda client: self._look_through_training_camera(self._nearest_training_image(), client)
         )
         self.viewer_go_to_frame = ViewerButton(
@@ -435,7 +423,7 @@ class WildThermalModel(SplatfactoModel):
         scale = self._get_downscale_factor()
         if scale != 1:
             camera.rescale_output_resolution(1 / scale)
-        viewmat = get_viewmat(camera_to_world)  # [1, 4, 4]
+        viewmat = world_to_camera(camera_to_world)  # [1, 4, 4]
         K = self.intrinsics(camera).to(self.device)  # [1, 3, 3]
         W, H = torch.cat([camera.width.reshape(-1), camera.height.reshape(-1)]).tolist()  # one read
         if scale != 1:

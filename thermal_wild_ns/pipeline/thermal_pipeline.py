@@ -12,6 +12,7 @@ import numpy as np
 import torch
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
+from thermal_wild_ns._upstream import prepare_checkpoint_commands
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
 
 
@@ -40,6 +41,8 @@ class ThermalPipeline(VanillaPipeline):
     config: ThermalPipelineConfig
 
     def __init__(self, config: ThermalPipelineConfig, *args, **kwargs):
+        # every nerfstudio command that loads a checkpoint of this plugin builds this pipeline first
+        prepare_checkpoint_commands()
         super().__init__(config, *args, **kwargs)
         if getattr(self.model, "viewer_colour_bar", None) is not None:
             self.model.on_photometric_state_change = self.update_colour_bar

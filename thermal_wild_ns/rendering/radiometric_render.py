@@ -28,7 +28,6 @@ import tyro
 from nerfstudio.scripts import render as ns_render
 from typing_extensions import Annotated
 
-import thermal_wild_ns.compat  # noqa: F401  (checkpoint loading on torch >= 2.6; ffmpeg)
 
 
 @dataclass
@@ -85,40 +84,26 @@ class RadiometricFrameWriter:
 
 @contextlib.contextmanager
 def _radiometric_too(options: RadiometricOptions, output_path: Path):
-    """While ns-render's command runs, every frame its trajectory writer renders also goes to a
-    RadiometricFrameWriter: the same renders as the video, not a second pass."""
+    """While ns-render's command runs, every trajectory is rendered at the chosen photometric state
+    and, unless `--radiometric none`, every frame it renders also goes to a RadiometricFrameWriter."""
+    from thermal_wild_ns._upstream import trajectory_render_hooks
     from thermal_wild_ns.pipeline.photometric_state import parse_state, rendering_at, resolve_state
 
     parse_state(options.photometric_state)  # a bad name fails before the model loads
-    original = ns_render._render_trajectory_video
 
-    def trajectory_writer(pipeline, *args, **kwargs):
-        model = pipeline.model
+    @contextlib.contextmanager
+    def per_trajectory(pipeline):
         state = resolve_state(pipeline, options.photometric_state)
-        if options.radiometric == "none":
-            with rendering_at(model, state):
-                return original(pipeline, *args, **kwargs)
-        frames = RadiometricFrameWriter(pipeline, state, options.radiometric_folder(output_path), options.radiometric)
-        render = model.get_outputs_for_camera
-
-        def recording(*render_args, **render_kwargs):
-            outputs = render(*render_args, **render_kwargs)
-            frames.write(outputs["thermal"])
-            return outputs
-
-        model.get_outputs_for_camera = recording
-        try:
-            with rendering_at(model, state):
-                return original(pipeline, *args, **kwargs)
-        finally:
-            del model.get_outputs_for_camera  # back to the class's method
+        frames = None
+        if options.radiometric != "none":
+            frames = RadiometricFrameWriter(pipeline, state, options.radiometric_folder(output_path), options.radiometric)
+        with rendering_at(pipeline.model, state):
+            yield None if frames is None else (lambda outputs: frames.write(outputs["thermal"]))
+        if frames is not None:
             frames.close()
 
-    ns_render._render_trajectory_video = trajectory_writer
-    try:
+    with trajectory_render_hooks(per_trajectory):
         yield
-    finally:
-        ns_render._render_trajectory_video = original
 
 
 @dataclass

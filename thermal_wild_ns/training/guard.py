@@ -21,8 +21,10 @@ from typing import Deque, Dict, List, Optional, Type
 
 import torch
 from torch.profiler import record_function
-from nerfstudio.engine.trainer import Trainer, TrainerConfig
+from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
+
+from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
 
 
 class TrainingDiverged(RuntimeError):
@@ -137,7 +139,7 @@ class DivergenceGuard:
                 )
 
 
-class GuardedTrainer(Trainer):
+class GuardedTrainer(trainer_after_load_class()):
     """nerfstudio's Trainer with `DivergenceGuard` between backward and the optimizer step."""
 
     config: GuardedTrainerConfig
@@ -146,46 +148,23 @@ class GuardedTrainer(Trainer):
         super().setup(test_mode=test_mode)
         self.guard = DivergenceGuard(self.config.guard)
         self._step = 0
-        if not self.config.guard.enabled:
-            return
-        step_some = self.optimizers.optimizer_scaler_step_some
+        if self.config.guard.enabled:
+            guard_optimizer_steps(self.optimizers, self._accept_step)
 
-        def guarded_step_some(grad_scaler, param_groups):
-            model = self.pipeline.model
-            with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
-                reason = self.guard.check_step(
-                    getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups, getattr(model, "last_train_frame", None)
-                )
-            skip = reason is not None
-            model.skip_densification_step = skip  # the strategy must not record this step's gradients either
-            self.guard.record(self._step, reason)
-            if not skip:
-                with record_function("thermal/optimizer_step"):
-                    step_some(grad_scaler, param_groups)
+    def _accept_step(self, param_groups) -> bool:
+        """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
+        model = self.pipeline.model
+        with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
+            reason = self.guard.check_step(
+                getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups, getattr(model, "last_train_frame", None)
+            )
+        model.skip_densification_step = reason is not None  # the strategy must not record this step's gradients either
+        self.guard.record(self._step, reason)
+        return reason is None
 
-        self.optimizers.optimizer_scaler_step_some = guarded_step_some
-
-    def _load_checkpoint(self) -> None:
-        super()._load_checkpoint()
-        self._rebind_optimizers()
-
-    def _rebind_optimizers(self) -> None:
-        """Point every optimizer at the model's current parameters.
-
-        Splatfacto's `load_state_dict` replaces each Gaussian parameter with a new tensor of the
-        checkpoint's size, after the optimizers were built on the old ones: without this, a resumed
-        run steps orphaned tensors (nerfstudio 1.1.5). The loaded optimizer state moves along."""
-        groups = self.pipeline.get_param_groups()
-        for name, optimizer in self.optimizers.optimizers.items():
-            if name not in groups:
-                continue
-            params = optimizer.param_groups[0]["params"]  # nerfstudio: one param group per optimizer
-            for i, (old, new) in enumerate(zip(list(params), groups[name])):
-                if old is not new:
-                    if old in optimizer.state:
-                        optimizer.state[new] = optimizer.state.pop(old)
-                    params[i] = new
-            self.optimizers.parameters[name] = groups[name]
+    def after_checkpoint_load(self) -> None:
+        # splatfacto's load_state_dict replaced the Gaussian parameters after the optimizers were built
+        repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())
 
     def train_iteration(self, step: int):
         self._step = step
@@ -226,6 +205,6 @@ class GuardedTrainer(Trainer):
 
     def _restore(self, healthy: dict) -> None:
         self.pipeline.model.load_state_dict(copy.deepcopy(healthy["model"]))
-        self._rebind_optimizers()  # the load replaced the Gaussian parameters
+        repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())  # the load replaced the Gaussian parameters
         for name, optimizer in self.optimizers.optimizers.items():
             optimizer.load_state_dict(copy.deepcopy(healthy["optimizers"][name]))

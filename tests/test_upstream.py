@@ -1,0 +1,64 @@
+"""The compatibility layer: the version guard, and no reach into upstream internals elsewhere."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+# what reaching into nerfstudio / gsplat / torchmetrics / torch internals looks like in this code base
+UPSTREAM_INTERNALS = re.compile(
+    r"def (_grow_gs|_update_state|_setup|_load_images|_load_checkpoint)\b|train_unseen_cameras|optimizer_scaler_step_some"
+    r"|LearnedPerceptualImagePatchSimilarity|add_safe_globals|_render_trajectory_video|\.write_ply\s*=|ns_export\.eval_setup\s*="
+    r"|torch\.library\.Library|sys\.meta_path"
+)
+
+
+def test_version_guard_names_what_is_wrong(monkeypatch):
+    from importlib import metadata
+
+    import thermal_wild_ns._upstream as upstream
+
+    upstream.check_versions()  # the installed versions are the checked ones
+    monkeypatch.setattr(metadata, "version", lambda name: {"nerfstudio": "1.1.4", "gsplat": "1.4.0"}[name])
+    with pytest.raises(ImportError, match=r"needs nerfstudio==1\.1\.5, gsplat==1\.4\.0; found nerfstudio 1\.1\.4 \(needs 1\.1\.5\)"):
+        upstream.check_versions()
+    monkeypatch.setenv(upstream.SKIP_VERSION_CHECK, "1")
+    upstream.check_versions()  # the escape hatch
+
+
+def test_no_upstream_internals_outside_the_compatibility_layer():
+    offenders = []
+    for path in sorted([*ROOT.glob("thermal_wild_ns/**/*.py"), *ROOT.glob("experiments/*.py")]):
+        if path.name == "_upstream.py":
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if UPSTREAM_INTERNALS.search(line):
+                offenders.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
+    assert not offenders, "\n".join(offenders)
+    assert UPSTREAM_INTERNALS.search((ROOT / "thermal_wild_ns/_upstream.py").read_text())  # the pattern does find them there
+
+
+def test_importing_the_package_patches_nothing():
+    """A fresh interpreter imports every module of the plugin; torch's safe-load allow-list, the
+    loaders of nerfstudio's exporter and renderer and torchmetrics' LPIPS stay upstream's."""
+    import subprocess
+    import sys
+
+    code = (
+        # upstream's own imports extend the allow-list (torch.distributed's DTensor types): import them first
+        "import torch, pkgutil, importlib\n"
+        "from nerfstudio.scripts import render, exporter, train, eval, viewer\n"
+        "import torchmetrics.image.lpip as lpip\n"
+        "before = set(map(str, torch.serialization.get_safe_globals()))\n"
+        "import thermal_wild_ns\n"
+        "for m in pkgutil.walk_packages(thermal_wild_ns.__path__, 'thermal_wild_ns.'):\n"
+        "    importlib.import_module(m.name)\n"
+        "assert set(map(str, torch.serialization.get_safe_globals())) == before\n"
+        "assert render._render_trajectory_video.__module__ == 'nerfstudio.scripts.render'\n"
+        "assert exporter.eval_setup.__module__ == 'nerfstudio.utils.eval_utils'\n"
+        "assert lpip.LearnedPerceptualImagePatchSimilarity.__module__ == 'torchmetrics.image.lpip'\n"
+        "print('clean')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.stdout.strip().endswith("clean"), result.stderr[-2000:]

@@ -1,0 +1,394 @@
+"""Every place this plugin reaches into nerfstudio, gsplat, torchmetrics, torchvision or torch
+internals, in one module.
+
+Each patch or adapter below says what upstream does, why the plugin needs something else, and the
+upstream version it was checked against (`CHECKED`). Nothing here runs when this module is
+imported: the callers apply each piece where a command or a method needs it. The one exception in
+time is the torchvision shim, which the CPU install's `.pth` file runs at interpreter start (it has
+to act before anything imports torchvision); this module imports only the standard library at its
+top so that the `.pth` file can load it on its own.
+
+Upstream imports are inside the functions and classes' factories, for the same reason.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Callable, Dict, Optional
+
+CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
+"""The versions every patch here was written and tested against (pyproject.toml pins them)."""
+SKIP_VERSION_CHECK = "THERMAL_WILD_NS_SKIP_VERSION_CHECK"
+"""Set to 1 to try another nerfstudio/gsplat version at your own risk."""
+
+
+def check_versions() -> None:
+    """Fail with a clear message where nerfstudio or gsplat is not the version the patches below
+    were checked against: they reach into internals that change between versions."""
+    if os.environ.get(SKIP_VERSION_CHECK) == "1":
+        return
+    wrong = []
+    for package, wanted in CHECKED.items():
+        try:
+            found = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            found = "not installed"
+        if found != wanted:
+            wrong.append(f"{package} {found} (needs {wanted})")
+    if wrong:
+        raise ImportError(
+            f"thermal_wild_ns needs {', '.join(f'{p}=={v}' for p, v in CHECKED.items())}; found {', '.join(wrong)}. "
+            f"Install the pinned versions (pip install .), or set {SKIP_VERSION_CHECK}=1 to try anyway."
+        )
+
+
+# --------------------------------------------------------------------------- torch / torchvision
+def allow_nerfstudio_checkpoints() -> None:
+    """torch >= 2.6: `torch.load` defaults to `weights_only=True`, and nerfstudio 1.1.5's loaders
+    (ns-eval, ns-render, ns-viewer, ns-train --load-dir) call it without the argument on
+    checkpoints that hold numpy scalars, so loading fails ("Unsupported global: numpy ... scalar").
+    Instead of turning the safe loader off, allow-list exactly the numpy types such checkpoints
+    contain. Checked on torch 2.11 and 2.13; idempotent. Applied when a pipeline of this plugin
+    is built (every command that loads a checkpoint builds one first) and by the experiments."""
+    import numpy as np
+    import torch
+
+    add = getattr(torch.serialization, "add_safe_globals", None)
+    if add is None:  # torch < 2.4 loads everything anyway
+        return
+    from numpy.core.multiarray import _reconstruct, scalar
+
+    dtypes = [type(np.dtype(t)) for t in ("float32", "float64", "int32", "int64", "uint8", "bool")]
+    add([scalar, _reconstruct, np.dtype, np.ndarray, *dtypes])
+
+
+_TORCHVISION_SCHEMAS = (
+    "nms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor",
+    "qnms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor",
+    "roi_align(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width, "
+    "int sampling_ratio, bool aligned) -> Tensor",
+    "qroi_align(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width, "
+    "int sampling_ratio, bool aligned) -> Tensor",
+    "_roi_align_backward(Tensor grad, Tensor rois, float spatial_scale, SymInt pooled_height, "
+    "SymInt pooled_width, SymInt batch_size, SymInt channels, SymInt height, SymInt width, int sampling_ratio, "
+    "bool aligned) -> Tensor",
+    "ps_roi_align(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width, "
+    "int sampling_ratio) -> (Tensor, Tensor)",
+    "_ps_roi_align_backward(Tensor grad, Tensor rois, Tensor channel_mapping, float spatial_scale, "
+    "SymInt pooled_height, SymInt pooled_width, int sampling_ratio, SymInt batch_size, SymInt channels, "
+    "SymInt height, SymInt width) -> Tensor",
+    "roi_pool(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width) "
+    "-> (Tensor, Tensor)",
+    "_roi_pool_backward(Tensor grad, Tensor rois, Tensor argmax, float spatial_scale, SymInt pooled_height, "
+    "SymInt pooled_width, SymInt batch_size, SymInt channels, SymInt height, SymInt width) -> Tensor",
+    "ps_roi_pool(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width) "
+    "-> (Tensor, Tensor)",
+    "_ps_roi_pool_backward(Tensor grad, Tensor rois, Tensor channel_mapping, float spatial_scale, "
+    "SymInt pooled_height, SymInt pooled_width, SymInt batch_size, SymInt channels, SymInt height, "
+    "SymInt width) -> Tensor",
+    "deform_conv2d(Tensor input, Tensor weight, Tensor offset, Tensor mask, Tensor bias, SymInt stride_h, "
+    "SymInt stride_w, SymInt pad_h, SymInt pad_w, SymInt dilation_h, SymInt dilation_w, SymInt groups, "
+    "SymInt offset_groups, bool use_mask) -> Tensor",
+    "_deform_conv2d_backward(Tensor grad, Tensor input, Tensor weight, Tensor offset, Tensor mask, "
+    "Tensor bias, SymInt stride_h, SymInt stride_w, SymInt pad_h, SymInt pad_w, SymInt dilation_h, "
+    "SymInt dilation_w, SymInt groups, SymInt offset_groups, bool use_mask) -> "
+    "(Tensor, Tensor, Tensor, Tensor, Tensor)",
+)
+"""torchvision's op schemas as its C++ registers them (torchvision/csrc/ops/*.cpp, 0.2x)."""
+_torchvision_library = None  # keeps the torch.library.Library alive
+
+
+def define_torchvision_ops(package_dir: str) -> bool:
+    """PyPI's torchvision wheel is a CUDA build: on a CPU-only torch its `_C` extension fails to
+    load, and `import torchvision` then dies in `_meta_registrations` ("operator torchvision::nms
+    does not exist"). nerfstudio imports torchvision for image utilities, never its CUDA ops. Where
+    `_C` cannot load, define the schemas of the operators torchvision registers meta kernels for:
+    they exist but have no kernel (torchvision.ops.nms raises NotImplementedError); the rest of
+    torchvision works. Returns True if it defined them. Checked with torchvision 0.24-0.29."""
+    global _torchvision_library
+    import glob
+
+    import torch
+
+    for lib in glob.glob(os.path.join(package_dir, "_C*.so")):
+        try:
+            torch.ops.load_library(lib)
+            return False  # a working extension defines the ops itself
+        except (OSError, RuntimeError):
+            pass
+    if _torchvision_library is None:
+        _torchvision_library = torch.library.Library("torchvision", "DEF")
+        for schema in _TORCHVISION_SCHEMAS:
+            _torchvision_library.define(schema)
+    return True
+
+
+def install_torchvision_cpu_shim() -> None:
+    """Run `define_torchvision_ops` when torchvision is first imported (a one-shot import hook;
+    costs nothing until then). Called by the CPU install's `.pth` file at interpreter start."""
+    import importlib.abc
+    import importlib.machinery
+
+    class TorchvisionFinder(importlib.abc.MetaPathFinder):
+        def find_spec(self, fullname, path, target=None):
+            if fullname != "torchvision":
+                return None
+            sys.meta_path.remove(self)  # once, then the normal finders do the import
+            spec = importlib.machinery.PathFinder.find_spec(fullname, path)
+            if spec is not None and spec.submodule_search_locations:
+                try:
+                    define_torchvision_ops(list(spec.submodule_search_locations)[0])
+                except Exception as err:  # never break interpreter start-up over this shim
+                    print(f"thermal_wild_ns: torchvision CPU shim failed: {err}", file=sys.stderr)
+            return None
+
+    if "torchvision" not in sys.modules and not any(type(f).__name__ == "TorchvisionFinder" for f in sys.meta_path):
+        sys.meta_path.insert(0, TorchvisionFinder())
+
+
+# --------------------------------------------------------------------------- command-line tools
+def provide_ffmpeg() -> None:
+    """nerfstudio 1.1.5's ns-render refuses to start without an `ffmpeg` on PATH and writes every
+    output through it. Where the system has none, put the static ffmpeg of the imageio-ffmpeg
+    wheel on this process's PATH (a link named `ffmpeg` in ~/.cache/thermal_wild_ns/bin, made
+    atomically so concurrent processes never see half of it). Applied with the checkpoint
+    allow-list, when a pipeline of this plugin is built."""
+    if shutil.which("ffmpeg") is not None:
+        return
+    try:
+        import imageio_ffmpeg
+
+        executable = Path(imageio_ffmpeg.get_ffmpeg_exe())
+        folder = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "thermal_wild_ns" / "bin"
+        folder.mkdir(parents=True, exist_ok=True)
+        link = folder / "ffmpeg"
+        if not link.exists() or link.resolve() != executable.resolve():
+            tmp = folder / f".ffmpeg-{os.getpid()}"
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(executable)
+            tmp.replace(link)
+    except (ImportError, OSError, RuntimeError):
+        return  # no bundled ffmpeg or no writable cache: nerfstudio says what is missing
+    os.environ["PATH"] = f"{folder}{os.pathsep}{os.environ.get('PATH', '')}"
+
+
+def prepare_checkpoint_commands() -> None:
+    """What nerfstudio's loading commands need from this plugin (see the two functions called)."""
+    allow_nerfstudio_checkpoints()
+    provide_ffmpeg()
+
+
+@contextlib.contextmanager
+def no_lpips_download():
+    """Stock splatfacto (nerfstudio 1.1.5) builds torchmetrics' LPIPS in `populate_modules`, and its
+    constructor downloads AlexNet weights: offline, the model cannot be built. While this context
+    is open, the class is a stub that returns NaN (the experiments never read LPIPS). Checked with
+    torchmetrics 1.4-1.9."""
+    import torch
+    import torchmetrics.image.lpip as lpip
+
+    class NoLPIPS(torch.nn.Module):
+        def __init__(self, *args, **kwargs):
+            super().__init__()
+
+        def forward(self, *args, **kwargs):
+            return torch.tensor(float("nan"))
+
+    original = lpip.LearnedPerceptualImagePatchSimilarity
+    lpip.LearnedPerceptualImagePatchSimilarity = NoLPIPS
+    try:
+        yield
+    finally:
+        lpip.LearnedPerceptualImagePatchSimilarity = original
+
+
+# --------------------------------------------------------------------------- nerfstudio adapters
+def guard_optimizer_steps(optimizers, before_step: Callable[[list], bool]) -> None:
+    """nerfstudio 1.1.5's `Trainer.train_iteration` steps every optimizer through
+    `Optimizers.optimizer_scaler_step_some(grad_scaler, param_groups)` right after backward, with
+    no hook in between. Wrap it on this instance: `before_step(param_groups)` runs first and the
+    step happens only if it returns True (the divergence guard)."""
+    step_some = optimizers.optimizer_scaler_step_some
+
+    def guarded(grad_scaler, param_groups):
+        if before_step(param_groups):
+            step_some(grad_scaler, param_groups)
+
+    optimizers.optimizer_scaler_step_some = guarded
+
+
+def repoint_optimizers(optimizers, param_groups: Dict[str, list]) -> None:
+    """Point every optimizer at the model's current parameters, moving their state along.
+
+    nerfstudio 1.1.5's splatfacto `load_state_dict` replaces each Gaussian parameter with a new
+    tensor of the checkpoint's size, after the Trainer built its optimizers on the old ones: a
+    resumed run would step orphaned tensors. nerfstudio keeps one param group per optimizer."""
+    for name, optimizer in optimizers.optimizers.items():
+        if name not in param_groups:
+            continue
+        params = optimizer.param_groups[0]["params"]
+        for i, (old, new) in enumerate(zip(list(params), param_groups[name])):
+            if old is not new:
+                if old in optimizer.state:
+                    optimizer.state[new] = optimizer.state.pop(old)
+                params[i] = new
+        optimizers.parameters[name] = param_groups[name]
+
+
+def set_training_order(datamanager, remaining: list) -> None:
+    """nerfstudio 1.1.5's `FullImageDatamanager.next_train` pops the head of its private
+    `train_unseen_cameras` and refills it (per `train_cameras_sampling_strategy`) when empty. Set
+    the rest of the current pass, so the image of a step is a function of the step alone."""
+    datamanager.train_unseen_cameras = list(remaining)
+
+
+def viewer_control_class():
+    """nerfstudio 1.1.5's `ViewerControl` is handed the viewer through its private `_setup` when
+    the viewer starts; it has no public hook for a browser connecting. This subclass calls
+    `on_connect(client)` for every browser that connects (to open the view through a camera)."""
+    from nerfstudio.viewer.viewer_elements import ViewerControl
+
+    class ViewerControlOnConnect(ViewerControl):
+        def __init__(self, on_connect):
+            self.on_connect = on_connect
+
+        def _setup(self, viewer) -> None:
+            super()._setup(viewer)
+            viewer.viser_server.on_client_connect(self.on_connect)
+
+    return ViewerControlOnConnect
+
+
+def strategy_with_hooks_class():
+    """gsplat 1.4.0's `DefaultStrategy` grows and accounts Gaussians in its private `_grow_gs` and
+    `_update_state`, with no public hook. This subclass calls `before_growth(params, state, step)`
+    before gsplat grows (to leave candidates out) and `update_statistics(params, state, info, packed)`
+    in place of `_update_state` (return False to let gsplat's own run)."""
+    from gsplat.strategy import DefaultStrategy
+
+    class DefaultStrategyWithHooks(DefaultStrategy):
+        def before_growth(self, params, state, step) -> None:
+            pass
+
+        def update_statistics(self, params, state, info, packed: bool) -> bool:
+            return False
+
+        def _grow_gs(self, params, optimizers, state, step):
+            self.before_growth(params, state, step)
+            return super()._grow_gs(params, optimizers, state, step)
+
+        def _update_state(self, params, state, info, packed: bool = False):
+            if not self.update_statistics(params, state, info, packed):
+                super()._update_state(params, state, info, packed=packed)
+
+    return DefaultStrategyWithHooks
+
+
+def single_channel_datamanager_class():
+    """nerfstudio 1.1.5's `FullImageDatamanager._load_images` (private) caches undistorted images;
+    OpenCV's undistortion returns a 1-channel image as [H, W]. This subclass restores [H, W, 1]."""
+    from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager
+
+    class SingleChannelFullImageDatamanager(FullImageDatamanager):
+        def _load_images(self, split, cache_images_device):
+            images = super()._load_images(split, cache_images_device)
+            for cache in images:
+                if cache["image"].ndim == 2:
+                    cache["image"] = cache["image"][..., None]
+            return images
+
+    return SingleChannelFullImageDatamanager
+
+
+def trainer_after_load_class():
+    """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
+    state arrives. This subclass calls `after_checkpoint_load()` right after it."""
+    from nerfstudio.engine.trainer import Trainer
+
+    class TrainerAfterLoad(Trainer):
+        def after_checkpoint_load(self) -> None:
+            pass
+
+        def _load_checkpoint(self) -> None:
+            super()._load_checkpoint()
+            self.after_checkpoint_load()
+
+    return TrainerAfterLoad
+
+
+@contextlib.contextmanager
+def gaussian_splat_export_hooks(on_pipeline: Callable, extra_properties: Callable[[dict], None], header_comments: Callable[[], list]):
+    """nerfstudio 1.1.5's `ExportGaussianSplat.main` loads the pipeline through the module-level
+    `eval_setup` and writes the PLY through the static `write_ply(filename, count, map_to_tensors)`,
+    neither of which can be extended. While this context is open: `on_pipeline(pipeline)` sees the
+    loaded pipeline; `extra_properties(map_to_tensors)` may add vertex properties before writing;
+    `header_comments()` lines are inserted after nerfstudio's "comment Vertical Axis: z" header
+    line. The PLY is written under a temporary name and renamed into place."""
+    from nerfstudio.scripts import exporter as ns_export
+
+    original_setup, original_write = ns_export.eval_setup, ns_export.ExportGaussianSplat.write_ply
+
+    def eval_setup(*args, **kwargs):
+        result = original_setup(*args, **kwargs)
+        on_pipeline(result[1])
+        return result
+
+    def write_ply(filename, count, map_to_tensors):
+        extra_properties(map_to_tensors)
+        partial = Path(filename).with_suffix(".partial.ply")
+        original_write(str(partial), count, map_to_tensors)
+        data = partial.read_bytes()
+        anchor = b"comment Vertical Axis: z\n"
+        if anchor not in data:
+            raise RuntimeError(f"{partial}: nerfstudio's PLY header changed (no '{anchor.decode().strip()}' line)")
+        comments = "".join(f"comment {line}\n" for line in header_comments()).encode()
+        partial.write_bytes(data.replace(anchor, anchor + comments, 1))
+        partial.replace(filename)  # never a half-written PLY under the final name
+
+    with contextlib.ExitStack() as stack:
+        ns_export.eval_setup = eval_setup
+        stack.callback(setattr, ns_export, "eval_setup", original_setup)
+        ns_export.ExportGaussianSplat.write_ply = staticmethod(write_ply)
+        stack.callback(setattr, ns_export.ExportGaussianSplat, "write_ply", staticmethod(original_write))
+        yield
+
+
+@contextlib.contextmanager
+def trajectory_render_hooks(per_trajectory: Callable):
+    """nerfstudio 1.1.5's ns-render commands render a camera path in the module-level
+    `_render_trajectory_video(pipeline, ...)`, calling `pipeline.model.get_outputs_for_camera` per
+    frame, with no hook. While this context is open, each such call runs inside the context
+    manager `per_trajectory(pipeline)`; what it yields, if not None, is called with every frame's
+    outputs (the same renders as the video, not a second pass)."""
+    from nerfstudio.scripts import render as ns_render
+
+    original = ns_render._render_trajectory_video
+
+    def trajectory(pipeline, *args, **kwargs):
+        model = pipeline.model
+        with per_trajectory(pipeline) as on_outputs:
+            if on_outputs is None:
+                return original(pipeline, *args, **kwargs)
+            render = model.get_outputs_for_camera
+
+            def recording(*render_args, **render_kwargs):
+                outputs = render(*render_args, **render_kwargs)
+                on_outputs(outputs)
+                return outputs
+
+            model.get_outputs_for_camera = recording
+            try:
+                return original(pipeline, *args, **kwargs)
+            finally:
+                del model.get_outputs_for_camera  # back to the class's method
+
+    ns_render._render_trajectory_video = trajectory
+    try:
+        yield
+    finally:
+        ns_render._render_trajectory_video = original
