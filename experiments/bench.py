@@ -19,7 +19,6 @@ Stock splatfacto sees the frames as 3 equal channels without preprocessing; its 
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
 import gc
@@ -36,9 +35,9 @@ import torch
 import tyro
 
 from experiments import device_name, synchronize, train_with_hooks
-from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
 from experiments.render_fps import measure_fps
-from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, PROTOCOLS, evaluate, evaluate_path
+from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
+from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, evaluate, evaluate_path
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
 
@@ -121,8 +120,8 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     (default: `args.seed`) for torch and for the order the training frames are visited in."""
     from nerfstudio.configs.method_configs import method_configs
 
-    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     seed = args.seed if seed is None else seed
@@ -144,7 +143,9 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
             config.pipeline.model.max_gaussians = args.max_gaussians
         if args.equalization_strength is not None:
             preprocessing = config.pipeline.datamanager.preprocessing
-            config.pipeline.datamanager.preprocessing = dataclasses.replace(preprocessing, equalization_strength=args.equalization_strength)
+            config.pipeline.datamanager.preprocessing = dataclasses.replace(
+                preprocessing, equalization_strength=args.equalization_strength
+            )
     if args.num_downscales is not None:
         config.pipeline.model.num_downscales = args.num_downscales
     config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
@@ -169,7 +170,11 @@ def run_label(method: str, args: BenchArgs) -> str:
     splatfacto with `--num-downscales 1` merge side by side instead of one hiding the other. The
     Gaussian budget is not named: a budget sweep compares one method across budgets by its args."""
     changed = [] if args.num_downscales is None else [f"num-downscales {args.num_downscales}"]
-    if args.equalization_strength is not None and method in METHODS and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes:
+    if (
+        args.equalization_strength is not None
+        and method in METHODS
+        and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes
+    ):
         changed.append(f"equalization-strength {args.equalization_strength:g}")
     return f"{method} ({', '.join(changed)})" if changed else method
 
@@ -206,7 +211,12 @@ class CurveRecorder:
     its time limit (checked every 100 steps)."""
 
     def __init__(self, pipeline, checkpoints, time_limit: Optional[float], describe: str):
-        self.pipeline, self.checkpoints, self.time_limit, self.describe = pipeline, set(checkpoints), time_limit, describe
+        self.pipeline, self.checkpoints, self.time_limit, self.describe = (
+            pipeline,
+            set(checkpoints),
+            time_limit,
+            describe,
+        )
         self.seconds, self.started, self.curve = 0.0, None, []
 
     def start(self) -> None:
@@ -219,7 +229,9 @@ class CurveRecorder:
     def __call__(self, step: int) -> None:
         done = step + 1  # steps trained so far
         if self.time_limit is not None and done % 100 == 0 and self.elapsed() > self.time_limit:
-            raise RunTooSlow(f"--time-limit reached at step {done} ({getattr(self.pipeline.model, 'num_points', '?')} Gaussians)")
+            raise RunTooSlow(
+                f"--time-limit reached at step {done} ({getattr(self.pipeline.model, 'num_points', '?')} Gaussians)"
+            )
         if done not in self.checkpoints:
             return
         synchronize()
@@ -229,8 +241,11 @@ class CurveRecorder:
         point = {"step": done, "seconds": round(self.seconds, 3), "gaussians": result["gaussians"]}
         point.update({f"psnr_{p}": result[f"psnr_{p}"] for p in CHEAP_PROTOCOLS})
         self.curve.append(point)
-        print(f"  {self.describe}: step {done}, {self.seconds:.1f} s, PSNR novel {point['psnr_novel']:.2f} / time "
-              f"{point['psnr_time']:.2f} / aligned {point['psnr_aligned']:.2f} dB, {point['gaussians']} Gaussians", flush=True)
+        print(
+            f"  {self.describe}: step {done}, {self.seconds:.1f} s, PSNR novel {point['psnr_novel']:.2f} / time "
+            f"{point['psnr_time']:.2f} / aligned {point['psnr_aligned']:.2f} dB, {point['gaussians']} Gaussians",
+            flush=True,
+        )
         self.start()
 
 
@@ -257,7 +272,9 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
         kept, truth = path.pop("kept"), path.pop("kept_truth")
         if seed == args.seed:  # one strip per method: the first seed's
             for name, frames in ((file_slug(label), kept), ("0-ground-truth", truth)):
-                np.save(strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16))
+                np.save(
+                    strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16)
+                )
     fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
     seconds = recorder.seconds
     return {
@@ -284,7 +301,12 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
 
 def spread(values: List[float]) -> Dict[str, float]:
     """Mean, min and max of one score over seeds."""
-    return {"mean": float(np.mean(values)), "min": float(np.min(values)), "max": float(np.max(values)), "n": len(values)}
+    return {
+        "mean": float(np.mean(values)),
+        "min": float(np.min(values)),
+        "max": float(np.max(values)),
+        "n": len(values),
+    }
 
 
 def aggregate(runs: List[Dict]) -> Dict[Tuple[str, str], Dict]:
@@ -295,7 +317,11 @@ def aggregate(runs: List[Dict]) -> Dict[Tuple[str, str], Dict]:
     out = {}
     for key, group in groups.items():
         done = [r for r in group if "failed" not in r]
-        keys = [k for k in (done[0] if done else {}) if k.startswith(("psnr_", "ssim_")) or k in ("ms_per_step", "train_seconds", "gaussians", "model_mb")]
+        keys = [
+            k
+            for k in (done[0] if done else {})
+            if k.startswith(("psnr_", "ssim_")) or k in ("ms_per_step", "train_seconds", "gaussians", "model_mb")
+        ]
         out[key] = {k: spread([r[k] for r in done]) for k in keys}
         out[key]["failed"] = len(group) - len(done)
     return out
@@ -315,28 +341,45 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
     methods = list(dict.fromkeys(r["method"] for r in runs))
     stats = aggregate(runs)
     seeds = sorted({r.get("seed", 0) for r in runs})
-    lines = [f"Held-out views, original radiometric space; mean over seeds (min–max) where a configuration ran more than "
-             f"once (seeds here: {', '.join(map(str, seeds))}). Protocols: analysis/evaluation.py.", ""]
+    lines = [
+        f"Held-out views, original radiometric space; mean over seeds (min–max) where a configuration ran more than "
+        f"once (seeds here: {', '.join(map(str, seeds))}). Protocols: analysis/evaluation.py.",
+        "",
+    ]
     titles = {
         "novel": "`novel` (canonical state: what a rendered novel view is)",
         "time": "`time` (state predicted from the neighbouring training frames)",
         "aligned": "`aligned` (novel + per-view least-squares gain/offset)",
         "half": "`half` (NeRF-W: state fitted on the left half, right half scored)",
-        "oracle": "`oracle` — uses the held-out frame's own pixels (its LUT, an embedding fitted on all of it): an upper bound, not a result",
+        "oracle": "`oracle` — uses the held-out frame's own pixels (its LUT, an embedding fitted on all of it): an "
+        "upper bound, not a result",
     }
     for protocol in (*HEADLINE_PROTOCOLS, "oracle"):
-        lines += [f"PSNR / SSIM, {titles[protocol]}:", "", "| method | " + " | ".join(scenes) + " |", "|" + " --- |" * (len(scenes) + 1)]
+        lines += [
+            f"PSNR / SSIM, {titles[protocol]}:",
+            "",
+            "| method | " + " | ".join(scenes) + " |",
+            "|" + " --- |" * (len(scenes) + 1),
+        ]
         for m in methods:
             cells = []
             for s in scenes:
                 st = stats.get((m, s))
-                cells.append(_cell(st, f"psnr_{protocol}") + (" / " + _cell(st, f"ssim_{protocol}", 3) if st and f"ssim_{protocol}" in st else ""))
+                cells.append(
+                    _cell(st, f"psnr_{protocol}")
+                    + (" / " + _cell(st, f"ssim_{protocol}", 3) if st and f"ssim_{protocol}" in st else "")
+                )
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
         lines.append("")
-    lines += ["Cost (mean over seeds; render FPS: test cameras, first seed; baked = the canonical emission cached, as the viewer renders; "
-              "unbaked = emission MLP every frame):", "",
-              "| method | scene | seeds | steps | train s | ms/step | peak GPU MB | Gaussians | model MB | render FPS baked / unbaked |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines += [
+        "Cost (mean over seeds; render FPS: test cameras, first seed; baked = the canonical emission cached, as the "
+        "viewer renders; "
+        "unbaked = emission MLP every frame):",
+        "",
+        "| method | scene | seeds | steps | train s | ms/step | peak GPU MB | Gaussians | model MB | render FPS "
+        "baked / unbaked |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     first = {}
     for r in runs:
         if "failed" not in r:
@@ -346,15 +389,27 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
         mem = "—" if r["peak_gpu_memory_mb"] is None else f"{r['peak_gpu_memory_mb']:.0f}"
         fps = r.get("render_fps") or {}
         fps_cell = " / ".join(f"{fps[k]:.0f}" for k in ("baked", "unbaked") if k in fps) or "—"
-        shared = f" ({r['runs_per_gpu']} runs per GPU)" if r.get("runs_per_gpu", 1) > 1 else ""  # not the timing of a run alone
-        lines.append(f"| {m} | {s} | {st['ms_per_step']['n']} | {r['steps']} | {_cell(st, 'train_seconds', 1)}{shared} | "
-                     f"{_cell(st, 'ms_per_step')} | {mem} | {_cell(st, 'gaussians', 0)} | {_cell(st, 'model_mb', 1)} | {fps_cell} |")
+        shared = (
+            f" ({r['runs_per_gpu']} runs per GPU)" if r.get("runs_per_gpu", 1) > 1 else ""
+        )  # not the timing of a run alone
+        lines.append(
+            f"| {m} | {s} | {st['ms_per_step']['n']} | {r['steps']} | {_cell(st, 'train_seconds', 1)}{shared} | "
+            f"{_cell(st, 'ms_per_step')} | {mem} | {_cell(st, 'gaussians', 0)} | {_cell(st, 'model_mb', 1)} | "
+            f"{fps_cell} |"
+        )
     stress = [r for r in runs if r["scene"].startswith("stress-") and "failed" not in r and r.get("path")]
     if stress:
         faults = list(dict.fromkeys(r["scene"] for r in runs if r["scene"].startswith("stress-")))
-        lines += ["", "Stress scenes along the smooth camera path (canonical state), mean over seeds: PSNR dB / floater pixels % "
-                  "(of them, with an error above 0.1: the visible ones) / excess flicker x1e3 (per pixel):", ""]
-        lines += ["| method | " + " | ".join(f[len("stress-"):] for f in faults) + " |", "|" + " --- |" * (len(faults) + 1)]
+        lines += [
+            "",
+            "Stress scenes along the smooth camera path (canonical state), mean over seeds: PSNR dB / floater pixels % "
+            "(of them, with an error above 0.1: the visible ones) / excess flicker x1e3 (per pixel):",
+            "",
+        ]
+        lines += [
+            "| method | " + " | ".join(f[len("stress-") :] for f in faults) + " |",
+            "|" + " --- |" * (len(faults) + 1),
+        ]
         for m in dict.fromkeys(r["method"] for r in stress):
             cells = []
             for f in faults:
@@ -362,13 +417,21 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
                 if not paths:
                     cells.append("failed" if any(r["method"] == m and r["scene"] == f for r in runs) else "—")
                     continue
-                mean = {k: float(np.mean([p[k] for p in paths])) for k in ("psnr", "floater_fraction", "visible_floater_fraction", "flicker_pixel_excess")}
-                cells.append(f"{mean['psnr']:.2f} / {100 * mean['floater_fraction']:.1f} ({100 * mean['visible_floater_fraction']:.1f}) / "
-                             f"{1000 * mean['flicker_pixel_excess']:.2f}")
+                mean = {
+                    k: float(np.mean([p[k] for p in paths]))
+                    for k in ("psnr", "floater_fraction", "visible_floater_fraction", "flicker_pixel_excess")
+                }
+                cells.append(
+                    f"{mean['psnr']:.2f} / {100 * mean['floater_fraction']:.1f} "
+                    f"({100 * mean['visible_floater_fraction']:.1f}) / "
+                    f"{1000 * mean['flicker_pixel_excess']:.2f}"
+                )
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
     failed = [r for r in runs if "failed" in r]
     if failed:
-        lines += ["", "Failed runs:", ""] + [f"- {r['method']} on {r['scene']} (seed {r.get('seed', 0)}): {r['failed']}" for r in failed]
+        lines += ["", "Failed runs:", ""] + [
+            f"- {r['method']} on {r['scene']} (seed {r.get('seed', 0)}): {r['failed']}" for r in failed
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -384,21 +447,41 @@ def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "alig
     for ax, scene in zip(axes[0], scenes):
         floor = 10.0  # a diverged run (PSNR far below) would squash every other curve
         minima = []
-        done = [r for r in runs if r["scene"] == scene and "failed" not in r and r["curve"] and f"psnr_{protocol}" in r["curve"][0]]
+        done = [
+            r
+            for r in runs
+            if r["scene"] == scene and "failed" not in r and r["curve"] and f"psnr_{protocol}" in r["curve"][0]
+        ]
         for method in dict.fromkeys(r["method"] for r in done):
             curves = [r["curve"] for r in done if r["method"] == method]
             steps = sorted(set.intersection(*({p["step"] for p in c} for c in curves)))
-            at = lambda c, key: [next(p[key] for p in c if p["step"] == s) for s in steps]  # noqa: E731
+            at = lambda c, key, steps=steps: [next(p[key] for p in c if p["step"] == s) for s in steps]
             xs = np.mean([at(c, "seconds") for c in curves], axis=0)
             ys = np.array([at(c, f"psnr_{protocol}") for c in curves])
-            style = {"lw": 2.5, "color": "black"} if method == "wild-thermal" else ({"ls": "--"} if method.startswith("splatfacto") else {})
-            label = f"{method} ({len(curves)} seed{'s' if len(curves) > 1 else ''})" + (f" (falls to {ys.min():.0f} dB)" if ys.min() < floor else "")
-            line, = ax.plot(xs, np.maximum(ys.mean(0), floor), marker="o", ms=3, label=label, **style)
+            style = (
+                {"lw": 2.5, "color": "black"}
+                if method == "wild-thermal"
+                else ({"ls": "--"} if method.startswith("splatfacto") else {})
+            )
+            label = f"{method} ({len(curves)} seed{'s' if len(curves) > 1 else ''})" + (
+                f" (falls to {ys.min():.0f} dB)" if ys.min() < floor else ""
+            )
+            (line,) = ax.plot(xs, np.maximum(ys.mean(0), floor), marker="o", ms=3, label=label, **style)
             minima.append(float(ys.min()))
             if len(curves) > 1:
-                ax.fill_between(xs, np.maximum(ys.min(0), floor), np.maximum(ys.max(0), floor), color=line.get_color(), alpha=0.2, lw=0)
-        ax.set(title=f"{scene}: held-out {protocol} PSNR vs training time", xlabel="training wall-clock seconds (evaluation excluded)",
-               ylabel=f"PSNR (dB, original space, {protocol})")
+                ax.fill_between(
+                    xs,
+                    np.maximum(ys.min(0), floor),
+                    np.maximum(ys.max(0), floor),
+                    color=line.get_color(),
+                    alpha=0.2,
+                    lw=0,
+                )
+        ax.set(
+            title=f"{scene}: held-out {protocol} PSNR vs training time",
+            xlabel="training wall-clock seconds (evaluation excluded)",
+            ylabel=f"PSNR (dB, original space, {protocol})",
+        )
         ax.set_xscale("log")
         ax.set_ylim(bottom=max([floor, min(minima) - 1.0] if minima else [floor]))
         ax.grid(alpha=0.3)
@@ -414,9 +497,14 @@ def main(args: BenchArgs) -> Dict:
         merged = [json.loads(Path(p).read_text()) for p in args.merge]
         devices = {m["device"] for m in merged}
         if len(devices) > 1:
-            raise ValueError(f"{', '.join(map(str, args.merge))}: runs come from different devices ({devices}); timings would not compare")
+            raise ValueError(
+                f"{', '.join(map(str, args.merge))}: runs come from different devices ({devices}); timings would "
+                f"not compare"
+            )
         _gather_strips([Path(p).parent / "strips" for p in args.merge], args.output_dir / "strips")
-        return _write(args, [r for m in merged for r in m["runs"]], device=devices.pop(), torch_version=merged[0]["torch"])
+        return _write(
+            args, [r for m in merged for r in m["runs"]], device=devices.pop(), torch_version=merged[0]["torch"]
+        )
     if args.gpus > 1 or args.runs_per_gpu > 1:
         return _spread_over_gpus(args)
     runs = []
@@ -428,11 +516,22 @@ def main(args: BenchArgs) -> Dict:
             for seed in range(args.seed, args.seed + args.seeds):
                 try:
                     runs.append(run_one(method, scene, args, seed))
-                except (torch.OutOfMemoryError, RuntimeError, ValueError) as err:  # a method failing is a result, not the end of the bench
+                except (
+                    torch.OutOfMemoryError,
+                    RuntimeError,
+                    ValueError,
+                ) as err:  # a method failing is a result, not the end of the bench
                     message = str(err).splitlines()[0][:300]
                     print(f"  {method} on {scene_name(scene)} (seed {seed}) FAILED: {type(err).__name__}: {message}")
-                    runs.append({"method": run_label(method, args), "scene": scene_name(scene), "seed": seed, "steps": args.steps,
-                                 "failed": f"{type(err).__name__}: {message}"})
+                    runs.append(
+                        {
+                            "method": run_label(method, args),
+                            "scene": scene_name(scene),
+                            "seed": seed,
+                            "steps": args.steps,
+                            "failed": f"{type(err).__name__}: {message}",
+                        }
+                    )
                     gc.collect()  # the failed trainer's tensors
                     if torch.cuda.is_available():
                         torch.cuda.empty_cache()
@@ -440,10 +539,15 @@ def main(args: BenchArgs) -> Dict:
     return _write(args, runs)
 
 
-def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torch_version: Optional[str] = None) -> Dict:
+def _write(
+    args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torch_version: Optional[str] = None
+) -> Dict:
     scenes = list(dict.fromkeys(r["scene"] for r in runs))
     result = {
-        "args": {k: (str(v) if isinstance(v, Path) else [str(x) for x in v] if k == "merge" else v) for k, v in vars(args).items()},
+        "args": {
+            k: (str(v) if isinstance(v, Path) else [str(x) for x in v] if k == "merge" else v)
+            for k, v in vars(args).items()
+        },
         "device": device or device_name(),
         "torch": torch_version or torch.__version__,
         "runs": runs,
@@ -452,7 +556,9 @@ def _write(args: BenchArgs, runs: List[Dict], device: Optional[str] = None, torc
     (args.output_dir / "bench.md").write_text(markdown(runs, scenes))
     if scenes:  # nothing to chart when every run was skipped (e.g. only splatfacto, on a CPU)
         chart(runs, scenes, args.output_dir / "speed_accuracy.png")
-    for folder in sorted((args.output_dir / "strips").glob("stress-*")) if (args.output_dir / "strips").is_dir() else []:
+    for folder in (
+        sorted((args.output_dir / "strips").glob("stress-*")) if (args.output_dir / "strips").is_dir() else []
+    ):
         strip_png(folder, args.output_dir / f"{folder.name}_path_strip.png")
     return result
 
@@ -484,7 +590,9 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
     env = {
         "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // queues)),
         **os.environ,
-        RUNS_PER_GPU_VARIABLE: str(runs_per_gpu),  # each run labels its own record, so one finished before a kill is labelled too
+        RUNS_PER_GPU_VARIABLE: str(
+            runs_per_gpu
+        ),  # each run labels its own record, so one finished before a kill is labelled too
         "PYTHONPATH": os.pathsep.join(filter(None, (package_root, os.environ.get("PYTHONPATH")))),
     }
     written: Dict[int, Path] = {}
@@ -495,7 +603,12 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
             job, folder = jobs[k], jobs[k].output_dir
             folder.mkdir(parents=True, exist_ok=True)
             with open(folder / "log.txt", "w") as log:
-                code = subprocess.call(_command_line(job), env={**env, "CUDA_VISIBLE_DEVICES": str(gpu)}, stdout=log, stderr=subprocess.STDOUT)
+                code = subprocess.call(
+                    _command_line(job),
+                    env={**env, "CUDA_VISIBLE_DEVICES": str(gpu)},
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                )
             what = f"{', '.join(job.methods)} on {', '.join(map(scene_name, job.scenes))}"
             print(f"  GPU {gpu}: {what} {'done' if code == 0 else f'exited with {code}'} ({folder / 'log.txt'})")
             if (folder / "bench.json").is_file():
@@ -510,12 +623,26 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
 
 
 def _spread_over_gpus(args: BenchArgs) -> Dict:
-    """Every scene x method x seed run in `output_dir/gpuI/NN_SCENE_METHOD_seedS/`, over `args.gpus` GPUs, then merged."""
-    triples = [(scene, method, seed) for scene in args.scenes for method in args.methods for seed in range(args.seed, args.seed + args.seeds)]
+    """Every scene x method x seed run in `output_dir/gpuI/NN_SCENE_METHOD_seedS/` over `args.gpus` GPUs, merged."""
+    triples = [
+        (scene, method, seed)
+        for scene in args.scenes
+        for method in args.methods
+        for seed in range(args.seed, args.seed + args.seeds)
+    ]
     cache = args.cache_dir or args.output_dir / "cache"  # one cache for all (triangulation once)
     jobs = [
-        dataclasses.replace(args, scenes=(scene,), methods=(method,), seed=seed, seeds=1, cache_dir=cache, gpus=1, runs_per_gpu=1,
-                            output_dir=args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}_seed{seed}")
+        dataclasses.replace(
+            args,
+            scenes=(scene,),
+            methods=(method,),
+            seed=seed,
+            seeds=1,
+            cache_dir=cache,
+            gpus=1,
+            runs_per_gpu=1,
+            output_dir=args.output_dir / f"gpu{k % args.gpus}" / f"{k:02d}_{scene_name(scene)}_{method}_seed{seed}",
+        )
         for k, (scene, method, seed) in enumerate(triples)
     ]
     done = run_in_gpu_queues(jobs, args.gpus, args.runs_per_gpu)
@@ -525,7 +652,10 @@ def _spread_over_gpus(args: BenchArgs) -> Dict:
     finished = {(r["scene"], r["method"], r.get("seed")) for r in merged["runs"]}
     lost = [(s, m, seed) for s, m, seed in triples if (scene_name(s), run_label(m, args), seed) not in finished]
     if lost:
-        print("  no result (see its log.txt): " + ", ".join(f"{m} on {scene_name(s)} (seed {seed})" for s, m, seed in lost))
+        print(
+            "  no result (see its log.txt): "
+            + ", ".join(f"{m} on {scene_name(s)} (seed {seed})" for s, m, seed in lost)
+        )
     return merged
 
 

@@ -52,10 +52,22 @@ def _rows(results: List[Dict]) -> List[Dict]:
             if "failed" in run:
                 rows.append({"budget": budget, "failed": run["failed"], "method": run["method"], "scene": run["scene"]})
                 continue
-            rows.append({"budget": budget, "method": run["method"], "scene": run["scene"], "gaussians": run["gaussians"],
-                         "psnr": run["psnr_aligned"], "ssim": run["ssim_aligned"], "ms_per_step": run["ms_per_step"]})
+            rows.append(
+                {
+                    "budget": budget,
+                    "method": run["method"],
+                    "scene": run["scene"],
+                    "gaussians": run["gaussians"],
+                    "psnr": run["psnr_aligned"],
+                    "ssim": run["ssim_aligned"],
+                    "ms_per_step": run["ms_per_step"],
+                }
+            )
     if len({(r["method"], r["scene"]) for r in rows}) > 1:
-        raise ValueError("a budget sweep compares one method on one scene; got " + ", ".join(sorted({f"{r['method']} on {r['scene']}" for r in rows})))
+        raise ValueError(
+            "a budget sweep compares one method on one scene; got "
+            + ", ".join(sorted({f"{r['method']} on {r['scene']}" for r in rows}))
+        )
     return sorted(rows, key=lambda r: r["budget"] if r["budget"] not in (None, 0) else UNCAPPED)
 
 
@@ -84,19 +96,32 @@ def _write(args: SweepArgs, rows: List[Dict]) -> Dict:
         if "failed" in r:
             lines.append(f"| {label(r['budget'])} | failed: {r['failed'][:80]} | | | |")
         else:
-            lines.append(f"| {label(r['budget'])} | {r['gaussians']:,} | {r['psnr']:.2f} | {r['ssim']:.3f} | {r['ms_per_step']:.2f} |")
+            lines.append(
+                f"| {label(r['budget'])} | {r['gaussians']:,} | {r['psnr']:.2f} | {r['ssim']:.3f} | "
+                f"{r['ms_per_step']:.2f} |"
+            )
     if best is not None:
-        lines += ["", f"Knee (smallest budget within {args.tolerance} dB of the best run): {label(best['budget'])}, {best['gaussians']:,} Gaussians, {best['psnr']:.2f} dB."]
+        lines += [
+            "",
+            f"Knee (smallest budget within {args.tolerance} dB of the best run): {label(best['budget'])}, "
+            f"{best['gaussians']:,} Gaussians, {best['psnr']:.2f} dB.",
+        ]
     (args.output_dir / "sweep.md").write_text("\n".join(lines) + "\n")
     done = [r for r in rows if "failed" not in r]
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot([r["gaussians"] for r in done], [r["psnr"] for r in done], marker="o")
     for r in done:
-        ax.annotate(label(r["budget"]), (r["gaussians"], r["psnr"]), fontsize=7, textcoords="offset points", xytext=(4, 4))
+        ax.annotate(
+            label(r["budget"]), (r["gaussians"], r["psnr"]), fontsize=7, textcoords="offset points", xytext=(4, 4)
+        )
     if best is not None:
         ax.axvline(best["gaussians"], ls="--", color="grey", label=f"knee: {label(best['budget'])}")
         ax.legend(fontsize=8)
-    ax.set(title=f"{done[0]['method']} on {done[0]['scene']}" if done else "no finished run", xlabel="final Gaussians", ylabel="held-out PSNR (dB, aligned)")
+    ax.set(
+        title=f"{done[0]['method']} on {done[0]['scene']}" if done else "no finished run",
+        xlabel="final Gaussians",
+        ylabel="held-out PSNR (dB, aligned)",
+    )
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(args.output_dir / "psnr_vs_gaussians.png", dpi=120)
@@ -112,8 +137,17 @@ def main(args: SweepArgs) -> Dict:
     from experiments.bench import main as bench
 
     jobs = [
-        BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=args.steps, max_gaussians=budget or UNCAPPED, cache_dir=args.cache_dir,
-                  fps_frames=0, fit_steps=0, eval_at=(args.steps,), output_dir=args.output_dir / f"budget_{budget or 'uncapped'}")
+        BenchArgs(
+            scenes=(args.scene,),
+            methods=(args.method,),
+            steps=args.steps,
+            max_gaussians=budget or UNCAPPED,
+            cache_dir=args.cache_dir,
+            fps_frames=0,
+            fit_steps=0,
+            eval_at=(args.steps,),
+            output_dir=args.output_dir / f"budget_{budget or 'uncapped'}",
+        )
         for budget in args.budgets
     ]
     if args.gpus > 1:

@@ -67,11 +67,20 @@ def main(args: SweepArgs) -> None:
     result = {"demo_clean_std_dI": float(np.std(relative_mean_change([c.mean() for c in clean]))), "rows": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1))
-    lines = ["| alpha | beta | demo RMSE vs clean (counts) | demo std dI_t | DUNR std dI_t |", "| --- | --- | --- | --- | --- |"]
+    lines = [
+        "| alpha | beta | demo RMSE vs clean (counts) | demo std dI_t | DUNR std dI_t |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for r in rows:
         name = ("raw", "") if r["alpha"] is None else (f"{r['alpha']:g}", f"{r['beta']:g}")
-        lines.append(f"| {name[0]} | {name[1]} | {r['demo_rmse_counts']:.2f} | {r['demo_std_dI']:.5f} | {r.get('dunr_std_dI', float('nan')):.5f} |")
-    lines.append(f"\nClean demo frames' own std dI_t: {result['demo_clean_std_dI']:.5f} (real content change as the camera moves).")
+        lines.append(
+            f"| {name[0]} | {name[1]} | {r['demo_rmse_counts']:.2f} | {r['demo_std_dI']:.5f} | "
+            f"{r.get('dunr_std_dI', float('nan')):.5f} |"
+        )
+    lines.append(
+        f"\nClean demo frames' own std dI_t: {result['demo_clean_std_dI']:.5f} (real content change as the camera "
+        f"moves)."
+    )
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -61,7 +61,8 @@ def _kernel_microseconds(prof) -> float:
     return sum(
         e.time_range.elapsed_us()
         for e in prof.events()
-        if e.device_type == DeviceType.CUDA and not getattr(e, "is_user_annotation", False)
+        if e.device_type == DeviceType.CUDA
+        and not getattr(e, "is_user_annotation", False)
         and not e.name.startswith(("thermal/", "Optimizer.", "ProfilerStep"))
     )
 
@@ -74,7 +75,8 @@ class _Phases:
     SYNC_STEPS = 5
 
     def __init__(self, args: ProfileArgs, cuda: bool):
-        from torch.profiler import ProfilerActivity, profile as torch_profile
+        from torch.profiler import ProfilerActivity
+        from torch.profiler import profile as torch_profile
 
         self.cuda = cuda
         self.timed = (args.warmup, args.warmup + args.steps)
@@ -116,8 +118,15 @@ class _Phases:
 
 def profile(args: ProfileArgs) -> Dict:
     args.output_dir.mkdir(parents=True, exist_ok=True)
-    bench_args = BenchArgs(scenes=(args.scene,), methods=(args.method,), steps=FULL_SCHEDULE, schedule=FULL_SCHEDULE, max_gaussians=args.max_gaussians,
-                           output_dir=args.output_dir, cache_dir=args.cache_dir)
+    bench_args = BenchArgs(
+        scenes=(args.scene,),
+        methods=(args.method,),
+        steps=FULL_SCHEDULE,
+        schedule=FULL_SCHEDULE,
+        max_gaussians=args.max_gaussians,
+        output_dir=args.output_dir,
+        cache_dir=args.cache_dir,
+    )
     trainer = setup_trainer(trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs"))
     cuda = torch.cuda.is_available()
     phases = _Phases(args, cuda)
@@ -132,16 +141,30 @@ def profile(args: ProfileArgs) -> Dict:
     sections = sorted((e for e in events if e.key.startswith("thermal/")), key=lambda e: e.key)
 
     def row(e) -> Dict:
-        return {"name": e.key, "calls_per_step": e.count / n, "self_gpu_ms": _device_time(e) / 1000 / n,
-                "self_cpu_ms": e.self_cpu_time_total / 1000 / n}
+        return {
+            "name": e.key,
+            "calls_per_step": e.count / n,
+            "self_gpu_ms": _device_time(e) / 1000 / n,
+            "self_cpu_ms": e.self_cpu_time_total / 1000 / n,
+        }
 
     result = {
-        "scene": args.scene, "method": args.method, "device": device_name(),
-        "torch": torch.__version__, "warmup": args.warmup, "gaussians": int(trainer.pipeline.model.num_points),
-        "ms_per_step": round(ms_per_step, 3), "profiled_ms_per_step": round(profiled_ms, 3), "gpu_kernel_ms_per_step": round(gpu_ms, 3),
+        "scene": args.scene,
+        "method": args.method,
+        "device": device_name(),
+        "torch": torch.__version__,
+        "warmup": args.warmup,
+        "gaussians": int(trainer.pipeline.model.num_points),
+        "ms_per_step": round(ms_per_step, 3),
+        "profiled_ms_per_step": round(profiled_ms, 3),
+        "gpu_kernel_ms_per_step": round(gpu_ms, 3),
         "host_syncs_per_step": {k: v / _Phases.SYNC_STEPS for k, v in syncs.items()},
-        "sections": [{"name": e.key, "cpu_ms": e.cpu_time_total / 1000 / n, "gpu_ms": _inclusive_device_time(e) / 1000 / n} for e in sections],
-        "top_gpu": [row(e) for e in by_gpu], "top_cpu": [row(e) for e in by_cpu],
+        "sections": [
+            {"name": e.key, "cpu_ms": e.cpu_time_total / 1000 / n, "gpu_ms": _inclusive_device_time(e) / 1000 / n}
+            for e in sections
+        ],
+        "top_gpu": [row(e) for e in by_gpu],
+        "top_cpu": [row(e) for e in by_cpu],
     }
     (args.output_dir / "profile.json").write_text(json.dumps(result, indent=1))
     (args.output_dir / "profile.md").write_text(_markdown(result))
@@ -151,9 +174,11 @@ def profile(args: ProfileArgs) -> Dict:
 
 def _markdown(r: Dict) -> str:
     lines = [
-        f"# {r['method']} on {r['scene']} ({r['device']}, torch {r['torch']}), after {r['warmup']} steps, {r['gaussians']} Gaussians",
+        f"# {r['method']} on {r['scene']} ({r['device']}, torch {r['torch']}), after {r['warmup']} steps, "
+        f"{r['gaussians']} Gaussians",
         "",
-        f"- {r['ms_per_step']:.2f} ms/step unprofiled; {r['profiled_ms_per_step']:.2f} ms/step profiled, of which GPU kernels {r['gpu_kernel_ms_per_step']:.2f} ms",
+        f"- {r['ms_per_step']:.2f} ms/step unprofiled; {r['profiled_ms_per_step']:.2f} ms/step profiled, of which "
+        f"GPU kernels {r['gpu_kernel_ms_per_step']:.2f} ms",
         f"- host syncs per step: {sum(r['host_syncs_per_step'].values()):.1f}",
         "",
     ]
@@ -161,8 +186,17 @@ def _markdown(r: Dict) -> str:
     lines += ["", "| section | CPU ms/step | GPU ms/step |", "| --- | --- | --- |"]
     lines += [f"| {s['name']} | {s['cpu_ms']:.3f} | {s['gpu_ms']:.3f} |" for s in r["sections"]]
     for title, rows in (("by GPU time", r["top_gpu"]), ("by CPU time", r["top_cpu"])):
-        lines += ["", f"Top operators {title}:", "", "| operator | calls/step | self GPU ms | self CPU ms |", "| --- | --- | --- | --- |"]
-        lines += [f"| {x['name'][:70]} | {x['calls_per_step']:.1f} | {x['self_gpu_ms']:.3f} | {x['self_cpu_ms']:.3f} |" for x in rows]
+        lines += [
+            "",
+            f"Top operators {title}:",
+            "",
+            "| operator | calls/step | self GPU ms | self CPU ms |",
+            "| --- | --- | --- | --- |",
+        ]
+        lines += [
+            f"| {x['name'][:70]} | {x['calls_per_step']:.1f} | {x['self_gpu_ms']:.3f} | {x['self_cpu_ms']:.3f} |"
+            for x in rows
+        ]
     return "\n".join(lines) + "\n"
 
 

@@ -71,17 +71,32 @@ def measure_fps(pipeline, frames: int) -> Dict:
     with torch.no_grad():
         if has_mlp:
             ways["unbaked"] = unbaked
-            result["max_abs_difference_baked_unbaked"] = max(float((unbaked(i) - baked(i)).abs().max()) for i in range(len(cameras)))
+            result["max_abs_difference_baked_unbaked"] = max(
+                float((unbaked(i) - baked(i)).abs().max()) for i in range(len(cameras))
+            )
         if ours:
             splat = dict(
-                means=model.means, quats=model.quats, scales=torch.exp(model.scales),
-                opacities=torch.sigmoid(model.opacities).squeeze(-1), colors=model.gaussian_emission(model.inference_embedding()),
+                means=model.means,
+                quats=model.quats,
+                scales=torch.exp(model.scales),
+                opacities=torch.sigmoid(model.opacities).squeeze(-1),
+                colors=model.gaussian_emission(model.inference_embedding()),
             )
-            views = [(world_to_camera(c.camera_to_worlds), model.intrinsics(c)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
+            views = [
+                (world_to_camera(c.camera_to_worlds), model.intrinsics(c)) for c in cameras
+            ]  # [1, 4, 4], [1, 3, 3]
 
             def splat_only(i: int) -> torch.Tensor:
                 viewmat, K = views[i % len(views)]
-                return rasterization(**splat, viewmats=viewmat, Ks=K, width=width, height=height, packed=False, backend=model.config.rasterizer)[0]
+                return rasterization(
+                    **splat,
+                    viewmats=viewmat,
+                    Ks=K,
+                    width=width,
+                    height=height,
+                    packed=False,
+                    backend=model.config.rasterizer,
+                )[0]
 
             ways["splat_only"] = splat_only
         result["fps"] = {name: round(_fps(fn, frames), 1) for name, fn in ways.items()}

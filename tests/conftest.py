@@ -1,10 +1,5 @@
-import os
-
-os.environ.setdefault("TORCHDYNAMO_DISABLE", "1")
-
-import pytest  # noqa: E402
-import torch  # noqa: E402
-
+import pytest
+import torch
 
 
 def random_scene(n: int, width: int, height: int, seed: int = 0, dtype=torch.float32, device="cpu"):

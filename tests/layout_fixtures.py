@@ -79,12 +79,42 @@ def write_thermalnerf(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndar
     for i, c2w in enumerate(cameras(n)):
         rgb = np.zeros((60, 80, 3), np.uint8)
         cv2.imwrite(str(root / "images_rgb" / f"{i:04d}.png"), rgb)
-        frames.append({"file_path": f"images_rgb/{i:04d}.png", "is_thermal": False, "transform_matrix": opengl(c2w).tolist(),
-                       "fl_x": 70.0, "fl_y": 70.0, "cx": 40.0, "cy": 30.0, "w": 80, "h": 60, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0})
+        frames.append(
+            {
+                "file_path": f"images_rgb/{i:04d}.png",
+                "is_thermal": False,
+                "transform_matrix": opengl(c2w).tolist(),
+                "fl_x": 70.0,
+                "fl_y": 70.0,
+                "cx": 40.0,
+                "cy": 30.0,
+                "w": 80,
+                "h": 60,
+                "k1": 0.0,
+                "k2": 0.0,
+                "p1": 0.0,
+                "p2": 0.0,
+            }
+        )
         K = _K(52.0, 53.0, 33.0, 23.5)
         cv2.imwrite(str(root / "images_thermal" / f"{i:04d}.png"), thermal_image(64, 48, i, np.uint8))
-        frames.append({"file_path": f"images_thermal/{i:04d}.png", "is_thermal": True, "transform_matrix": opengl(c2w).tolist(),
-                       "fl_x": 52.0, "fl_y": 53.0, "cx": 33.0, "cy": 23.5, "w": 64, "h": 48, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0})
+        frames.append(
+            {
+                "file_path": f"images_thermal/{i:04d}.png",
+                "is_thermal": True,
+                "transform_matrix": opengl(c2w).tolist(),
+                "fl_x": 52.0,
+                "fl_y": 53.0,
+                "cx": 33.0,
+                "cy": 23.5,
+                "w": 64,
+                "h": 48,
+                "k1": 0.0,
+                "k2": 0.0,
+                "p1": 0.0,
+                "p2": 0.0,
+            }
+        )
         truth.append((c2w, K))
     (root / "transforms.json").write_text(json.dumps({"camera_model": "OPENCV", "frames": frames}))
     return truth
@@ -99,7 +129,16 @@ def write_nerfstudio(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndarr
         cv2.imwrite(str(root / "images" / f"{i:04d}.png"), thermal_image(64, 48, i))
         frames.append({"file_path": f"images/{i:04d}.png", "transform_matrix": opengl(c2w).tolist()})
         truth.append((c2w, K))
-    meta = {"camera_model": "OPENCV", "fl_x": 55.0, "fl_y": 56.0, "cx": 32.0, "cy": 24.0, "w": 64, "h": 48, "frames": frames}
+    meta = {
+        "camera_model": "OPENCV",
+        "fl_x": 55.0,
+        "fl_y": 56.0,
+        "cx": 32.0,
+        "cy": 24.0,
+        "w": 64,
+        "h": 48,
+        "frames": frames,
+    }
     (root / "transforms.json").write_text(json.dumps(meta))
     return truth
 
@@ -136,8 +175,14 @@ def write_llff(root: Path, n: int = 10, folder: str = "images") -> List[Tuple[np
 
 
 def write_colmap_model(
-    folder: Path, names: List[str], poses: List[np.ndarray], K: np.ndarray, size: Tuple[int, int], binary: bool = True,
-    with_point: bool = True, extra_points: int = 0,
+    folder: Path,
+    names: List[str],
+    poses: List[np.ndarray],
+    K: np.ndarray,
+    size: Tuple[int, int],
+    binary: bool = True,
+    with_point: bool = True,
+    extra_points: int = 0,
 ) -> None:
     """A COLMAP model of these posed images, with KNOWN_POINT as its first 3D point (or none) and
     `extra_points` more around it."""
@@ -145,12 +190,17 @@ def write_colmap_model(
 
     folder.mkdir(parents=True, exist_ok=True)
     rec = pycolmap.Reconstruction()
-    camera = pycolmap.Camera(model="PINHOLE", width=size[0], height=size[1], params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+    camera = pycolmap.Camera(
+        model="PINHOLE", width=size[0], height=size[1], params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
+    )
     camera.camera_id = 1
     rec.add_camera_with_trivial_rig(camera)
     for i, (name, c2w) in enumerate(zip(names, poses)):
         w2c = np.linalg.inv(c2w)
-        rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=1, image_id=i + 1), pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]))
+        rec.add_image_with_trivial_frame(
+            pycolmap.Image(name=name, camera_id=1, image_id=i + 1),
+            pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]),
+        )
     if with_point:
         rec.add_point3D(KNOWN_POINT, pycolmap.Track(), np.array([200, 200, 200], np.uint8))
         for offset in np.random.default_rng(0).normal(0.0, 0.2, (extra_points, 3)):
@@ -179,19 +229,30 @@ def write_thermalmix(root: Path, n: int = 24) -> List[Tuple[np.ndarray, np.ndarr
     (root / "thermal").mkdir(parents=True)
     (root / "rgb").mkdir()
     names = [f"IMG_{i:03d}.JPG" for i in range(n)]
-    for i, name in enumerate(names):
+    for i in range(n):
         cv2.imwrite(str(root / "thermal" / f"IMG_{i:03d}.jpg"), thermal_image(80, 60, i, np.uint8))
     poses = cameras(n)
     write_colmap_model(root / "colmap_sparse" / "0", names, poses, K, (80, 60))
     return [(c2w, K) for c2w in poses]
 
 
-def write_colmap(root: Path, n: int = 17, binary: bool = True, with_point: bool = True, extra_points: int = 0) -> List[Tuple[np.ndarray, np.ndarray]]:
+def write_colmap(
+    root: Path, n: int = 17, binary: bool = True, with_point: bool = True, extra_points: int = 0
+) -> List[Tuple[np.ndarray, np.ndarray]]:
     K = _K(60.0, 61.0, 31.5, 24.5)
     (root / "images").mkdir(parents=True)
     names = [f"frame_{i}.png" for i in range(n)]  # natural order: frame_2 before frame_10
     for i, name in enumerate(names):
         cv2.imwrite(str(root / "images" / name), thermal_image(64, 48, i))
     poses = cameras(n)
-    write_colmap_model(root / "sparse" / "0", names, poses, K, (64, 48), binary=binary, with_point=with_point, extra_points=extra_points)
+    write_colmap_model(
+        root / "sparse" / "0",
+        names,
+        poses,
+        K,
+        (64, 48),
+        binary=binary,
+        with_point=with_point,
+        extra_points=extra_points,
+    )
     return [(c2w, K) for c2w in poses]

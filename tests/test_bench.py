@@ -5,19 +5,35 @@ import json
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 import torch
 
-import numpy as np
+pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 
 def test_bench_runs_end_to_end_on_cpu(tmp_path):
     from experiments.bench import BenchArgs, main
 
     out = tmp_path / "bench"
-    main(BenchArgs(methods=("wild-thermal-3dgs", "wild-thermal"), steps=100, eval_at=(50, 100), seeds=2, fit_steps=3, fps_frames=2, output_dir=out))
+    main(
+        BenchArgs(
+            methods=("wild-thermal-3dgs", "wild-thermal"),
+            steps=100,
+            eval_at=(50, 100),
+            seeds=2,
+            fit_steps=3,
+            fps_frames=2,
+            output_dir=out,
+        )
+    )
     result = json.loads((out / "bench.json").read_text())
-    assert [(r["method"], r["seed"]) for r in result["runs"]] == [("wild-thermal-3dgs", 0), ("wild-thermal-3dgs", 1), ("wild-thermal", 0), ("wild-thermal", 1)]
+    assert [(r["method"], r["seed"]) for r in result["runs"]] == [
+        ("wild-thermal-3dgs", 0),
+        ("wild-thermal-3dgs", 1),
+        ("wild-thermal", 0),
+        ("wild-thermal", 1),
+    ]
     for run in result["runs"]:
         assert [p["step"] for p in run["curve"]] == [50, 100]
         assert run["curve"][0]["seconds"] < run["curve"][1]["seconds"]
@@ -63,7 +79,16 @@ def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(t
     from experiments.bench import BenchArgs, main
 
     # time is up from the first step; the limit is checked every 100 steps, before an evaluation
-    result = main(BenchArgs(methods=("wild-thermal-3dgs",), steps=300, eval_at=(100,), fps_frames=0, time_limit=1e-9, output_dir=tmp_path))
+    result = main(
+        BenchArgs(
+            methods=("wild-thermal-3dgs",),
+            steps=300,
+            eval_at=(100,),
+            fps_frames=0,
+            time_limit=1e-9,
+            output_dir=tmp_path,
+        )
+    )
     (run,) = result["runs"]
     assert run["failed"].startswith("RunTooSlow: --time-limit reached at step 100 (")
     assert "- wild-thermal-3dgs on demo (seed 0): RunTooSlow" in (tmp_path / "bench.md").read_text()
@@ -75,9 +100,15 @@ def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
     from experiments.bench import BenchArgs, main
 
     methods = ("wild-thermal-3dgs", "wild-thermal-3dgs-bbhe", "wild-thermal-3dgs-stab")
-    result = main(BenchArgs(methods=methods, steps=20, eval_at=(20,), fit_steps=2, fps_frames=0, gpus=2, output_dir=tmp_path))
+    result = main(
+        BenchArgs(methods=methods, steps=20, eval_at=(20,), fit_steps=2, fps_frames=0, gpus=2, output_dir=tmp_path)
+    )
     assert [r["method"] for r in result["runs"]] == list(methods) and not any("failed" in r for r in result["runs"])
-    for folder in ("gpu0/00_demo_wild-thermal-3dgs_seed0", "gpu1/01_demo_wild-thermal-3dgs-bbhe_seed0", "gpu0/02_demo_wild-thermal-3dgs-stab_seed0"):
+    for folder in (
+        "gpu0/00_demo_wild-thermal-3dgs_seed0",
+        "gpu1/01_demo_wild-thermal-3dgs-bbhe_seed0",
+        "gpu0/02_demo_wild-thermal-3dgs-stab_seed0",
+    ):
         assert (tmp_path / folder / "bench.json").is_file() and (tmp_path / folder / "log.txt").is_file()
     assert json.loads((tmp_path / "bench.json").read_text())["runs"] == result["runs"]
     # each worker's command line carries every setting of its job
@@ -85,7 +116,14 @@ def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
 
     from experiments.bench import _command_line
 
-    job = BenchArgs(methods=methods[:1], steps=20, schedule=30000, time_limit=9.5, cache_dir=tmp_path / "cache", output_dir=tmp_path / "x")
+    job = BenchArgs(
+        methods=methods[:1],
+        steps=20,
+        schedule=30000,
+        time_limit=9.5,
+        cache_dir=tmp_path / "cache",
+        output_dir=tmp_path / "x",
+    )
     assert tyro.cli(BenchArgs, args=_command_line(job)[3:]) == job
     assert "| wild-thermal-3dgs-stab | " in (tmp_path / "bench.md").read_text()
 
@@ -98,12 +136,20 @@ def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeyp
     from experiments.bench import BenchArgs, main
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
-    monkeypatch.setattr(os, "cpu_count", lambda: 2)  # the parent's count sets the workers' share (torch caps it at the real cores)
+    monkeypatch.setattr(
+        os, "cpu_count", lambda: 2
+    )  # the parent's count sets the workers' share (torch caps it at the real cores)
     methods = ("wild-thermal-3dgs", "wild-thermal-3dgs-bbhe")
-    result = main(BenchArgs(methods=methods, steps=20, eval_at=(20,), fit_steps=2, fps_frames=0, runs_per_gpu=2, output_dir=tmp_path))
+    result = main(
+        BenchArgs(
+            methods=methods, steps=20, eval_at=(20,), fit_steps=2, fps_frames=0, runs_per_gpu=2, output_dir=tmp_path
+        )
+    )
     assert [r["method"] for r in result["runs"]] == list(methods)
     assert all(r["runs_per_gpu"] == 2 and r["torch_threads"] == 1 for r in result["runs"])  # 2 cores / 2 queues
-    assert (tmp_path / "gpu0/00_demo_wild-thermal-3dgs_seed0/bench.json").is_file() and (tmp_path / "gpu0/01_demo_wild-thermal-3dgs-bbhe_seed0/bench.json").is_file()
+    assert (tmp_path / "gpu0/00_demo_wild-thermal-3dgs_seed0/bench.json").is_file() and (
+        tmp_path / "gpu0/01_demo_wild-thermal-3dgs-bbhe_seed0/bench.json"
+    ).is_file()
     assert "(2 runs per GPU)" in (tmp_path / "bench.md").read_text()
     assert json.loads((tmp_path / "bench.json").read_text())["runs"][0]["runs_per_gpu"] == 2
 
@@ -112,7 +158,9 @@ def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
     from experiments.bench import BenchArgs, run_label, trainer_config
 
     for method in ("splatfacto", "wild-thermal"):
-        assert trainer_config(method, "demo", BenchArgs(output_dir=tmp_path), tmp_path).pipeline.model.num_downscales == 2  # the configs' own
+        assert (
+            trainer_config(method, "demo", BenchArgs(output_dir=tmp_path), tmp_path).pipeline.model.num_downscales == 2
+        )  # the configs' own
         config = trainer_config(method, "demo", BenchArgs(output_dir=tmp_path, num_downscales=0), tmp_path)
         assert config.pipeline.model.num_downscales == 0, method
         assert config.experiment_name == f"{method}_num-downscales_0_seed0"  # its own run folder beside the stock run's
@@ -120,8 +168,14 @@ def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
     assert run_label("splatfacto", BenchArgs()) == "splatfacto"
     assert run_label("splatfacto", BenchArgs(num_downscales=1)) == "splatfacto (num-downscales 1)"
     # so is a changed equalization strength, where the method has an equalization step to change
-    assert run_label("wild-thermal", BenchArgs(equalization_strength=1.0, num_downscales=1)) == "wild-thermal (num-downscales 1, equalization-strength 1)"
-    assert run_label("wild-thermal-3dgs-histeq", BenchArgs(equalization_strength=0.25)) == "wild-thermal-3dgs-histeq (equalization-strength 0.25)"
+    assert (
+        run_label("wild-thermal", BenchArgs(equalization_strength=1.0, num_downscales=1))
+        == "wild-thermal (num-downscales 1, equalization-strength 1)"
+    )
+    assert (
+        run_label("wild-thermal-3dgs-histeq", BenchArgs(equalization_strength=0.25))
+        == "wild-thermal-3dgs-histeq (equalization-strength 0.25)"
+    )
     for unchanged in ("splatfacto", "wild-thermal-3dgs", "wild-thermal-emission-mlp", "wild-thermal-3dgs-stab"):
         assert run_label(unchanged, BenchArgs(equalization_strength=1.0)) == unchanged
     config = trainer_config("wild-thermal", "demo", BenchArgs(output_dir=tmp_path, equalization_strength=0.5), tmp_path)
@@ -129,8 +183,8 @@ def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
 
 
 def test_unknown_method_and_protocol_are_refused(tmp_path):
-    from thermal_wild_ns.analysis.evaluation import evaluate
     from experiments.bench import BenchArgs, trainer_config
+    from thermal_wild_ns.analysis.evaluation import evaluate
 
     with pytest.raises(ValueError, match="unknown method 'nerfacto'"):
         trainer_config("nerfacto", "demo", BenchArgs(output_dir=tmp_path), tmp_path)
@@ -142,7 +196,17 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
     from experiments.bench import BenchArgs, main
 
     out = tmp_path / "bench"
-    result = main(BenchArgs(scenes=("stress:outlier",), methods=("wild-thermal-3dgs",), steps=30, eval_at=(30,), fit_steps=2, fps_frames=0, output_dir=out))
+    result = main(
+        BenchArgs(
+            scenes=("stress:outlier",),
+            methods=("wild-thermal-3dgs",),
+            steps=30,
+            eval_at=(30,),
+            fit_steps=2,
+            fps_frames=0,
+            output_dir=out,
+        )
+    )
     path = result["runs"][0]["path"]
     assert path["views"] == 60 and 0.0 <= path["floater_fraction"] <= 1.0 and path["flicker_pixel_excess"] >= 0.0
     assert 0.0 <= path["visible_floater_fraction"] <= path["floater_fraction"]
@@ -158,7 +222,10 @@ def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
 def test_budget_knee_is_the_smallest_budget_near_the_best_run():
     from experiments.budget_sweep import knee
 
-    rows = [{"budget": b, "psnr": p, "gaussians": b or 400_000} for b, p in ((50_000, 29.0), (100_000, 29.85), (150_000, 30.1), (0, 30.0))]
+    rows = [
+        {"budget": b, "psnr": p, "gaussians": b or 400_000}
+        for b, p in ((50_000, 29.0), (100_000, 29.85), (150_000, 30.1), (0, 30.0))
+    ]
     assert knee(rows, 0.3)["budget"] == 100_000
     assert knee(rows, 0.2)["budget"] == 150_000
     # DUNR's sweep: the uncapped run is not the best; the knee is measured against the best (100k),
@@ -196,7 +263,9 @@ def test_a_bench_of_only_skipped_runs_still_writes_its_table(tmp_path):
     empty record and table instead of dying while drawing a chart with no scenes."""
     from experiments.bench import BenchArgs, main
 
-    result = main(BenchArgs(methods=("splatfacto",), steps=20, eval_at=(20,), fit_steps=2, fps_frames=0, output_dir=tmp_path))
+    result = main(
+        BenchArgs(methods=("splatfacto",), steps=20, eval_at=(20,), fit_steps=2, fps_frames=0, output_dir=tmp_path)
+    )
     assert result["runs"] == []
     assert json.loads((tmp_path / "bench.json").read_text())["runs"] == []
     assert (tmp_path / "bench.md").is_file() and not (tmp_path / "speed_accuracy.png").exists()

@@ -5,12 +5,11 @@ same known cameras in its layout's convention; after parsing, a known 3D point m
 the pixel the true camera sees it at, in every layout and split.
 """
 
-
+import layout_fixtures as fx
 import numpy as np
 import pytest
 import torch
 
-import layout_fixtures as fx
 from thermal_wild_ns.data.capture import fraction_split
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.layouts import detect_layout
@@ -30,7 +29,7 @@ def reproject(outputs, index: int, point: np.ndarray) -> np.ndarray:
 
 CASES = {
     # layout: (writer, folder name, expected held-out indices in capture order, n)
-    "thermalnerf": (fx.write_thermalnerf, "scene", [i for i, s in enumerate(fraction_split(10, 0.9)) if s == "test"]),
+    "thermalnerf": (fx.write_thermalnerf, "scene", [8]),  # nerfstudio's 'fraction' rule on 10 frames at 0.9
     "ye": (fx.write_ye, "seq01", [4, 9]),
     "llff": (fx.write_llff, "scene", [0, 8]),
     "mvtv": (lambda root: fx.write_llff(root, folder="thermal"), "scene", [0, 8]),
@@ -56,14 +55,20 @@ def test_layout_poses_intrinsics_and_split(layout, tmp_path):
             for k, i in enumerate(outputs.metadata["frame_indices"]):
                 c2w, K = truth[i]
                 expected = fx.project(c2w, K)
-                np.testing.assert_allclose(reproject(outputs, k, fx.KNOWN_POINT), expected, atol=2e-3, err_msg=f"{layout} frame {i}")
+                np.testing.assert_allclose(
+                    reproject(outputs, k, fx.KNOWN_POINT), expected, atol=2e-3, err_msg=f"{layout} frame {i}"
+                )
                 assert float(outputs.cameras.fx[k]) == pytest.approx(K[0, 0], rel=1e-6)
                 assert float(outputs.cameras.cy[k]) == pytest.approx(K[1, 2], rel=1e-6)
 
 
 def test_thermalnerf_uses_thermal_frames_only(tmp_path):
     fx.write_thermalnerf(tmp_path / "s")
-    outputs = ThermalDataParserConfig(data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=8).setup().get_dataparser_outputs("train")
+    outputs = (
+        ThermalDataParserConfig(data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=8)
+        .setup()
+        .get_dataparser_outputs("train")
+    )
     assert all(p.parent.name == "images_thermal" for p in outputs.image_filenames)
     assert int(outputs.cameras.width[0]) == 64 and outputs.metadata["thermal_range"].dtype == "uint8"
 
@@ -72,7 +77,11 @@ def test_msx_iron_jpgs_decode_to_levels(tmp_path):
     from thermal_wild_ns.data.datamanager import ThermalDataset
 
     fx.write_msx(tmp_path / "s")
-    outputs = ThermalDataParserConfig(data=tmp_path / "s", layout="msx", seed_points="random", num_random_points=8).setup().get_dataparser_outputs("train")
+    outputs = (
+        ThermalDataParserConfig(data=tmp_path / "s", layout="msx", seed_points="random", num_random_points=8)
+        .setup()
+        .get_dataparser_outputs("train")
+    )
     rng = outputs.metadata["thermal_range"]
     assert rng.palette == "iron" and rng.dtype == "uint8"
     image = ThermalDataset(outputs).get_image_float32(0)[..., 0].numpy()
@@ -84,7 +93,9 @@ def test_msx_iron_jpgs_decode_to_levels(tmp_path):
 
 def test_thermalmix_keeps_published_celsius_bounds(tmp_path):
     fx.write_thermalmix(tmp_path / "lion")
-    parser = ThermalDataParserConfig(data=tmp_path / "lion", layout="thermalmix", seed_points="random", num_random_points=8).setup()
+    parser = ThermalDataParserConfig(
+        data=tmp_path / "lion", layout="thermalmix", seed_points="random", num_random_points=8
+    ).setup()
     rng = parser.get_dataparser_outputs("train").metadata["thermal_range"]
     assert (rng.low, rng.high, rng.celsius_low, rng.celsius_high) == (0.0, 255.0, 16.8, 48.3)
     assert rng.to_celsius(np.array([0.0, 1.0])).tolist() == [16.8, 48.3]
@@ -107,10 +118,14 @@ def test_layouts_train_through_the_datamanager(tmp_path):
     for layout, (writer, folder, _) in CASES.items():
         root = tmp_path / layout / folder
         writer(root)
-        config = ThermalDatamanagerConfig(dataparser=ThermalDataParserConfig(data=root, layout=layout, seed_points="random", num_random_points=32))
+        config = ThermalDatamanagerConfig(
+            dataparser=ThermalDataParserConfig(data=root, layout=layout, seed_points="random", num_random_points=32)
+        )
         datamanager = config.setup(device="cpu")
         camera, batch = datamanager.next_train(0)
-        assert batch["image"].ndim == 3 and batch["image"].shape[-1] == 1 and batch["image"].dtype == torch.float32, layout
+        assert batch["image"].ndim == 3 and batch["image"].shape[-1] == 1 and batch["image"].dtype == torch.float32, (
+            layout
+        )
         assert int(camera.height) == batch["image"].shape[0], layout
 
 
@@ -126,7 +141,9 @@ def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
     for frame in meta["frames"]:
         frame.update(k1=0.05, p1=0.001)
     (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
-    parser = ThermalDataParserConfig(data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=32)
+    parser = ThermalDataParserConfig(
+        data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=32
+    )
     datamanager = ThermalDatamanagerConfig(dataparser=parser).setup(device="cpu")
     camera, batch = datamanager.next_train(0)
     assert float(camera.distortion_params[0, 0]) == pytest.approx(0.05)
@@ -137,7 +154,26 @@ def test_a_sparse_model_too_small_to_seed_is_not_used(tmp_path):
     """One SfM point cannot initialise Gaussians (scales come from 3 neighbours): 'auto' seeds
     otherwise, 'sfm' says why it cannot."""
     fx.write_colmap(tmp_path / "s")  # KNOWN_POINT only
-    auto = ThermalDataParserConfig(data=tmp_path / "s", layout="colmap", num_random_points=50).setup().get_dataparser_outputs("train")
+    auto = (
+        ThermalDataParserConfig(data=tmp_path / "s", layout="colmap", num_random_points=50)
+        .setup()
+        .get_dataparser_outputs("train")
+    )
     assert auto.metadata["seed_points"]["source"] != "colmap" and auto.metadata["seed_points"]["count"] >= 4
     with pytest.raises(ValueError, match="seed_points='sfm' but the colmap layout has only 1 sparse points"):
-        ThermalDataParserConfig(data=tmp_path / "s", layout="colmap", seed_points="sfm").setup().get_dataparser_outputs("train")
+        ThermalDataParserConfig(data=tmp_path / "s", layout="colmap", seed_points="sfm").setup().get_dataparser_outputs(
+            "train"
+        )
+
+
+@pytest.mark.parametrize(
+    "num_frames, fraction, held_out",
+    [(10, 0.9, [8]), (45, 0.9, [10, 21, 32, 43]), (7, 0.5, [1, 3, 5]), (5, 1.0, [])],
+)
+def test_fraction_split_is_nerfstudios_rule(num_frames, fraction, held_out):
+    from nerfstudio.data.utils.dataparsers_utils import get_train_eval_split_fraction
+
+    split = fraction_split(num_frames, fraction)
+    assert [i for i, s in enumerate(split) if s == "test"] == held_out
+    _, i_eval = get_train_eval_split_fraction([f"{i}.png" for i in range(num_frames)], fraction)
+    assert i_eval.tolist() == held_out  # and nerfstudio's own code agrees

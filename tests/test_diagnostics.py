@@ -78,7 +78,9 @@ def test_error_amplification_known_answers():
     assert same["p99"] == pytest.approx(2.576, rel=0.05)  # |N(0, 1)|'s 99th percentile
     # squeezing the hottest levels 4x (a rare band, as equalization does) grows their errors 4x
     squeeze = lambda p, t: np.where(p < 0.9, p, 0.9 + 4 * (p - 0.9))  # noqa: E731
-    hot = error_amplification([np.where(r < 0.9, r, 0.9 + (r - 0.9) / 4) for r in raw], raw, squeeze, sigma=0.001, hottest=0.05)
+    hot = error_amplification(
+        [np.where(r < 0.9, r, 0.9 + (r - 0.9) / 4) for r in raw], raw, squeeze, sigma=0.001, hottest=0.05
+    )
     assert hot["rms_hottest"] == pytest.approx(4.0, rel=0.05) and hot["rms"] < 2.0
 
 
@@ -96,7 +98,9 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     assert result["summary"].startswith(demo_scene_dir.name + ": std dI_t")
     gain = written["inverse_lut_gain"]
     assert gain["median"] > 0 and gain["median_hottest"] > 0 and 0.0 <= gain["hottest_over_4x"] <= 1.0
-    assert written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 0.5  # the default
+    assert (
+        written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 0.5
+    )  # the default
     assert written["advice"].startswith("preprocessing makes the frames more consistent")  # the demo drifts
 
 
@@ -105,7 +109,9 @@ def test_diagnose_advises_against_preprocessing_a_stable_capture(tmp_path):
     from thermal_wild_ns.data.demo_scene import generate_demo_scene, stress_scene_config
 
     scene = generate_demo_scene(tmp_path / "clean", stress_scene_config("clean", path_views=0))
-    result = diagnose(DiagnoseArgs(data=scene, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4))
+    result = diagnose(
+        DiagnoseArgs(data=scene, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4)
+    )
     assert result["after"]["std_delta_i"] > result["before"]["std_delta_i"]
     assert "less consistent" in result["advice"] and "wild-thermal-emission-mlp" in result["advice"]
     for png in ("diagnostics.png", "frames.png"):

@@ -35,7 +35,9 @@ def _render_and_grads(backend, scene, width, height, weights):
 
 def _relative(a, b):
     """Error relative to the gradient's scale: max |a - b| / max |b|, and ||a - b|| / ||b||."""
-    return float((a - b).abs().max() / b.abs().max().clamp(min=1e-12)), float((a - b).norm() / b.norm().clamp(min=1e-12))
+    return float((a - b).abs().max() / b.abs().max().clamp(min=1e-12)), float(
+        (a - b).norm() / b.norm().clamp(min=1e-12)
+    )
 
 
 def test_torch_backend_matches_gsplat():

@@ -133,6 +133,8 @@ def test_scheduled_loss_jumps_rebaseline_instead_of_skipping(tmp_path, demo_scen
     model = _trainer(tmp_path, demo_scene_dir, steps=1).pipeline.model
     reset, stop, r = model.strategy.reset_every, model.strategy.refine_stop_iter, model.config.resolution_schedule
     moves = {step for step in range(1, 3 * max(reset, r) + 2) if model.schedule_moves_loss(step)}
-    expected = {s + 1 for s in range(reset, stop + 1, reset)} | {k * r for k in range(1, model.config.num_downscales + 1)}
+    expected = {s + 1 for s in range(reset, stop + 1, reset)} | {
+        k * r for k in range(1, model.config.num_downscales + 1)
+    }
     assert moves == {s for s in expected if s < 3 * max(reset, r) + 2}
     assert not model.schedule_moves_loss(1) and not model.schedule_moves_loss(2)

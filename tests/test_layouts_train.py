@@ -5,11 +5,12 @@ readers give (a COLMAP reader's float64 intrinsics once crashed every COLMAP lay
 
 from __future__ import annotations
 
+import layout_fixtures as fx
 import numpy as np
 import pytest
 import torch
 
-import layout_fixtures as fx
+pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 STEPS = 12
 
@@ -43,7 +44,9 @@ def ns_train(args):
 def test_every_registered_parser_has_a_case():
     from nerfstudio.plugins.registry_dataparser import discover_dataparsers
 
-    ours = {name for name, spec in discover_dataparsers()[0].items() if type(spec).__module__.startswith("thermal_wild_ns")}
+    ours = {
+        name for name, spec in discover_dataparsers()[0].items() if type(spec).__module__.startswith("thermal_wild_ns")
+    }
     assert ours == set(PARSERS)
 
 
@@ -54,13 +57,34 @@ def test_parser_trains_end_to_end(parser, tmp_path):
     if writer is not None:
         writer(root)
     out = tmp_path / "out"
-    config = ns_train([
-        "wild-thermal", "--max-num-iterations", str(STEPS), "--vis", "tensorboard", "--output-dir", str(out),
-        "--experiment-name", "x", "--timestamp", "run", "--steps-per-save", str(STEPS),
-        "--pipeline.model.max-gaussians", "3000", "--pipeline.model.num-downscales", "0",
-        "--pipeline.datamanager.preprocessing-cache", str(tmp_path / "cache"),
-        parser, "--data", str(root), "--num-random-points", "400",
-    ])
+    config = ns_train(
+        [
+            "wild-thermal",
+            "--max-num-iterations",
+            str(STEPS),
+            "--vis",
+            "tensorboard",
+            "--output-dir",
+            str(out),
+            "--experiment-name",
+            "x",
+            "--timestamp",
+            "run",
+            "--steps-per-save",
+            str(STEPS),
+            "--pipeline.model.max-gaussians",
+            "3000",
+            "--pipeline.model.num-downscales",
+            "0",
+            "--pipeline.datamanager.preprocessing-cache",
+            str(tmp_path / "cache"),
+            parser,
+            "--data",
+            str(root),
+            "--num-random-points",
+            "400",
+        ]
+    )
     checkpoint = sorted((out / "x" / "wild-thermal" / "run" / "nerfstudio_models").glob("step-*.ckpt"))
     assert checkpoint, "no checkpoint written"
     state = torch.load(checkpoint[-1], map_location="cpu")

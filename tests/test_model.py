@@ -13,7 +13,9 @@ def make_model(n=400, frames=5, **overrides):
     points = torch.randn(n, 3, generator=g) * 0.5
     grey = (torch.rand(n, 1, generator=g) * 255).to(torch.uint8).repeat(1, 3)
     config = WildThermalModelConfig(num_downscales=0, **overrides)
-    model = config.setup(scene_box=SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=frames, seed_points=(points, grey))
+    model = config.setup(
+        scene_box=SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=frames, seed_points=(points, grey)
+    )
     return model
 
 
@@ -194,7 +196,9 @@ def test_baked_emission_matches_and_is_invalidated():
 
 def test_mismatched_checkpoints_are_refused_with_the_reason():
     state = make_model().state_dict()
-    with pytest.raises(ValueError, match=r"checkpoint has the emission MLP \(use_emission_mlp\) but this config disables it"):
+    with pytest.raises(
+        ValueError, match=r"checkpoint has the emission MLP \(use_emission_mlp\) but this config disables it"
+    ):
         make_model(use_emission_mlp=False).load_state_dict(dict(state))
     with pytest.raises(ValueError, match=r"checkpoint lacks the background MLP"):
         make_model().load_state_dict({k: v for k, v in state.items() if not k.startswith("background_mlp.")})
@@ -244,7 +248,9 @@ def test_sync_free_densification_statistics_equal_gsplats():
     g = torch.Generator().manual_seed(3)
     n = 500
     params = {"means": torch.zeros(n, 3)}
-    ours, theirs = (cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy))
+    ours, theirs = (
+        cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy)
+    )
     states = [s.initialize_state() for s in (ours, theirs)]
     for _ in range(3):  # accumulates over steps, as in training
         means2d = torch.zeros(1, n, 2)
@@ -270,20 +276,37 @@ def test_screen_size_rule_is_skipped_where_it_would_split_every_gaussian():
 
     tiny = torch.tensor([[0.0, 0.0, 2.0], [0.1, 0.0, 2.0]])  # 0.1 mm Gaussians, 2 m away: far below a pixel
     K = torch.tensor([[[16.0, 0.0, 16.0], [0.0, 16.0, 12.0], [0.0, 0.0, 1.0]]])
-    _, _, info = rasterization(tiny, torch.tensor([[1.0, 0, 0, 0]] * 2), torch.full((2, 3), 1e-4), torch.ones(2),
-                               torch.ones(2, 1), torch.eye(4)[None], K, 32, 24)
+    _, _, info = rasterization(
+        tiny,
+        torch.tensor([[1.0, 0, 0, 0]] * 2),
+        torch.full((2, 3), 1e-4),
+        torch.ones(2),
+        torch.ones(2, 1),
+        torch.eye(4)[None],
+        K,
+        32,
+        24,
+    )
     assert info["radii"].min() == 2  # the floor the rule meets
     assert not screen_size_rule_applies(32, 24, 0.05) and screen_size_rule_applies(64, 48, 0.05)
 
     n = 4
     params = {"means": torch.zeros(n, 3)}
     for (width, height), recorded in (((32, 24), False), ((64, 48), True)):
-        ours, theirs = (cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy))
+        ours, theirs = (
+            cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy)
+        )
         states = [s.initialize_state() for s in (ours, theirs)]
         means2d = torch.zeros(1, n, 2)
         means2d.absgrad = torch.zeros(1, n, 2)  # no gradient: only the screen-size rule could split
-        info = {"width": width, "height": height, "n_cameras": 1, "radii": torch.full((1, n), 2, dtype=torch.int32),
-                "gaussian_ids": None, "means2d": means2d}
+        info = {
+            "width": width,
+            "height": height,
+            "n_cameras": 1,
+            "radii": torch.full((1, n), 2, dtype=torch.int32),
+            "gaussian_ids": None,
+            "means2d": means2d,
+        }
         for strategy, state in zip((ours, theirs), states):
             strategy._update_state(params, state, info)
         assert bool((states[1]["radii"] > theirs.grow_scale2d).all()) is not recorded  # gsplat: all split at 32 px
@@ -327,4 +350,7 @@ def test_viewer_controls_pick_colormap_and_embedding():
         model.viewer_state.value = "canonical"
         model.viewer_state.cb_hook(model.viewer_state)
         assert model.capture_time is None and torch.equal(model.get_outputs(camera)["thermal"], mean_view)
-    assert model.viewer_state.options == ["canonical", "capture time"] and model.viewer_time.max == model.frame_times[-1] == len(model.frame_times) - 1
+    assert (
+        model.viewer_state.options == ["canonical", "capture time"]
+        and model.viewer_time.max == model.frame_times[-1] == len(model.frame_times) - 1
+    )

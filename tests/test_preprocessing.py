@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from thermal_wild_ns.analysis.diagnostics import relative_mean_change
-from thermal_wild_ns.preprocessing.photometric import VARIANTS, LevelGrid, PhotometricConfig, apply_lut, frame_luts, invert_lut
+from thermal_wild_ns.preprocessing.photometric import (
+    VARIANTS,
+    LevelGrid,
+    PhotometricConfig,
+    apply_lut,
+    frame_luts,
+    invert_lut,
+)
 
 GRID16 = LevelGrid(65536)
 
@@ -20,14 +27,21 @@ def drifting_sequence(num_frames=60, seed=0):
     frames = []
     for t in range(num_frames):
         gain, offset = 1 + 0.08 * t / num_frames, 80 * t / num_frames
-        frames.append(np.clip(np.round(3000 + (base - 3000) * gain + offset + rng.normal(0, 2, base.shape)), 0, 65535).astype(np.uint16))
+        frames.append(
+            np.clip(np.round(3000 + (base - 3000) * gain + offset + rng.normal(0, 2, base.shape)), 0, 65535).astype(
+                np.uint16
+            )
+        )
     return frames
 
 
 def skewed_frames(num=5, seed=1):
     """Low-contrast uint16 frames with a long tail and empty levels (as thermal frames are)."""
     rng = np.random.default_rng(seed)
-    return [(3600 + rng.gamma(2.0, 40.0, (48, 64)) + 300 * (rng.random((48, 64)) < 0.01)).astype(np.uint16) for _ in range(num)]
+    return [
+        (3600 + rng.gamma(2.0, 40.0, (48, 64)) + 300 * (rng.random((48, 64)) < 0.01)).astype(np.uint16)
+        for _ in range(num)
+    ]
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
@@ -55,7 +69,9 @@ def test_equalization_strength_blends_bbhe_with_its_input():
     stab_only = list(frame_luts(frames, GRID16, 3550.0, 4100.0, PhotometricConfig("stab")))
     for none, stab in zip(luts(equalization_strength=0.0), stab_only):
         np.testing.assert_array_equal(none, stab)
-    for full, half, stab, frame in zip(luts(equalization_strength=1.0), luts(equalization_strength=0.5), stab_only, frames):
+    for full, half, stab, frame in zip(
+        luts(equalization_strength=1.0), luts(equalization_strength=0.5), stab_only, frames
+    ):
         # half-way between at the frame's levels, but a few that strictly_increasing lifted past long
         # stretches of empty levels (0.05 of a level per empty level)
         occupied = np.unique(frame)
@@ -98,9 +114,9 @@ def test_bbhe_preserves_mean_brightness_plain_equalization_does_not():
         assert abs(mean_bbhe - mean_in) <= 0.5 * abs(middle - mean_in) + 0.02 * (high - low)
         assert abs(mean_bbhe - mean_in) < abs(mean_he - mean_in)
         # and it does enhance: the processed frame spreads over more of the range
-        assert np.percentile(apply_lut(lut_b, frame, GRID16), 99) - np.percentile(apply_lut(lut_b, frame, GRID16), 1) > 1.5 * (
-            np.percentile(frame, 99) - np.percentile(frame, 1)
-        )
+        assert np.percentile(apply_lut(lut_b, frame, GRID16), 99) - np.percentile(
+            apply_lut(lut_b, frame, GRID16), 1
+        ) > 1.5 * (np.percentile(frame, 99) - np.percentile(frame, 1))
 
 
 def test_streaming_reads_one_frame_per_lut():
@@ -137,8 +153,14 @@ def test_float_temperatures_round_trip_on_the_16bit_grid():
     temps = [20.0 + 10.0 * rng.random((30, 40)).astype(np.float32) for _ in range(3)]
     grid = LevelGrid.for_dtype("float32", 20.0, 30.0)
     for lut, frame in zip(frame_luts(temps, grid, 20.0, 30.0, PhotometricConfig()), temps):
-        back = invert_lut(lut, apply_lut(lut, frame, grid).astype(np.float64), grid)
-        assert np.abs(back - frame).max() <= grid.step  # one level of the grid (0.0002 degC here)
+        assert np.abs(grid.values(grid.levels(frame)) - frame).max() <= 0.5 * grid.step * (1 + 1e-6)  # nearest level
+        half_level = 0.5 * grid.step * (1 + 1e-6)
+        back = invert_lut(lut, lut[grid.levels(frame)], grid)
+        assert np.abs(back - frame).max() <= half_level  # the LUT itself loses nothing but the rounding to a level
+        stored = invert_lut(lut, apply_lut(lut, frame, grid).astype(np.float64), grid)
+        # processed frames are stored as float32, whose rounding can move a value across part of a
+        # sparsely filled level (rise MIN_LUT_RISE): still well inside one level
+        assert np.abs(stored - frame).max() <= 2 * half_level
 
 
 # --------------------------------------------------------------------------- the cached stage
@@ -158,7 +180,9 @@ def test_stage_caches_and_rebuilds_when_parameters_change(demo_scene_dir, tmp_pa
     processed = np.load(first.frame_path(3))
     assert processed.dtype == np.float32 and len(np.unique(processed)) > 256  # no 8-bit re-quantisation
     raw = rng.read(frames[3].image)
-    np.testing.assert_allclose(first.to_original_normalised(processed, first.lut(3)), raw, atol=1.0 / (rng.high - rng.low))
+    np.testing.assert_allclose(
+        first.to_original_normalised(processed, first.lut(3)), raw, atol=1.0 / (rng.high - rng.low)
+    )
     # and forward again: the training-space value of a raw frame at a state
     np.testing.assert_allclose(first.to_processed_normalised(raw, first.lut(3)), processed, atol=1e-5)
 
@@ -171,8 +195,8 @@ def test_stage_caches_and_rebuilds_when_parameters_change(demo_scene_dir, tmp_pa
 
 
 def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_dir, tmp_path):
-    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 
     images = {}
     for variant in ("none", "stab+bbhe"):
@@ -189,7 +213,6 @@ def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_di
     assert images["none"].shape == images["stab+bbhe"].shape == (96, 128, 1)
     # BBHE spreads the frame over the range: the processed frame has more contrast
     assert float(images["stab+bbhe"].std()) > 1.3 * float(images["none"].std())
-
 
 
 def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_cannot_move(tmp_path):
@@ -211,7 +234,11 @@ def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_can
         # path PSNR is 47.8 dB)
         config = PhotometricConfig(equalization_strength=1.0)
         train = [i in frames for i in range(len(parser.capture().frames))]
-        return parser, preprocess(parser.capture().frames, parser.radiometric_range(), config, tmp_path / "cache", train=train), frames
+        return (
+            parser,
+            preprocess(parser.capture().frames, parser.radiometric_range(), config, tmp_path / "cache", train=train),
+            frames,
+        )
 
     clean_parser, clean, frames = scene("clean")
     _, outlier, outlier_frames = scene("outlier")
@@ -240,7 +267,11 @@ def test_time_weights_give_a_training_frames_own_state_and_interpolate_between()
     assert time_weights(times, 3.0) == (1, 1, 0.0)  # a training frame: exactly its own
     assert time_weights(times, 2.0) == (0, 1, 0.5)
     assert time_weights(times, 6.0) == (1, 2, 0.75)
-    assert time_weights(times, 0.0) == (0, 0, 0.0) and time_weights(times, 9.5) == (2, 2, 0.0)  # nearest, no extrapolation
+    assert time_weights(times, 0.0) == (0, 0, 0.0) and time_weights(times, 9.5) == (
+        2,
+        2,
+        0.0,
+    )  # nearest, no extrapolation
     with pytest.raises(ValueError, match="strictly increasing"):
         time_weights([3.0, 1.0], 2.0)
 
@@ -252,13 +283,17 @@ def test_interpolated_luts_are_strictly_increasing_and_exact_at_training_frames(
     parser = ThermalDataParserConfig(data=demo_scene_dir, layout="nerfstudio").setup()
     frames = parser.capture().frames
     train = [f.split == "train" for f in frames]
-    sequence = preprocess(frames, parser.radiometric_range(), PhotometricConfig(equalization_strength=1.0), tmp_path, train=train)
+    sequence = preprocess(
+        frames, parser.radiometric_range(), PhotometricConfig(equalization_strength=1.0), tmp_path, train=train
+    )
     held_out = [t for t, is_train in enumerate(train) if not is_train]
     assert sequence.train_indices == [t for t, is_train in enumerate(train) if is_train]
     for t in held_out[1:]:  # frame 0 lies before every training frame
         lut = sequence.lut_at(t)
         assert np.all(np.diff(lut) > 0)
-        np.testing.assert_allclose(lut, 0.5 * (sequence.lut(t - 1) + sequence.lut(t + 1)))  # every 8th is held out: midway
+        np.testing.assert_allclose(
+            lut, 0.5 * (sequence.lut(t - 1) + sequence.lut(t + 1))
+        )  # every 8th is held out: midway
         for fraction in (0.25, 0.9):
             assert np.all(np.diff(sequence.lut_at(t - 1 + fraction)) > 0)
         with pytest.raises(KeyError, match="held out"):  # its own LUT is the oracle's, never a state
@@ -286,8 +321,11 @@ def test_held_out_frames_never_change_training_or_the_predicted_renders(tmp_path
     original = generate_demo_scene(tmp_path / "scene")
     held_out = Path("images") / "frame_00008.png"  # every 8th frame is held out
     variants = {}
-    for name, change in (("same", None), ("double", lambda f: (f.astype(np.uint32) * 2).clip(0, 65535).astype(np.uint16)),
-                         ("noise", lambda f: np.random.default_rng(0).integers(0, 65535, f.shape, dtype=np.uint16))):
+    for name, change in (
+        ("same", None),
+        ("double", lambda f: (f.astype(np.uint32) * 2).clip(0, 65535).astype(np.uint16)),
+        ("noise", lambda f: np.random.default_rng(0).integers(0, 65535, f.shape, dtype=np.uint16)),
+    ):
         root = tmp_path / name
         shutil.copytree(original, root, ignore=shutil.ignore_patterns(".thermal_wild_ns"))
         if change is not None:
@@ -295,7 +333,9 @@ def test_held_out_frames_never_change_training_or_the_predicted_renders(tmp_path
             assert frame is not None and frame.dtype == np.uint16
             cv2.imwrite(str(root / held_out), change(frame))
         config = demo_trainer_config(tmp_path / f"run-{name}", steps=20, max_gaussians=2000)
-        config.pipeline.datamanager.dataparser = ThermalDataParserConfig(data=root, layout="nerfstudio", seed_points="random", num_random_points=300)
+        config.pipeline.datamanager.dataparser = ThermalDataParserConfig(
+            data=root, layout="nerfstudio", seed_points="random", num_random_points=300
+        )
         torch.manual_seed(0)
         trainer = config.setup(local_rank=0, world_size=1)
         trainer.setup()

@@ -1,16 +1,23 @@
 """Resuming from a checkpoint continues the same run: the same step, optimizer state, embeddings,
 densification statistics and training order, so the parameters match the uninterrupted run."""
 
+import pytest
 import torch
 
 from thermal_wild_ns.demo import demo_trainer_config
+
+pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 
 def _run(out, demo_scene_dir, steps, save_every, load_dir=None):
     config = demo_trainer_config(out, steps=60, max_gaussians=3000)  # the same schedule for every run
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    config.pipeline.model.densify_grad_thresh = 1e-9  # every Gaussian grows at step 10: the budget picks by the statistics
-    config.pipeline.model.stop_split_at = 60  # gsplat pauses refinement for 45 steps after start: one refinement, at step 50
+    config.pipeline.model.densify_grad_thresh = (
+        1e-9  # every Gaussian grows at step 10: the budget picks by the statistics
+    )
+    config.pipeline.model.stop_split_at = (
+        60  # gsplat pauses refinement for 45 steps after start: one refinement, at step 50
+    )
     config.max_num_iterations = steps
     config.steps_per_save = save_every
     config.save_only_latest_checkpoint = False

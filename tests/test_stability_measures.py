@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction, visible_floater_fraction
+from thermal_wild_ns.analysis.stability import (
+    background_error,
+    error_exceedance,
+    flicker,
+    floater_fraction,
+    visible_floater_fraction,
+)
 
 
 def _scene():

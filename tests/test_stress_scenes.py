@@ -18,7 +18,10 @@ def scenes(tmp_path_factory):
 
 
 def frames(scene, folder="images"):
-    return [cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float64) for p in sorted((scene / folder).glob("frame_*.png"))]
+    return [
+        cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float64)
+        for p in sorted((scene / folder).glob("frame_*.png"))
+    ]
 
 
 def test_clean_scene_is_its_own_ground_truth(scenes):

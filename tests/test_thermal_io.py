@@ -5,14 +5,14 @@ import json
 import threading
 
 import cv2
+import layout_fixtures as fx
 import numpy as np
 import pytest
 
-import layout_fixtures as fx
+from thermal_wild_ns.data import thermal_io
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.layouts import detect_layout
 from thermal_wild_ns.data.palettes import PALETTE_NAMES, apply_palette, invert_palette, palette_rgb
-from thermal_wild_ns.data import thermal_io
 from thermal_wild_ns.data.thermal_io import load_npy, read_raw_frame, scan_frames
 
 
@@ -84,7 +84,9 @@ def test_normalisation_is_per_dataset_not_per_frame(tmp_path):
     rng = scan_frames([tmp_path / "a.png", tmp_path / "b.png"], percentiles=(0.0, 100.0))
     assert (rng.low, rng.high) == (3600.0, 4000.0)
     a, b = rng.read(tmp_path / "a.png"), rng.read(tmp_path / "b.png")
-    assert a.mean() == pytest.approx(0.125) and b.mean() == pytest.approx(0.875)  # per-frame min-max would give equal means
+    assert a.mean() == pytest.approx(0.125) and b.mean() == pytest.approx(
+        0.875
+    )  # per-frame min-max would give equal means
 
 
 def test_frames_outside_the_range_are_named(tmp_path, recwarn):
@@ -98,10 +100,16 @@ def test_frames_outside_the_range_are_named(tmp_path, recwarn):
     declared = RadiometricRange(2800.0, 3800.0, "uint16")
     scan_frames([tmp_path / "a.png", tmp_path / "c.png"], declared=declared)
     assert not recwarn.list  # frames inside the range: silent
-    with pytest.warns(UserWarning, match=r"1 frame\(s\) have over 1% of their pixels above the declared radiometric range \(above 3800\): b\.png\."):
+    with pytest.warns(
+        UserWarning,
+        match=r"1 frame\(s\) have over 1% of their pixels above the declared radiometric range "
+        r"\(above 3800\): b\.png\.",
+    ):
         scan_frames(sorted(tmp_path.glob("*.png")), declared=declared)
     with pytest.warns(UserWarning, match=r"below the measured radiometric range .*: a\.png, b\.png, c\.png"):
-        scan_frames(sorted(tmp_path.glob("*.png")), percentiles=(5.0, 100.0))  # the lowest 5 % of every frame's pixels fall below
+        scan_frames(
+            sorted(tmp_path.glob("*.png")), percentiles=(5.0, 100.0)
+        )  # the lowest 5 % of every frame's pixels fall below
 
 
 # --------------------------------------------------------------------------- bad input

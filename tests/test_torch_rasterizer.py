@@ -57,13 +57,39 @@ def test_projection_matches_gsplat_reference():
 
 def test_render_matches_pixel_loop():
     width, height = 40, 24  # partial tiles on both axes
-    means, quats, scales, opacities, colors, viewmats, Ks = random_scene(150, width, height, seed=1, dtype=torch.float64)
-    image, alphas, meta = rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, packed=False)
+    means, quats, scales, opacities, colors, viewmats, Ks = random_scene(
+        150, width, height, seed=1, dtype=torch.float64
+    )
+    image, alphas, meta = rasterization(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height, packed=False
+    )
     ref_image, ref_alphas = reference_render(
         meta["means2d"][0], meta["conics"][0], opacities, colors, meta["depths"][0], meta["radii"][0], width, height
     )
     assert image.shape == (1, height, width, 1) and alphas.shape == (1, height, width, 1)
     assert ref_alphas.max() > 0.9  # the scene really occludes
+    torch.testing.assert_close(image[0], ref_image, atol=1e-10, rtol=0)
+    torch.testing.assert_close(alphas[0], ref_alphas, atol=1e-10, rtol=0)
+
+
+def test_opaque_deep_stacks_match_pixel_loop():
+    """Opacities >= 0.999 in stacks dozens deep: alpha hits gsplat's 0.999 cap and the transmittance
+    crosses its 1e-4 cut-off after one or two splats, so both constants decide the image."""
+    width, height = 24, 16
+    means, quats, scales, opacities, colors, viewmats, Ks = random_scene(
+        120, width, height, seed=3, dtype=torch.float64
+    )
+    opacities = 0.999 + 0.001 * torch.rand(
+        len(opacities), generator=torch.Generator().manual_seed(4), dtype=torch.float64
+    )
+    scales = scales * 3  # wide splats: every pixel sees many of them
+    image, alphas, meta = rasterization(
+        means, quats, scales, opacities, colors, viewmats, Ks, width, height, packed=False
+    )
+    ref_image, ref_alphas = reference_render(
+        meta["means2d"][0], meta["conics"][0], opacities, colors, meta["depths"][0], meta["radii"][0], width, height
+    )
+    assert ref_alphas.max() > 0.999 and (ref_alphas > 0.99).float().mean() > 0.5  # really opaque, really stacked
     torch.testing.assert_close(image[0], ref_image, atol=1e-10, rtol=0)
     torch.testing.assert_close(alphas[0], ref_alphas, atol=1e-10, rtol=0)
 
@@ -74,7 +100,9 @@ def test_gradients_are_exact():
     weights = torch.rand(1, height, width, 1, dtype=torch.float64)
 
     def loss(means, quats, scales, opacities, colors):
-        image, alphas, _ = rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, packed=False)
+        image, alphas, _ = rasterization(
+            means, quats, scales, opacities, colors, viewmats, Ks, width, height, packed=False
+        )
         return (image * weights).sum() + alphas.sum()
 
     inputs = tuple(t.clone().requires_grad_() for t in (means, quats, scales, opacities, colors))
@@ -90,7 +118,11 @@ def test_absgrad_is_sum_of_per_pixel_abs_gradients():
     means2d.retain_grad()
     image.sum().backward(retain_graph=True)
     absgrad, grad = means2d.absgrad.clone(), means2d.grad.clone()  # before more backward passes
-    per_pixel = [torch.autograd.grad(image[0, y, x, 0], means2d, retain_graph=True)[0] for y in range(height) for x in range(width)]
+    per_pixel = [
+        torch.autograd.grad(image[0, y, x, 0], means2d, retain_graph=True)[0]
+        for y in range(height)
+        for x in range(width)
+    ]
     torch.testing.assert_close(absgrad, sum(g.abs() for g in per_pixel))
     torch.testing.assert_close(grad, sum(per_pixel))
     assert (absgrad > grad.abs() + 1e-6).any()  # abs before the sum really differs
@@ -112,7 +144,9 @@ def test_meta_has_what_densification_reads_and_packed_agrees():
 
 def test_depth_modes_and_background():
     scene = random_scene(200, 48, 32, seed=5)
-    rgb_ed, alphas, _ = rasterization(*scene, 48, 32, packed=False, render_mode="RGB+ED", backgrounds=torch.tensor([[0.25]]))
+    rgb_ed, alphas, _ = rasterization(
+        *scene, 48, 32, packed=False, render_mode="RGB+ED", backgrounds=torch.tensor([[0.25]])
+    )
     rgb, _, _ = rasterization(*scene, 48, 32, packed=False)
     assert rgb_ed.shape[-1] == 2
     torch.testing.assert_close(rgb_ed[..., :1], rgb + (1 - alphas) * 0.25)

@@ -10,6 +10,8 @@ import torch
 from thermal_wild_ns.analysis.evaluation import evaluate
 from thermal_wild_ns.demo import demo_trainer_config
 
+pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
+
 
 def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     from nerfstudio.utils.eval_utils import eval_setup
@@ -24,12 +26,22 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     datamanager = trainer.pipeline.datamanager
     camera, batch = datamanager.next_train(0)
     idx = camera.metadata["cam_idx"]
-    assert camera.device.type == "cpu" and torch.equal(camera.camera_to_worlds, datamanager.train_cameras[idx : idx + 1].camera_to_worlds.cpu())
-    assert torch.equal(camera.fx, datamanager.train_cameras[idx : idx + 1].fx.cpu()) and batch["image"].shape[:2] == (camera.height, camera.width)
+    assert camera.device.type == "cpu" and torch.equal(
+        camera.camera_to_worlds, datamanager.train_cameras[idx : idx + 1].camera_to_worlds.cpu()
+    )
+    assert torch.equal(camera.fx, datamanager.train_cameras[idx : idx + 1].fx.cpu()) and batch["image"].shape[:2] == (
+        camera.height,
+        camera.width,
+    )
     # the viewer's colour bar: the demo scene documents its temperature bounds (-10..40 degC)
     bar = trainer.pipeline.model.viewer_colour_bar.value
     values = [float(v) for v in bar.split(": ", 1)[1].removesuffix(" degC").split(", ")]
-    assert bar.startswith("iron 0->1") and len(values) == 5 and values == sorted(values) and -10 <= values[0] < values[-1] <= 40
+    assert (
+        bar.startswith("iron 0->1")
+        and len(values) == 5
+        and values == sorted(values)
+        and -10 <= values[0] < values[-1] <= 40
+    )
     before = evaluate(trainer.pipeline, protocols=("time",))
     losses = []
     model = trainer.pipeline.model
@@ -82,7 +94,9 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     ExportGaussianSplat(load_config=config.get_base_dir() / "config.yml", output_dir=tmp_path / "export").main()
     vertex = PlyData.read(str(tmp_path / "export" / "splat.ply"))["vertex"]
     names = vertex.data.dtype.names
-    assert len(vertex) == loaded.model.num_points and {"x", "f_dc_0", "f_dc_2", "opacity", "scale_0", "rot_3"} <= set(names)
+    assert len(vertex) == loaded.model.num_points and {"x", "f_dc_0", "f_dc_2", "opacity", "scale_0", "rot_3"} <= set(
+        names
+    )
     with torch.no_grad():
         expected = RGB2SH(loaded.model.gaussian_emission(loaded.model.inference_embedding()).clamp(0, 1))[:, 0].numpy()
     np.testing.assert_allclose(np.asarray(vertex["f_dc_0"]), expected, atol=1e-6)
@@ -106,7 +120,9 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     from nerfstudio.scripts.render import RenderInterpolated
 
     for fmt, out in (("images", tmp_path / "frames"), ("video", tmp_path / "path.mp4")):
-        RenderInterpolated(load_config=config.get_base_dir() / "config.yml", output_path=out, interpolation_steps=2, output_format=fmt).main()
+        RenderInterpolated(
+            load_config=config.get_base_dir() / "config.yml", output_path=out, interpolation_steps=2, output_format=fmt
+        ).main()
     assert len(list((tmp_path / "frames").glob("*.jpg"))) == 2 * (len(loaded.datamanager.eval_dataset) - 1)
     assert (tmp_path / "path.mp4").stat().st_size > 1000
 
@@ -120,30 +136,46 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     rng = loaded.datamanager.train_dataset.thermal_range
     renders = []
     for run in ("a", "b"):
-        ThermalRenderInterpolated(load_config=config.get_base_dir() / "config.yml", output_path=tmp_path / f"path_{run}.mp4",
-                                  interpolation_steps=2, output_format="video", radiometric="uint16").main()
+        ThermalRenderInterpolated(
+            load_config=config.get_base_dir() / "config.yml",
+            output_path=tmp_path / f"path_{run}.mp4",
+            interpolation_steps=2,
+            output_format="video",
+            radiometric="uint16",
+        ).main()
         pngs = sorted((tmp_path / f"path_{run}_radiometric").glob("*.png"))
         renders.append([cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in pngs])
     assert imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "path_a.mp4"))[0] == frames == len(renders[0])
     assert all(im.dtype == np.uint16 and im.ndim == 2 for im in renders[0])
-    assert all(rng.low <= int(im.min()) and int(im.max()) <= rng.high for im in renders[0])  # back in the dataset's native range
+    assert all(
+        rng.low <= int(im.min()) and int(im.max()) <= rng.high for im in renders[0]
+    )  # back in the dataset's native range
     assert all(int(im.max()) - int(im.min()) > 100 for im in renders[0])  # an image, not a constant
     assert all(np.array_equal(a, b) for a, b in zip(*renders))  # two renders of one path are identical
-    ThermalRenderInterpolated(load_config=config.get_base_dir() / "config.yml", output_path=tmp_path / "path_c.mp4",
-                              interpolation_steps=2, output_format="video", radiometric="celsius").main()
+    ThermalRenderInterpolated(
+        load_config=config.get_base_dir() / "config.yml",
+        output_path=tmp_path / "path_c.mp4",
+        interpolation_steps=2,
+        output_format="video",
+        radiometric="celsius",
+    ).main()
     celsius = [np.load(f) for f in sorted((tmp_path / "path_c_radiometric").glob("*.npy"))]
     assert len(celsius) == frames and all(c.dtype == np.float32 for c in celsius)
     assert all(rng.celsius_low <= c.min() and c.max() <= rng.celsius_high for c in celsius)
-    np.testing.assert_allclose(celsius[0], rng.to_celsius(rng.normalize(renders[0][0])), atol=(rng.celsius_high - rng.celsius_low) / (rng.high - rng.low))
+    np.testing.assert_allclose(
+        celsius[0],
+        rng.to_celsius(rng.normalize(renders[0][0])),
+        atol=(rng.celsius_high - rng.celsius_low) / (rng.high - rng.low),
+    )
 
 
 def test_dunr_loads_with_dataset_level_normalisation():
     from pathlib import Path
 
-    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
-    from thermal_wild_ns.data.datamanager import ThermalDataset
-
     import pytest
+
+    from thermal_wild_ns.data.datamanager import ThermalDataset
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 
     dunr = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dunr"
     if not dunr.is_dir():
@@ -170,8 +202,15 @@ def test_dunr_loads_with_dataset_level_normalisation():
 
 @pytest.mark.parametrize(
     "method",
-    ["wild-thermal", "wild-thermal-3dgs", "wild-thermal-3dgs-histeq", "wild-thermal-3dgs-bbhe",
-     "wild-thermal-3dgs-stab", "wild-thermal-3dgs-stab-bbhe", "wild-thermal-emission-mlp"],
+    [
+        "wild-thermal",
+        "wild-thermal-3dgs",
+        "wild-thermal-3dgs-histeq",
+        "wild-thermal-3dgs-bbhe",
+        "wild-thermal-3dgs-stab",
+        "wild-thermal-3dgs-stab-bbhe",
+        "wild-thermal-emission-mlp",
+    ],
 )
 def test_every_ablation_variant_trains(method, tmp_path, demo_scene_dir):
     """Each registered variant runs a few steps on the demo scene and evaluates in the original
@@ -182,11 +221,18 @@ def test_every_ablation_variant_trains(method, tmp_path, demo_scene_dir):
     trainer.setup()
     trainer.train()
     model = trainer.pipeline.model
-    assert model.emission_mlp is not None if method in ("wild-thermal", "wild-thermal-emission-mlp") else model.emission_mlp is None
+    assert (
+        model.emission_mlp is not None
+        if method in ("wild-thermal", "wild-thermal-emission-mlp")
+        else model.emission_mlp is None
+    )
     variant = config.pipeline.datamanager.preprocessing.variant
     assert (trainer.pipeline.datamanager.preprocessed is None) == (variant == "none")
     result = evaluate(trainer.pipeline, fit_steps=2)
-    assert all(np.isfinite(result[f"psnr_{p}"]) and result[f"psnr_{p}"] > 5.0 for p in ("novel", "time", "aligned", "half", "oracle"))
+    assert all(
+        np.isfinite(result[f"psnr_{p}"]) and result[f"psnr_{p}"] > 5.0
+        for p in ("novel", "time", "aligned", "half", "oracle")
+    )
     has_state = variant != "none" or model.emission_mlp is not None
     # the demo drifts: a method with a photometric state renders a held-out view differently at its
     # time state than at the canonical one; a method without renders the same image
@@ -212,7 +258,11 @@ def test_viewer_screenshot_shows_the_thermal_colormap(tmp_path, demo_scene_dir):
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
     trainer.train()
-    png = screenshot(ScreenshotArgs(load_config=config.get_base_dir() / "config.yml", output=tmp_path / "viewer.png", width=1200, height=800))
+    png = screenshot(
+        ScreenshotArgs(
+            load_config=config.get_base_dir() / "config.yml", output=tmp_path / "viewer.png", width=1200, height=800
+        )
+    )
     image = cv2.imread(str(png))[..., ::-1]  # RGB
     view = image[80:-80, :600].reshape(-1, 3).astype(np.float32)
     distance, _ = cKDTree(palette_rgb("iron").astype(np.float32)).query(view)

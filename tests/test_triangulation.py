@@ -5,10 +5,10 @@ back to random points inside the cameras' view volume."""
 import json
 from pathlib import Path
 
+import layout_fixtures as fx
 import numpy as np
 import pytest
 
-import layout_fixtures as fx
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, random_view_volume_points
 from thermal_wild_ns.data.layouts import detect_layout
 
@@ -32,7 +32,9 @@ def test_dunr_gets_triangulated_points(dunr_cache):
     errors = np.load(folder / "reprojection_errors.npy")
     assert report["points"] == train.metadata["seed_points"]["count"] >= 1000
     assert report["frames"] == 39  # training frames only: held-out views never shape the seeds
-    assert report["reprojection_error_px_median"] == pytest.approx(float(np.median(errors))) and np.median(errors) <= 2.0
+    assert (
+        report["reprojection_error_px_median"] == pytest.approx(float(np.median(errors))) and np.median(errors) <= 2.0
+    )
     # the seeds sit in front of the cameras, where the facade is (6-7 m away in metric units)
     xyz = np.load(folder / "points.npy")
     centre = np.mean([f.camera_to_world[:3, 3] for f in parser.capture().frames], axis=0)
@@ -48,10 +50,20 @@ def test_dunr_via_colmap_layout_reuses_the_cache(dunr_cache, monkeypatch):
         raise AssertionError("triangulated again instead of reading the cache")
 
     monkeypatch.setattr(tri, "triangulate", fail)
-    colmap = ThermalDataParserConfig(data=DUNR, layout="colmap", cache_dir=dunr_cache).setup().get_dataparser_outputs("train")
-    transforms = ThermalDataParserConfig(data=DUNR, layout="nerfstudio", cache_dir=dunr_cache).setup().get_dataparser_outputs("train")
+    colmap = (
+        ThermalDataParserConfig(data=DUNR, layout="colmap", cache_dir=dunr_cache)
+        .setup()
+        .get_dataparser_outputs("train")
+    )
+    transforms = (
+        ThermalDataParserConfig(data=DUNR, layout="nerfstudio", cache_dir=dunr_cache)
+        .setup()
+        .get_dataparser_outputs("train")
+    )
     # the COLMAP text model and transforms.json hold the same poses
-    np.testing.assert_allclose(colmap.cameras.camera_to_worlds.numpy(), transforms.cameras.camera_to_worlds.numpy(), atol=1e-5)
+    np.testing.assert_allclose(
+        colmap.cameras.camera_to_worlds.numpy(), transforms.cameras.camera_to_worlds.numpy(), atol=1e-5
+    )
 
 
 def test_failed_triangulation_leaves_no_cache(tmp_path, monkeypatch):
@@ -76,15 +88,26 @@ def test_textureless_capture_falls_back_to_random_seeds(tmp_path):
     fx.write_colmap(root, with_point=False)
     for path in (root / "images").iterdir():  # flat frames: nothing for SIFT to find
         cv2.imwrite(str(path), np.full((48, 64), 3700, np.uint16) + np.arange(64, dtype=np.uint16)[None] // 16)
-    outputs = ThermalDataParserConfig(data=root, cache_dir=tmp_path / "cache", num_random_points=500).setup().get_dataparser_outputs("train")
+    outputs = (
+        ThermalDataParserConfig(data=root, cache_dir=tmp_path / "cache", num_random_points=500)
+        .setup()
+        .get_dataparser_outputs("train")
+    )
     assert outputs.metadata["seed_points"] == {"source": "random", "count": 500}
     with pytest.raises(ValueError, match="triangulation found only"):
-        ThermalDataParserConfig(data=root, cache_dir=tmp_path / "cache", seed_points="triangulate").setup().get_dataparser_outputs("train")
+        ThermalDataParserConfig(
+            data=root, cache_dir=tmp_path / "cache", seed_points="triangulate"
+        ).setup().get_dataparser_outputs("train")
 
 
 def test_random_seeds_lie_in_front_of_the_cameras():
     poses = fx.cameras(6)
-    frames = [type("F", (), {"camera_to_world": c2w, "fx": 60.0, "fy": 60.0, "cx": 32.0, "cy": 24.0, "width": 64, "height": 48})() for c2w in poses]
+    frames = [
+        type(
+            "F", (), {"camera_to_world": c2w, "fx": 60.0, "fy": 60.0, "cx": 32.0, "cy": 24.0, "width": 64, "height": 48}
+        )()
+        for c2w in poses
+    ]
     xyz = random_view_volume_points(frames, 2000)
     visible = 0
     for c2w in poses:

@@ -8,7 +8,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 # what reaching into nerfstudio / gsplat / torchmetrics / torch internals looks like in this code base
 UPSTREAM_INTERNALS = re.compile(
-    r"def (_grow_gs|_update_state|_setup|_load_images|_load_checkpoint)\b|train_unseen_cameras|optimizer_scaler_step_some"
+    r"def "
+    r"(_grow_gs|_update_state|_setup|_load_images|_load_checkpoint)\b|train_unseen_cameras|optimizer_scaler_step_some"
     r"|LearnedPerceptualImagePatchSimilarity|add_safe_globals|_render_trajectory_video|\.write_ply\s*=|ns_export\.eval_setup\s*="
     r"|torch\.library\.Library|sys\.meta_path"
 )
@@ -21,7 +22,9 @@ def test_version_guard_names_what_is_wrong(monkeypatch):
 
     upstream.check_versions()  # the installed versions are the checked ones
     monkeypatch.setattr(metadata, "version", lambda name: {"nerfstudio": "1.1.4", "gsplat": "1.4.0"}[name])
-    with pytest.raises(ImportError, match=r"needs nerfstudio==1\.1\.5, gsplat==1\.4\.0; found nerfstudio 1\.1\.4 \(needs 1\.1\.5\)"):
+    with pytest.raises(
+        ImportError, match=r"needs nerfstudio==1\.1\.5, gsplat==1\.4\.0; found nerfstudio 1\.1\.4 \(needs 1\.1\.5\)"
+    ):
         upstream.check_versions()
     monkeypatch.setenv(upstream.SKIP_VERSION_CHECK, "1")
     upstream.check_versions()  # the escape hatch
@@ -36,7 +39,9 @@ def test_no_upstream_internals_outside_the_compatibility_layer():
             if UPSTREAM_INTERNALS.search(line):
                 offenders.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
     assert not offenders, "\n".join(offenders)
-    assert UPSTREAM_INTERNALS.search((ROOT / "thermal_wild_ns/_upstream.py").read_text())  # the pattern does find them there
+    assert UPSTREAM_INTERNALS.search(
+        (ROOT / "thermal_wild_ns/_upstream.py").read_text()
+    )  # the pattern does find them there
 
 
 def test_importing_the_package_patches_nothing():

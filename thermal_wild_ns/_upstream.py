@@ -19,7 +19,7 @@ import shutil
 import sys
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Dict, Optional
+from typing import Callable, Dict
 
 CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
 """The versions every patch here was written and tested against (pyproject.toml pins them)."""
@@ -322,7 +322,9 @@ def trainer_after_load_class():
 
 
 @contextlib.contextmanager
-def gaussian_splat_export_hooks(on_pipeline: Callable, extra_properties: Callable[[dict], None], header_comments: Callable[[], list]):
+def gaussian_splat_export_hooks(
+    on_pipeline: Callable, extra_properties: Callable[[dict], None], header_comments: Callable[[], list]
+):
     """nerfstudio 1.1.5's `ExportGaussianSplat.main` loads the pipeline through the module-level
     `eval_setup` and writes the PLY through the static `write_ply(filename, count, map_to_tensors)`,
     neither of which can be extended. While this context is open: `on_pipeline(pipeline)` sees the

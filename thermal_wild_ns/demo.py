@@ -20,7 +20,6 @@ import torch
 import tyro
 
 
-
 @dataclass
 class DemoArgs:
     output_dir: Path = Path("outputs/demo")
@@ -33,8 +32,8 @@ class DemoArgs:
 
 def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method: str = "wild-thermal"):
     """A registered method's config (`wild-thermal` or one of its ablations), scheduled for the small demo scene."""
-    from thermal_wild_ns.method_configs import method_trainer
     from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+    from thermal_wild_ns.method_configs import method_trainer
 
     config = method_trainer(method)
     config.output_dir = output_dir
@@ -91,7 +90,8 @@ def main(args: DemoArgs) -> dict:
     with open(args.output_dir / "metrics.json", "w") as f:
         json.dump(results, f, indent=1)
     print(
-        f"\nwild-thermal demo ({device}, {steps} steps, {train_seconds:.0f} s), held-out views against the clean frames:\n"
+        f"\nwild-thermal demo ({device}, {steps} steps, {train_seconds:.0f} s), held-out views against the clean "
+        f"frames:\n"
         f"  novel (canonical state)        PSNR {results['psnr_novel']:.2f} dB, SSIM {results['ssim_novel']:.3f}"
         f" (untrained {untrained['psnr_novel']:.2f} dB)\n"
         f"  time (state from neighbours)   PSNR {results['psnr_time']:.2f} dB, SSIM {results['ssim_time']:.3f}\n"

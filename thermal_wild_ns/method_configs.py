@@ -88,11 +88,16 @@ _ABLATIONS = {
     "wild-thermal-3dgs-histeq": ("histeq", False, "3DGS + plain histogram equalization (ablation)"),
     "wild-thermal-3dgs-bbhe": ("bbhe", False, "3DGS + contrast enhancement, BBHE only (ablation)"),
     "wild-thermal-3dgs-stab": ("stab", False, "3DGS + photometric stabilization only (ablation)"),
-    "wild-thermal-3dgs-stab-bbhe": ("stab+bbhe", False, "3DGS + stabilization + enhancement, the paper's preprocessing (ablation)"),
+    "wild-thermal-3dgs-stab-bbhe": (
+        "stab+bbhe",
+        False,
+        "3DGS + stabilization + enhancement, the paper's preprocessing (ablation)",
+    ),
     "wild-thermal-emission-mlp": ("none", True, "3DGS + emission MLP with embeddings, no preprocessing (ablation)"),
 }
 ablation_methods = {
-    name: MethodSpecification(config=ablation_trainer(name, pre, mlp), description=text) for name, (pre, mlp, text) in _ABLATIONS.items()
+    name: MethodSpecification(config=ablation_trainer(name, pre, mlp), description=text)
+    for name, (pre, mlp, text) in _ABLATIONS.items()
 }
 wild_thermal_3dgs = ablation_methods["wild-thermal-3dgs"]
 wild_thermal_3dgs_histeq = ablation_methods["wild-thermal-3dgs-histeq"]

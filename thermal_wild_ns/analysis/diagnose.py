@@ -79,7 +79,8 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
 
     return (
         f"{name}: std dI_t {pair('std_delta_i', '.4f')}, high-frequency energy {pair('high_frequency_ratio', '.4f')}, "
-        f"used dynamic range {before['dynamic_range']['used_range']:.3f} -> {after['dynamic_range']['used_range']:.3f}, "
+        f"used dynamic range {before['dynamic_range']['used_range']:.3f} -> "
+        f"{after['dynamic_range']['used_range']:.3f}, "
         f"median tracked SIFT features {pair('median_tracked_features', '.0f')}"
     )
 
@@ -90,10 +91,15 @@ def preprocessing_advice(before: Dict, after: Dict) -> str:
     costs accuracy (the measurements behind this rule: docs/results.md)."""
     b, a = before["std_delta_i"], after["std_delta_i"]
     if a < b:
-        return f"preprocessing makes the frames more consistent (std dI_t {b:.4f} -> {a:.4f}): `wild-thermal` (the full method) fits this capture"
+        return (
+            f"preprocessing makes the frames more consistent (std dI_t {b:.4f} -> {a:.4f}): `wild-thermal` (the "
+            f"full method) fits this capture"
+        )
     return (
-        f"preprocessing makes the frames less consistent (std dI_t {b:.4f} -> {a:.4f}): the capture looks photometrically stable; "
-        "consider `wild-thermal-emission-mlp` (no preprocessing), or a weaker equalization (--preprocessing.equalization-strength)"
+        f"preprocessing makes the frames less consistent (std dI_t {b:.4f} -> {a:.4f}): the capture looks "
+        f"photometrically stable; "
+        "consider `wild-thermal-emission-mlp` (no preprocessing), or a weaker equalization "
+        "(--preprocessing.equalization-strength)"
     )
 
 
@@ -109,16 +115,28 @@ def _plot(result: Dict, path: Path, title: str) -> None:
     ax[0, 0].plot(before["delta_i"], "o-", ms=3, label=f"{label_b} (std {before['std_delta_i']:.4f})")
     ax[0, 0].plot(after["delta_i"], "o-", ms=3, label=f"{label_a} (std {after['std_delta_i']:.4f})")
     ax[0, 0].axhline(0, color="grey", lw=0.5)
-    ax[0, 0].set(title="relative mean change per frame, dI_t", xlabel="frame (capture order)", ylabel="(mu_t - mu) / mu")
+    ax[0, 0].set(
+        title="relative mean change per frame, dI_t", xlabel="frame (capture order)", ylabel="(mu_t - mu) / mu"
+    )
     ax[0, 1].plot(before["tracked_features"], label=f"{label_b} (median {before['median_tracked_features']:.0f})")
     ax[0, 1].plot(after["tracked_features"], label=f"{label_a} (median {after['median_tracked_features']:.0f})")
     ax[0, 1].set(title="SIFT features tracked to the next frame", xlabel="frame pair (t, t+1)", ylabel="RANSAC inliers")
     for stats, label in ((before, label_b), (after, label_a)):
-        ax[1, 0].loglog(stats["spectrum_freqs"], stats["spectrum_power"], label=f"{label} (HF {stats['high_frequency_ratio']:.3f})")
+        ax[1, 0].loglog(
+            stats["spectrum_freqs"], stats["spectrum_power"], label=f"{label} (HF {stats['high_frequency_ratio']:.3f})"
+        )
         hist = np.asarray(stats["dynamic_range"]["histogram"])
-        ax[1, 1].plot(np.linspace(0, 1, len(hist)), hist / hist.sum(), label=f"{label} (p1-p99 {stats['dynamic_range']['used_range']:.2f})")
-    ax[1, 0].set(title="radially averaged power spectrum (mean over frames)", xlabel="frequency / Nyquist", ylabel="power")
-    ax[1, 1].set(title="intensity histogram, all frames", xlabel="normalised intensity (dataset range)", ylabel="share of pixels")
+        ax[1, 1].plot(
+            np.linspace(0, 1, len(hist)),
+            hist / hist.sum(),
+            label=f"{label} (p1-p99 {stats['dynamic_range']['used_range']:.2f})",
+        )
+    ax[1, 0].set(
+        title="radially averaged power spectrum (mean over frames)", xlabel="frequency / Nyquist", ylabel="power"
+    )
+    ax[1, 1].set(
+        title="intensity histogram, all frames", xlabel="normalised intensity (dataset range)", ylabel="share of pixels"
+    )
     for a in ax.ravel():
         a.legend(fontsize=8)
         a.grid(alpha=0.3)
@@ -128,7 +146,9 @@ def _plot(result: Dict, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def _frames_png(raw: List[np.ndarray], processed: List[np.ndarray], path: Path, count: int = 4, tile_width: int = 256) -> None:
+def _frames_png(
+    raw: List[np.ndarray], processed: List[np.ndarray], path: Path, count: int = 4, tile_width: int = 256
+) -> None:
     """Top row raw, bottom row processed, `count` evenly spaced frames, inferno on [0, 1]."""
     import cv2
 
@@ -161,14 +181,22 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         "preprocessing": asdict(args.preprocessing),
         # the stored processed frames mapped back through their inverse LUTs, against the raw frames
         "lut_round_trip_max_levels": max(
-            float(np.abs(sequence.to_original_normalised(p, sequence.lut(t)) - r).max()) * (rng.high - rng.low) / sequence.grid.step
+            float(np.abs(sequence.to_original_normalised(p, sequence.lut(t)) - r).max())
+            * (rng.high - rng.low)
+            / sequence.grid.step
             for t, (p, r) in enumerate(zip(processed, raw))
         ),
         # a render's error at a pixel grows by this much when mapped back (hot, rare levels most)
         "inverse_lut_gain": gain_summary(
-            [inverse_lut_gain(np.asarray(sequence.lut(t)), sequence.grid.levels(rng.to_native(r))) for t, r in enumerate(raw)], raw
+            [
+                inverse_lut_gain(np.asarray(sequence.lut(t)), sequence.grid.levels(rng.to_native(r)))
+                for t, r in enumerate(raw)
+            ],
+            raw,
         ),
-        "error_amplification": error_amplification(processed, raw, lambda values, t: sequence.to_original_normalised(values, sequence.lut(t))),
+        "error_amplification": error_amplification(
+            processed, raw, lambda values, t: sequence.to_original_normalised(values, sequence.lut(t))
+        ),
         "before": _frames_stats(raw, native(raw), args.spectrum_frames),
         "after": _frames_stats(processed, native(processed), args.spectrum_frames),
     }
@@ -177,16 +205,24 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     result["summary"] = summary_line(name, result["before"], result["after"]) + (
         f"; inverse-LUT error gain: median {gain['median']:.2f}, hottest 5 % {gain['median_hottest']:.2f}"
         f" ({100 * gain['hottest_over_4x']:.0f} % of them above 4x)"
-        f"; a training-space error of {result['error_amplification']['sigma']} becomes x{result['error_amplification']['rms']:.2f} RMS"
+        f"; a training-space error of {result['error_amplification']['sigma']} becomes "
+        f"x{result['error_amplification']['rms']:.2f} RMS"
         f" (hottest 5 %: x{result['error_amplification']['rms_hottest']:.2f})"
     )
     result["advice"] = preprocessing_advice(result["before"], result["after"])
     (args.output_dir / "diagnostics.json").write_text(json.dumps(result, indent=1))
-    _plot(result, args.output_dir / "diagnostics.png", f"{name} ({capture.layout}, {len(raw)} frames): raw vs {args.preprocessing.variant}")
+    _plot(
+        result,
+        args.output_dir / "diagnostics.png",
+        f"{name} ({capture.layout}, {len(raw)} frames): raw vs {args.preprocessing.variant}",
+    )
     _frames_png(raw, processed, args.output_dir / "frames.png")
     print(result["summary"])
     print(f"advice: {result['advice']}")
-    print(f"written: {args.output_dir / 'diagnostics.json'}, {args.output_dir / 'diagnostics.png'}, {args.output_dir / 'frames.png'}")
+    print(
+        f"written: {args.output_dir / 'diagnostics.json'}, {args.output_dir / 'diagnostics.png'}, "
+        f"{args.output_dir / 'frames.png'}"
+    )
     return result
 
 

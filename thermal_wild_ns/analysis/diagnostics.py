@@ -86,7 +86,9 @@ def tracked_features(frames: Sequence[np.ndarray], max_features: int = 4000, rat
         if des_a is None or des_b is None or len(des_a) < 8 or len(des_b) < 8:
             counts.append(0)
             continue
-        good = [m[0] for m in matcher.knnMatch(des_a, des_b, k=2) if len(m) == 2 and m[0].distance < ratio * m[1].distance]
+        good = [
+            m[0] for m in matcher.knnMatch(des_a, des_b, k=2) if len(m) == 2 and m[0].distance < ratio * m[1].distance
+        ]
         if len(good) < 8:
             counts.append(0)
             continue
@@ -103,7 +105,9 @@ def inverse_lut_gain(lut: np.ndarray, levels: np.ndarray, span: int = 2) -> np.n
     units). Equalization gives rare levels a shallow slope, so errors at those pixels (often the
     hottest objects) grow. `lut`: [levels] native values; `levels`: [H, W] int."""
     top = len(lut) - 1
-    slope = (lut[np.clip(levels + span, 0, top)] - lut[np.clip(levels - span, 0, top)]) / (np.clip(levels + span, 0, top) - np.clip(levels - span, 0, top))
+    slope = (lut[np.clip(levels + span, 0, top)] - lut[np.clip(levels - span, 0, top)]) / (
+        np.clip(levels + span, 0, top) - np.clip(levels - span, 0, top)
+    )
     return 1.0 / np.maximum(slope, 1e-12)
 
 
@@ -113,7 +117,12 @@ def _hottest(values: np.ndarray, frame: np.ndarray, share: float) -> np.ndarray:
 
 
 def error_amplification(
-    processed: Sequence[np.ndarray], raw: Sequence[np.ndarray], to_original, sigma: float = 0.005, hottest: float = 0.05, seed: int = 0
+    processed: Sequence[np.ndarray],
+    raw: Sequence[np.ndarray],
+    to_original,
+    sigma: float = 0.005,
+    hottest: float = 0.05,
+    seed: int = 0,
 ) -> Dict[str, float]:
     """What a rendering error becomes in the original space: Gaussian noise of std `sigma` (training
     space, normalised) is added to each processed frame, mapped back (`to_original(values, t)`) and
@@ -129,7 +138,12 @@ def error_amplification(
         hot.append(_hottest(error, r, hottest))
     every, hot_all = np.concatenate(errors), np.concatenate(hot)
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
-    return {"sigma": sigma, "rms": rms(every) / sigma, "rms_hottest": rms(hot_all) / sigma, "p99": float(np.quantile(np.abs(every), 0.99)) / sigma}
+    return {
+        "sigma": sigma,
+        "rms": rms(every) / sigma,
+        "rms_hottest": rms(hot_all) / sigma,
+        "p99": float(np.quantile(np.abs(every), 0.99)) / sigma,
+    }
 
 
 def gain_summary(gains: Sequence[np.ndarray], frames: Sequence[np.ndarray], hottest: float = 0.05) -> Dict[str, float]:

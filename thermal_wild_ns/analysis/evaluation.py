@@ -63,10 +63,15 @@ def scores(pred: np.ndarray, gt: np.ndarray) -> Dict[str, float]:
     def tensor(x):
         return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[..., None]
 
-    return {"psnr": float(psnr(tensor(pred), tensor(gt))), "ssim": float(ssim(tensor(pred), tensor(gt), data_range=1.0))}
+    return {
+        "psnr": float(psnr(tensor(pred), tensor(gt))),
+        "ssim": float(ssim(tensor(pred), tensor(gt), data_range=1.0)),
+    }
 
 
-def fit_embedding(model, camera, target: torch.Tensor, columns: slice, start: torch.Tensor, steps: int, lr: float) -> torch.Tensor:
+def fit_embedding(
+    model, camera, target: torch.Tensor, columns: slice, start: torch.Tensor, steps: int, lr: float
+) -> torch.Tensor:
     """The frame embedding that best explains `target` ([H, W] training space) within `columns`,
     by Adam on the L1 loss from `start`. Only those columns of the render enter the loss."""
     embedding = start.detach().clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
@@ -105,7 +110,9 @@ def half_protocol(pipeline, camera, left: np.ndarray, state: PhotometricState, s
     return (a * pred + b).astype(np.float32)
 
 
-def oracle_state(pipeline, camera, frame: int, gt: np.ndarray, start: PhotometricState, steps: int, lr: float) -> PhotometricState:
+def oracle_state(
+    pipeline, camera, frame: int, gt: np.ndarray, start: PhotometricState, steps: int, lr: float
+) -> PhotometricState:
     """The held-out frame's own state, fitted on ALL its pixels (an upper bound, never a headline):
     its own LUT, and the embedding optimised on the whole frame."""
     sequence = getattr(pipeline.datamanager, "preprocessed", None)
@@ -113,11 +120,15 @@ def oracle_state(pipeline, camera, frame: int, gt: np.ndarray, start: Photometri
     state = PhotometricState(f"oracle:{frame}", start.embedding, lut)
     if state.embedding is not None and steps > 0:
         target = torch.from_numpy(to_training_space(pipeline, gt, state)).to(pipeline.model.device)
-        state = PhotometricState(state.label, fit_embedding(pipeline.model, camera, target, slice(None), state.embedding, steps, lr), lut)
+        state = PhotometricState(
+            state.label, fit_embedding(pipeline.model, camera, target, slice(None), state.embedding, steps, lr), lut
+        )
     return state
 
 
-def evaluate(pipeline, out_dir: Optional[Path] = None, protocols=PROTOCOLS, fit_steps: int = 100, fit_lr: float = 1e-2) -> Dict:
+def evaluate(
+    pipeline, out_dir: Optional[Path] = None, protocols=PROTOCOLS, fit_steps: int = 100, fit_lr: float = 1e-2
+) -> Dict:
     """Mean held-out PSNR/SSIM under each protocol (`psnr_novel`, `ssim_time`, ...; per-view rows in
     `per_view`). With `out_dir`, a PNG per view: target | `time` render | 5x error (inferno)."""
     unknown = set(protocols) - set(PROTOCOLS)
@@ -165,7 +176,9 @@ def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     from thermal_wild_ns.data.palettes import false_colour
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    panel = np.concatenate([false_colour(gt), false_colour(pred), false_colour(np.abs(pred - gt) * 5)], 1)  # x5: small errors visible
+    panel = np.concatenate(
+        [false_colour(gt), false_colour(pred), false_colour(np.abs(pred - gt) * 5)], 1
+    )  # x5: small errors visible
     scale = max(1, 384 // gt.shape[0])
     cv2.imwrite(str(path), cv2.resize(panel, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
 
@@ -179,7 +192,13 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames=()) -> Dict:
 
     from nerfstudio.cameras.cameras import Cameras, CameraType
 
-    from thermal_wild_ns.analysis.stability import background_error, error_exceedance, flicker, floater_fraction, visible_floater_fraction
+    from thermal_wild_ns.analysis.stability import (
+        background_error,
+        error_exceedance,
+        flicker,
+        floater_fraction,
+        visible_floater_fraction,
+    )
 
     meta = json.loads((Path(scene_root) / "transforms.json").read_text())
     if not meta.get("path"):
@@ -197,8 +216,14 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames=()) -> Dict:
         c2w = transform @ c2w  # [3, 4]
         c2w[:3, 3] *= scale
         camera = Cameras(
-            camera_to_worlds=c2w[None], fx=reference.fx[None], fy=reference.fy[None], cx=reference.cx[None], cy=reference.cy[None],
-            width=reference.width[None], height=reference.height[None], camera_type=CameraType.PERSPECTIVE,
+            camera_to_worlds=c2w[None],
+            fx=reference.fx[None],
+            fy=reference.fy[None],
+            cx=reference.cx[None],
+            cy=reference.cy[None],
+            width=reference.width[None],
+            height=reference.height[None],
+            camera_type=CameraType.PERSPECTIVE,
         ).to(model.device)
         with rendering_at(model, canonical), torch.no_grad():
             outputs = model.get_outputs_for_camera(camera)
@@ -207,13 +232,15 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames=()) -> Dict:
         true_depth = load_npy(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's
         depth = outputs["depth"][..., 0].float().cpu().numpy()
         alpha = outputs["accumulation"][..., 0].float().cpu().numpy()
-        rows.append({
-            **scores(pred, gt),
-            "floater_fraction": floater_fraction(depth, alpha, true_depth),
-            "visible_floater_fraction": visible_floater_fraction(depth, alpha, true_depth, pred, gt, 0.1),
-            "error_exceedance": error_exceedance(pred, gt, 0.1),
-            "background_error": background_error(pred, gt, true_depth),
-        })
+        rows.append(
+            {
+                **scores(pred, gt),
+                "floater_fraction": floater_fraction(depth, alpha, true_depth),
+                "visible_floater_fraction": visible_floater_fraction(depth, alpha, true_depth, pred, gt, 0.1),
+                "error_exceedance": error_exceedance(pred, gt, 0.1),
+                "background_error": background_error(pred, gt, true_depth),
+            }
+        )
         preds.append(pred)
         gts.append(gt)
         if k in keep_frames:

@@ -11,7 +11,9 @@ from typing import Dict, Sequence
 import numpy as np
 
 
-def floater_mask(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5) -> np.ndarray:
+def floater_mask(
+    depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5
+) -> np.ndarray:
     """Pixels with something rendered in front of the true surface: rendered depth more than
     `rel_tol` nearer than the truth, or (against the empty background) accumulated opacity above
     `min_alpha`. [H, W] each -> [H, W] bool."""
@@ -21,14 +23,22 @@ def floater_mask(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.nda
     return in_front | over_sky
 
 
-def floater_fraction(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5) -> float:
+def floater_fraction(
+    depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, rel_tol: float = 0.1, min_alpha: float = 0.5
+) -> float:
     """Share of pixels of `floater_mask`: geometry in the wrong place, seen or not (a sky painted
     by Gaussians in the right colour counts)."""
     return float(floater_mask(depth, accumulation, true_depth, rel_tol, min_alpha).mean())
 
 
-def visible_floater_fraction(depth: np.ndarray, accumulation: np.ndarray, true_depth: np.ndarray, pred: np.ndarray, gt: np.ndarray,
-                             threshold: float = 0.1) -> float:
+def visible_floater_fraction(
+    depth: np.ndarray,
+    accumulation: np.ndarray,
+    true_depth: np.ndarray,
+    pred: np.ndarray,
+    gt: np.ndarray,
+    threshold: float = 0.1,
+) -> float:
     """Share of pixels that are floaters (`floater_mask`) AND whose error exceeds `threshold`
     (normalised units): the floaters a person sees."""
     return float((floater_mask(depth, accumulation, true_depth) & (np.abs(pred - gt) > threshold)).mean())
@@ -45,7 +55,9 @@ def flicker(preds: Sequence[np.ndarray], gts: Sequence[np.ndarray]) -> Dict[str,
     `pixel_excess`: mean over t of max(0, mean|pred_t - pred_t-1| - mean|gt_t - gt_t-1|).
     A render equal to the truth has zero of both."""
     if len(preds) != len(gts) or len(preds) < 2:
-        raise ValueError(f"flicker needs two or more renders and as many ground-truth frames (got {len(preds)} and {len(gts)})")
+        raise ValueError(
+            f"flicker needs two or more renders and as many ground-truth frames (got {len(preds)} and {len(gts)})"
+        )
     p_means = np.array([p.mean() for p in preds])
     g_means = np.array([g.mean() for g in gts])
     mean_excess = np.abs(np.abs(np.diff(p_means)) - np.abs(np.diff(g_means)))

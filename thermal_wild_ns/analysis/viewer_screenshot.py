@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import shutil
 import socket
 import subprocess
@@ -73,19 +72,40 @@ def screenshot(args: ScreenshotArgs) -> Path:
 
     deadline = time.time() + args.timeout
     port, debug_port = _free_port(), _free_port()
-    env = {**os.environ, "TORCHDYNAMO_DISABLE": "1"}
-    viewer_cmd = [sys.executable, "-m", "nerfstudio.scripts.viewer.run_viewer", "--load-config", str(args.load_config), "--viewer.websocket-port", str(port)]
-    viewer = subprocess.Popen(viewer_cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    viewer_cmd = [
+        sys.executable,
+        "-m",
+        "nerfstudio.scripts.viewer.run_viewer",
+        "--load-config",
+        str(args.load_config),
+        "--viewer.websocket-port",
+        str(port),
+    ]
+    viewer = subprocess.Popen(viewer_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     browser = None
     try:
         _wait_http(f"http://127.0.0.1:{port}/", deadline, viewer, "ns-viewer")
         browser = subprocess.Popen(
-            [chromium, "--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
-             f"--window-size={args.width},{args.height}", f"--remote-debugging-port={debug_port}", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            [
+                chromium,
+                "--headless=new",
+                "--no-sandbox",
+                "--disable-dev-shm-usage",
+                "--enable-unsafe-swiftshader",
+                "--use-angle=swiftshader",
+                f"--window-size={args.width},{args.height}",
+                f"--remote-debugging-port={debug_port}",
+                "about:blank",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         _wait_http(f"http://127.0.0.1:{debug_port}/json/version", deadline, browser, "chromium")
-        page = next(t for t in json.loads(urllib.request.urlopen(f"http://127.0.0.1:{debug_port}/json").read()) if t["type"] == "page")
+        page = next(
+            t
+            for t in json.loads(urllib.request.urlopen(f"http://127.0.0.1:{debug_port}/json").read())
+            if t["type"] == "page"
+        )
         with connect(page["webSocketDebuggerUrl"], max_size=None) as ws:
             ids = iter(range(1, 1 << 30))
 

@@ -102,7 +102,9 @@ def validate(capture: ThermalCapture) -> ThermalCapture:
         check_pose(frame.camera_to_world, frame.image)
         values = [frame.fx, frame.fy, frame.cx, frame.cy, frame.width, frame.height]
         if not np.all(np.isfinite(values)) or min(frame.fx, frame.fy, frame.width, frame.height) <= 0:
-            raise ValueError(f"{frame.image}: invalid intrinsics fx={frame.fx} fy={frame.fy} size={frame.width}x{frame.height}")
+            raise ValueError(
+                f"{frame.image}: invalid intrinsics fx={frame.fx} fy={frame.fy} size={frame.width}x{frame.height}"
+            )
     has_split = [f.split is not None for f in capture.frames]
     if any(has_split) and not all(has_split):
         missing = next(f.image for f in capture.frames if f.split is None)

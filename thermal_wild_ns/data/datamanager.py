@@ -9,8 +9,8 @@ from typing import Dict, List, Optional, Type
 
 import numpy as np
 import torch
-from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanagerConfig
 from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
+from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanagerConfig
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
 
@@ -48,7 +48,9 @@ class ThermalDataset(InputDataset):
             import cv2
 
             h, w = image.shape
-            image = cv2.resize(image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)
+            image = cv2.resize(
+                image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA
+            )
         return np.repeat(image[..., None], 3, axis=-1) if self.metadata.get("grey_rgb") else image[..., None]
 
     def get_image_float32(self, image_idx: int) -> torch.Tensor:
@@ -98,8 +100,10 @@ class ThermalDatamanager(single_channel_datamanager_class()):
     def __init__(self, config: ThermalDatamanagerConfig, *args, **kwargs):
         if config.train_cameras_sampling_strategy != "random":
             raise ValueError(
-                f"train_cameras_sampling_strategy '{config.train_cameras_sampling_strategy}' is not supported by the thermal "
-                "datamanager: it visits the training frames in a seeded random order per pass (train_order_seed), so that a "
+                f"train_cameras_sampling_strategy '{config.train_cameras_sampling_strategy}' is not supported by "
+                f"the thermal "
+                "datamanager: it visits the training frames in a seeded random order per pass (train_order_seed), "
+                "so that a "
                 "resumed run sees what the uninterrupted one would"
             )
         super().__init__(config, *args, **kwargs)
@@ -113,7 +117,10 @@ class ThermalDatamanager(single_channel_datamanager_class()):
         capture = self.dataparser.capture()
         train = set(self.train_dataparser_outputs.metadata["frame_indices"])
         return preprocess(
-            capture.frames, self.dataparser.radiometric_range(), self.config.preprocessing, self.config.preprocessing_cache,
+            capture.frames,
+            self.dataparser.radiometric_range(),
+            self.config.preprocessing,
+            self.config.preprocessing_cache,
             train=[t in train for t in range(len(capture.frames))],
         )
 
@@ -126,7 +133,10 @@ class ThermalDatamanager(single_channel_datamanager_class()):
         """The permutation of training images for pass `epoch` (a function of the seed and the pass only)."""
         if getattr(self, "_order", (None,))[0] != epoch:
             count = len(self.train_dataset)
-            self._order = (epoch, np.random.default_rng([self.config.train_order_seed, epoch]).permutation(count).tolist())
+            self._order = (
+                epoch,
+                np.random.default_rng([self.config.train_order_seed, epoch]).permutation(count).tolist(),
+            )
         return self._order[1]
 
     def next_train(self, step: int):
@@ -143,7 +153,9 @@ class ThermalDatamanager(single_channel_datamanager_class()):
         return camera, data
 
     def create_train_dataset(self) -> ThermalDataset:
-        return ThermalDataset(self._with_metadata(self.train_dataparser_outputs, True), scale_factor=self.config.camera_res_scale_factor)
+        return ThermalDataset(
+            self._with_metadata(self.train_dataparser_outputs, True), scale_factor=self.config.camera_res_scale_factor
+        )
 
     def create_eval_dataset(self) -> ThermalDataset:
         outputs = self._with_metadata(self.dataparser.get_dataparser_outputs(split=self.test_split), False)

@@ -33,7 +33,15 @@ from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.data import layouts
-from thermal_wild_ns.data.capture import SeedPoints, ThermalCapture, ThermalFrame, fraction_split, interval_split, opencv_to_opengl, validate
+from thermal_wild_ns.data.capture import (
+    SeedPoints,
+    ThermalCapture,
+    ThermalFrame,
+    fraction_split,
+    interval_split,
+    opencv_to_opengl,
+    validate,
+)
 from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, generate_demo_scene, stress_scene_config
 from thermal_wild_ns.data.palettes import PALETTE_NAMES
 from thermal_wild_ns.data.thermal_io import RadiometricRange, scan_frames
@@ -103,12 +111,19 @@ class ThermalDataParser(DataParser):
             if name == "auto":
                 name = layouts.detect_layout(root)
                 CONSOLE.log(f"{root}: detected layout '{name}' ({layouts.LAYOUTS[name].description})")
-            options = {"thermalmix": {"holdout_index": self.config.thermalmix_holdout, "celsius": self.config.thermalmix_celsius}}
+            options = {
+                "thermalmix": {
+                    "holdout_index": self.config.thermalmix_holdout,
+                    "celsius": self.config.thermalmix_celsius,
+                }
+            }
             capture = validate(layouts.LAYOUTS[name].read(root, **options.get(name, {})))
             n = len(capture.frames)
-            override = {"interval": lambda: interval_split(n, self.config.eval_interval),
-                        "fraction": lambda: fraction_split(n, self.config.train_split_fraction),
-                        "all": lambda: ["train"] * n}.get(self.config.split)
+            override = {
+                "interval": lambda: interval_split(n, self.config.eval_interval),
+                "fraction": lambda: fraction_split(n, self.config.train_split_fraction),
+                "all": lambda: ["train"] * n,
+            }.get(self.config.split)
             if override is not None:
                 for frame, split in zip(capture.frames, override()):
                     frame.split = split
@@ -139,7 +154,9 @@ class ThermalDataParser(DataParser):
         if os.access(root, os.W_OK):
             return root / ".thermal_wild_ns"
         digest = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:8]
-        return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "thermal_wild_ns" / f"{root.name}-{digest}"
+        return (
+            Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "thermal_wild_ns" / f"{root.name}-{digest}"
+        )
 
     def seed_points(self) -> SeedPoints:
         """Gaussian seeds in the capture's world frame, each with a value in native units (from the
@@ -155,7 +172,10 @@ class ThermalDataParser(DataParser):
                 found = "no sparse points" if sparse is None else f"only {len(sparse.xyz)} sparse points"
                 raise ValueError(f"{capture.root}: seed_points='sfm' but the {capture.layout} layout has {found}")
             elif sparse is not None:
-                CONSOLE.log(f"[yellow]{capture.root}: the {capture.layout} layout's sparse model has only {len(sparse.xyz)} points; seeding otherwise")
+                CONSOLE.log(
+                    f"[yellow]{capture.root}: the {capture.layout} layout's sparse model has only {len(sparse.xyz)} "
+                    f"points; seeding otherwise"
+                )
             if seeds is None and route in ("auto", "triangulate"):
                 cache = self._cache_root()
                 xyz, report = cached_triangulation(train, self.radiometric_range(), cache, self.config.triangulation)
@@ -167,7 +187,9 @@ class ThermalDataParser(DataParser):
                 if len(xyz) >= 4:
                     seeds = SeedPoints(xyz=xyz, source="triangulated")
                 elif route == "triangulate":
-                    raise ValueError(f"{capture.root}: triangulation found only {len(xyz)} points (SIFT finds too little texture)")
+                    raise ValueError(
+                        f"{capture.root}: triangulation found only {len(xyz)} points (SIFT finds too little texture)"
+                    )
             if seeds is None:
                 seeds = SeedPoints(xyz=random_view_volume_points(train, self.config.num_random_points), source="random")
             if seeds.values is None:  # sample the frames once; train and eval outputs share the seeds
@@ -184,7 +206,9 @@ class ThermalDataParser(DataParser):
         rng = self.radiometric_range()
         frames = capture.frames
         poses = torch.from_numpy(np.stack([opencv_to_opengl(f.camera_to_world) for f in frames])).float()
-        poses, transform = camera_utils.auto_orient_and_center_poses(poses, method=self.config.orientation_method, center_method=self.config.center_method)
+        poses, transform = camera_utils.auto_orient_and_center_poses(
+            poses, method=self.config.orientation_method, center_method=self.config.center_method
+        )
         scale = self.config.scale_factor
         if self.config.auto_scale_poses:
             scale /= float(torch.max(torch.abs(poses[:, :3, 3])).clamp(min=1e-8))
@@ -195,6 +219,7 @@ class ThermalDataParser(DataParser):
         if not indices:
             raise ValueError(f"{capture.root}: no '{wanted}' frames ({capture.split_rule})")
         chosen = [frames[i] for i in indices]
+
         def column(name: str, dtype: torch.dtype) -> torch.Tensor:
             # readers give numpy float64 (COLMAP) or Python numbers: cast, or gsplat's projection
             # mixes float64 intrinsics with float32 Gaussians and fails at the first step
@@ -228,7 +253,9 @@ class ThermalDataParser(DataParser):
         xyz = (torch.cat([xyz, torch.ones_like(xyz[:, :1])], -1) @ transform.T) * scale
         values = rng.normalize(seeds.values)
         metadata["points3D_xyz"] = xyz
-        metadata["points3D_rgb"] = torch.from_numpy((np.clip(values, 0.0, 1.0) * 255).astype(np.uint8))[:, None].repeat(1, 3)
+        metadata["points3D_rgb"] = torch.from_numpy((np.clip(values, 0.0, 1.0) * 255).astype(np.uint8))[:, None].repeat(
+            1, 3
+        )
         metadata["seed_points"] = {"source": seeds.source, "count": len(seeds.xyz)}
         aabb = self.config.scene_scale
         return DataparserOutputs(
@@ -251,11 +278,15 @@ def _project(xyz: np.ndarray, frame: ThermalFrame) -> Tuple[np.ndarray, np.ndarr
     return uv, z
 
 
-def sample_point_values(xyz: np.ndarray, frames: List[ThermalFrame], rng: RadiometricRange, max_frames: int = 16) -> np.ndarray:
+def sample_point_values(
+    xyz: np.ndarray, frames: List[ThermalFrame], rng: RadiometricRange, max_frames: int = 16
+) -> np.ndarray:
     """Normalised thermal value [N] of each point: its mean over (up to `max_frames`, evenly spaced)
     training frames that see it; 0.5 where none does. Occlusion is ignored: this only seeds emission."""
     total, count = np.zeros(len(xyz)), np.zeros(len(xyz))
-    for frame in [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))]:
+    for frame in [
+        frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
+    ]:
         uv, z = _project(xyz, frame)
         col, row = np.floor(uv[:, 0]).astype(np.int64, copy=False), np.floor(uv[:, 1]).astype(np.int64, copy=False)
         seen = (z > 0) & (col >= 0) & (col < frame.width) & (row >= 0) & (row < frame.height)
@@ -320,5 +351,6 @@ llff_dataparser = _spec("llff", layouts.LAYOUTS["llff"].description)
 colmap_dataparser = _spec("colmap", layouts.LAYOUTS["colmap"].description)
 ti_nsd_dataparser = _spec("ti-nsd", layouts.LAYOUTS["ti-nsd"].description)
 thermal_demo_dataparser = DataParserSpecification(
-    config=ThermalDemoDataParserConfig(), description="the embedded procedural thermal demo scene (generated, no download)"
+    config=ThermalDemoDataParserConfig(),
+    description="the embedded procedural thermal demo scene (generated, no download)",
 )

@@ -28,7 +28,9 @@ from typing import Dict, Tuple
 import cv2
 import numpy as np
 
-GENERATOR_VERSION = 3  # bump when an unchanged config would give different frames (3: outlier gain on the normalised scale)
+GENERATOR_VERSION = (
+    3  # bump when an unchanged config would give different frames (3: outlier gain on the normalised scale)
+)
 
 
 @dataclass(frozen=True)
@@ -155,9 +157,7 @@ def camera_to_world(index: float, cfg: DemoSceneConfig) -> np.ndarray:
 def render_view(c2w: np.ndarray, cfg: DemoSceneConfig, supersample: int = 2) -> Tuple[np.ndarray, np.ndarray]:
     """Clean temperature image (degC) [H, W] and depth along the optical axis [H, W] (inf = sky)."""
     s = supersample
-    v, u = np.meshgrid(
-        (np.arange(cfg.height * s) + 0.5) / s, (np.arange(cfg.width * s) + 0.5) / s, indexing="ij"
-    )
+    v, u = np.meshgrid((np.arange(cfg.height * s) + 0.5) / s, (np.arange(cfg.width * s) + 0.5) / s, indexing="ij")
     d_cam = np.stack([(u - cfg.width / 2) / cfg.focal, -(v - cfg.height / 2) / cfg.focal, -np.ones_like(u)], -1)
     dirs = d_cam @ c2w[:3, :3].T
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
@@ -198,7 +198,15 @@ STRESS_FAULTS: Dict[str, Dict] = {
 }
 """The stress scenes: the demo's content with one fault at a time (and "all" of them together).
 "clean" has no fault at all, not even sensor noise: the reference the others are compared with."""
-_NO_FAULTS = dict(drift_counts=0.0, drift_gain=0.0, jitter_counts=0.0, jitter_gain=0.0, vignetting=0.0, noise_counts=0.0, column_noise_counts=0.0)
+_NO_FAULTS = dict(
+    drift_counts=0.0,
+    drift_gain=0.0,
+    jitter_counts=0.0,
+    jitter_gain=0.0,
+    vignetting=0.0,
+    noise_counts=0.0,
+    column_noise_counts=0.0,
+)
 
 
 def stress_scene_config(fault: str, path_views: int = 60) -> DemoSceneConfig:
@@ -270,7 +278,14 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
             clean, depth = _clean_counts(c2w, cfg)
             cv2.imwrite(str(tmp / "path" / f"path_{k:05d}.png"), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
             np.save(tmp / "path" / f"path_{k:05d}_depth.npy", depth.astype(np.float32))
-            path.append({"file_path": f"path/path_{k:05d}.png", "depth_npy_path": f"path/path_{k:05d}_depth.npy", "frame": float(index), "transform_matrix": c2w.tolist()})
+            path.append(
+                {
+                    "file_path": f"path/path_{k:05d}.png",
+                    "depth_npy_path": f"path/path_{k:05d}_depth.npy",
+                    "frame": float(index),
+                    "transform_matrix": c2w.tolist(),
+                }
+            )
     points = np.concatenate(point_sets)[: cfg.num_points]
     _write_points_ply(tmp / "sparse_pc.ply", points)
     names = [f["file_path"] for f in frames]
@@ -295,7 +310,11 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
             "dtype": "uint16",
         },
         "path": path,
-        "thermal_demo": {"key": key, "config": asdict(cfg), "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset", "outlier")}},
+        "thermal_demo": {
+            "key": key,
+            "config": asdict(cfg),
+            "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset", "outlier")},
+        },
     }
     with open(tmp / "transforms.json", "w") as f:
         json.dump(meta, f, indent=1)

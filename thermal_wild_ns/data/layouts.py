@@ -91,12 +91,15 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
         raise ValueError(f"{path}: no frame is flagged is_thermal (ThermalNeRF layout)")
     frames = []
     for f in raw_frames:
-        def get(key, default=None):
+
+        def get(key, default=None, f=f):
             return f.get(key, meta.get(key, default))
 
         model = get("camera_model", "OPENCV")
         if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
-            raise ValueError(f"{path}: camera_model {model} of {f.get('file_path')} is not supported (OPENCV or PINHOLE)")
+            raise ValueError(
+                f"{path}: camera_model {model} of {f.get('file_path')} is not supported (OPENCV or PINHOLE)"
+            )
         try:
             c2w = check_pose(np.array(f["transform_matrix"], dtype=np.float64), path)
             intrinsics = [float(get(k)) for k in ("fl_x", "fl_y", "cx", "cy")] + [int(get(k)) for k in ("w", "h")]
@@ -106,8 +109,12 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
             ThermalFrame(
                 image=root / f["file_path"],
                 camera_to_world=opencv_to_opengl(c2w),
-                fx=intrinsics[0], fy=intrinsics[1], cx=intrinsics[2], cy=intrinsics[3],
-                width=intrinsics[4], height=intrinsics[5],
+                fx=intrinsics[0],
+                fy=intrinsics[1],
+                cx=intrinsics[2],
+                cy=intrinsics[3],
+                width=intrinsics[4],
+                height=intrinsics[5],
                 distortion=np.array([float(get(k, 0.0)) for k in ("k1", "k2", "k3", "k4", "p1", "p2")]),
                 ground_truth=root / f["gt_file_path"] if "gt_file_path" in f else None,
             )
@@ -174,9 +181,13 @@ def _colmap_intrinsics(camera, source: str) -> Tuple[float, float, float, float,
     return fx, fy, cx, cy, dist
 
 
-def _colmap_frames(rec, folder: Path, find_image: Callable[[str], Tuple[Path, Optional[str]]], order: str = "name") -> List[ThermalFrame]:
+def _colmap_frames(
+    rec, folder: Path, find_image: Callable[[str], Tuple[Path, Optional[str]]], order: str = "name"
+) -> List[ThermalFrame]:
     """Frames of a COLMAP model; `find_image(name)` gives the thermal file and split of an image."""
-    images = sorted(rec.images.values(), key=(lambda im: natural_key(im.name)) if order == "name" else (lambda im: im.image_id))
+    images = sorted(
+        rec.images.values(), key=(lambda im: natural_key(im.name)) if order == "name" else (lambda im: im.image_id)
+    )
     frames = []
     for image in images:
         camera = rec.cameras[image.camera_id]
@@ -185,8 +196,16 @@ def _colmap_frames(rec, folder: Path, find_image: Callable[[str], Tuple[Path, Op
         path, split = find_image(image.name)
         frames.append(
             ThermalFrame(
-                image=path, camera_to_world=np.linalg.inv(w2c), fx=fx, fy=fy, cx=cx, cy=cy,
-                width=camera.width, height=camera.height, distortion=dist, split=split,
+                image=path,
+                camera_to_world=np.linalg.inv(w2c),
+                fx=fx,
+                fy=fy,
+                cx=cx,
+                cy=cy,
+                width=camera.width,
+                height=camera.height,
+                distortion=dist,
+                split=split,
             )
         )
     return frames
@@ -222,20 +241,28 @@ def read_msx(root: Path) -> ThermalCapture:
         for split in ("train", "test"):
             if (root / "thermal" / split / base).is_file():
                 return root / "thermal" / split / base, split
-        raise FileNotFoundError(f"{root / 'thermal'}/{{train,test}}/{base}: thermal frame of COLMAP image '{name}' is missing")
+        raise FileNotFoundError(
+            f"{root / 'thermal'}/{{train,test}}/{base}: thermal frame of COLMAP image '{name}' is missing"
+        )
 
     frames = _colmap_frames(rec, root / "sparse" / "0", find)
-    return ThermalCapture("msx", root, frames, "the thermal/{train,test} folders", palette="iron", points=_colmap_points(rec))
+    return ThermalCapture(
+        "msx", root, frames, "the thermal/{train,test} folders", palette="iron", points=_colmap_points(rec)
+    )
 
 
-def read_thermalmix(root: Path, holdout_index: int = 20, celsius: Optional[Tuple[float, float]] = None) -> ThermalCapture:
+def read_thermalmix(
+    root: Path, holdout_index: int = 20, celsius: Optional[Tuple[float, float]] = None
+) -> ThermalCapture:
     """ThermalMix (Ozer et al.): COLMAP model in `colmap_sparse/0` (or `sparse/0`); thermal
     frames named after the model's images: `thermal/*.jpg` (8-bit grey, linear in degC between
     the scene's bounds) or float degC `.npy` (`warped_thermal/` in the authors' loader,
     `colmap_provider.py`, which orders frames by image id and holds out one view, `--val_idx`:
     20 in their README's example). Bounds per scene (`THERMALMIX_CELSIUS`) come from the folder
     name unless `celsius` is given; without either the range is measured."""
-    model = next((root / d / "0" for d in ("colmap_sparse", "sparse") if (root / d / "0").is_dir()), root / "colmap_sparse" / "0")
+    model = next(
+        (root / d / "0" for d in ("colmap_sparse", "sparse") if (root / d / "0").is_dir()), root / "colmap_sparse" / "0"
+    )
     rec = _read_colmap_model(model)
 
     def find(name: str):
@@ -245,7 +272,10 @@ def read_thermalmix(root: Path, holdout_index: int = 20, celsius: Optional[Tuple
         for path in candidates:
             if path.is_file():
                 return path, None
-        raise FileNotFoundError(f"{candidates[0]}: thermal frame of COLMAP image '{name}' is missing (also tried .png/.npy, warped_thermal/)")
+        raise FileNotFoundError(
+            f"{candidates[0]}: thermal frame of COLMAP image '{name}' is missing (also tried .png/.npy, "
+            f"warped_thermal/)"
+        )
 
     frames = _colmap_frames(rec, model, find, order="id")
     if not 0 <= holdout_index < len(frames):
@@ -256,11 +286,18 @@ def read_thermalmix(root: Path, holdout_index: int = 20, celsius: Optional[Tuple
     declared = None
     if bounds is not None:
         if frames[0].image.suffix == ".npy":
-            declared = RadiometricRange(bounds[0], bounds[1], str(load_npy(frames[0].image, mmap_mode="r").dtype), *bounds)
+            declared = RadiometricRange(
+                bounds[0], bounds[1], str(load_npy(frames[0].image, mmap_mode="r").dtype), *bounds
+            )
         else:
             declared = RadiometricRange(0.0, 255.0, "uint8", *bounds)
     return ThermalCapture(
-        "thermalmix", root, frames, f"view {holdout_index} (by image id) held out", declared_range=declared, points=_colmap_points(rec)
+        "thermalmix",
+        root,
+        frames,
+        f"view {holdout_index} (by image id) held out",
+        declared_range=declared,
+        points=_colmap_points(rec),
     )
 
 
@@ -406,15 +443,31 @@ def _colmap_mismatch(root: Path) -> Optional[str]:
 
 # Detection order matters: the specific layouts come before the generic ones they resemble.
 LAYOUTS: Dict[str, Layout] = {
-    "thermalnerf": Layout(read_thermalnerf, _transforms_mismatch(True), "ThermalNeRF (Lin et al.): transforms.json with is_thermal frames"),
+    "thermalnerf": Layout(
+        read_thermalnerf, _transforms_mismatch(True), "ThermalNeRF (Lin et al.): transforms.json with is_thermal frames"
+    ),
     "nerfstudio": Layout(read_nerfstudio, _transforms_mismatch(False), "nerfstudio transforms.json of thermal frames"),
-    "ye": Layout(read_ye, _needs("train/pose", "train/intrinsics", "train/rgb"), "Thermal-NeRF (Ye et al.): {train,test}/{intrinsics,pose,rgb}/"),
-    "msx": Layout(read_msx, _needs("thermal/train", "sparse/0"), "MSX / RGBT-Scenes (ThermalGaussian): thermal/{train,test}/ + sparse/0"),
+    "ye": Layout(
+        read_ye,
+        _needs("train/pose", "train/intrinsics", "train/rgb"),
+        "Thermal-NeRF (Ye et al.): {train,test}/{intrinsics,pose,rgb}/",
+    ),
+    "msx": Layout(
+        read_msx,
+        _needs("thermal/train", "sparse/0"),
+        "MSX / RGBT-Scenes (ThermalGaussian): thermal/{train,test}/ + sparse/0",
+    ),
     "thermalmix": Layout(read_thermalmix, _thermalmix_mismatch, "ThermalMix (Ozer et al.): thermal/ + colmap_sparse/0"),
-    "mvtv": Layout(read_mvtv, _needs("poses_bounds.npy", "thermal"), "MVTV (assumed LLFF): poses_bounds.npy + thermal/"),
+    "mvtv": Layout(
+        read_mvtv, _needs("poses_bounds.npy", "thermal"), "MVTV (assumed LLFF): poses_bounds.npy + thermal/"
+    ),
     "llff": Layout(read_llff, _needs("poses_bounds.npy"), "LLFF: poses_bounds.npy + images/"),
     "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
-    "ti-nsd": Layout(lambda root: read_colmap(root, layout="ti-nsd"), _colmap_mismatch, "TI-NSD (Thermal3D-GS): images/ + sparse/0, read as COLMAP"),
+    "ti-nsd": Layout(
+        lambda root: read_colmap(root, layout="ti-nsd"),
+        _colmap_mismatch,
+        "TI-NSD (Thermal3D-GS): images/ + sparse/0, read as COLMAP",
+    ),
 }
 
 

@@ -106,6 +106,7 @@ def decode_colour_frame(rgb: np.ndarray, path: Path, palette: Optional[str]) -> 
     if float(np.median(distance)) > MAX_MEDIAN_DISTANCE:
         raise ValueError(
             f"{path}: colours do not match the dataset's '{name}' palette (median RGB distance "
-            f"{float(np.median(distance)):.1f} > {MAX_MEDIAN_DISTANCE:g}); were frames exported with different palettes?"
+            f"{float(np.median(distance)):.1f} > {MAX_MEDIAN_DISTANCE:g}); were frames exported with different "
+            f"palettes?"
         )
     return levels

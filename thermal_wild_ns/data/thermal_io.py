@@ -62,7 +62,9 @@ def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
         if image is None:
             raise ValueError(f"{path}: unreadable image file")
     else:
-        raise ValueError(f"{path}: unsupported thermal frame type '{path.suffix}' (use {sorted(IMAGE_SUFFIXES)} or .npy)")
+        raise ValueError(
+            f"{path}: unsupported thermal frame type '{path.suffix}' (use {sorted(IMAGE_SUFFIXES)} or .npy)"
+        )
     if image.ndim == 3 and image.shape[2] in (1, 3, 4):
         image = image[..., :3]
         if np.all(image[..., :1] == image):
@@ -171,13 +173,17 @@ def scan_frames(
         elif raw.dtype != dtype:
             raise ValueError(f"{path}: pixel type {raw.dtype} differs from the dataset's {dtype} (mixed bit depths)")
         if sizes is not None and (raw.shape[1], raw.shape[0]) != tuple(sizes[i]):
-            raise ValueError(f"{path}: image is {raw.shape[1]}x{raw.shape[0]} but its camera says {sizes[i][0]}x{sizes[i][1]}")
+            raise ValueError(
+                f"{path}: image is {raw.shape[1]}x{raw.shape[0]} but its camera says {sizes[i][0]}x{sizes[i][1]}"
+            )
         if raw.dtype in (np.uint8, np.uint16):
             counts = np.bincount(raw.reshape(-1), minlength=1 << (8 * raw.dtype.itemsize))
             if measure[i]:
                 hist = counts if hist is None else hist + counts
             cdf = np.cumsum(counts) / raw.size
-            tails.append((float(np.searchsorted(cdf, OUT_OF_RANGE_SHARE)), float(np.searchsorted(cdf, 1.0 - OUT_OF_RANGE_SHARE))))
+            tails.append(
+                (float(np.searchsorted(cdf, OUT_OF_RANGE_SHARE)), float(np.searchsorted(cdf, 1.0 - OUT_OF_RANGE_SHARE)))
+            )
         else:
             if not np.all(np.isfinite(raw)):
                 raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
@@ -205,17 +211,24 @@ OUT_OF_RANGE_SHARE = 0.01
 """A frame with more of its pixels than this below or above the dataset's range is named in a warning."""
 
 
-def _warn_out_of_range(paths: Sequence[Path], tails: Sequence[Tuple[float, float]], low: float, high: float, kind: str) -> None:
+def _warn_out_of_range(
+    paths: Sequence[Path], tails: Sequence[Tuple[float, float]], low: float, high: float, kind: str
+) -> None:
     """Warn about the frames whose low or high tail (`OUT_OF_RANGE_SHARE` of pixels) lies outside [low, high]."""
-    advice = {"declared": "Check the range the dataset declares, or those frames.", "measured": "Widen the dataparser's --range-percentiles, or check those frames."}
+    advice = {
+        "declared": "Check the range the dataset declares, or those frames.",
+        "measured": "Widen the dataparser's --range-percentiles, or check those frames.",
+    }
     below = [Path(p).name for p, (lo, _) in zip(paths, tails) if lo < low]
     above = [Path(p).name for p, (_, hi) in zip(paths, tails) if hi > high]
     for names, side, bound in ((below, "below", low), (above, "above", high)):
         if names:
             listed = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
             warnings.warn(
-                f"{Path(paths[0]).parent}: {len(names)} frame(s) have over {OUT_OF_RANGE_SHARE:.0%} of their pixels {side} the "
-                f"{kind} radiometric range ({side} {bound:g}): {listed}. Preprocessing clips those pixels; a frame mostly "
+                f"{Path(paths[0]).parent}: {len(names)} frame(s) have over {OUT_OF_RANGE_SHARE:.0%} of their pixels "
+                f"{side} the "
+                f"{kind} radiometric range ({side} {bound:g}): {listed}. Preprocessing clips those pixels; a frame "
+                f"mostly "
                 f"outside the range is saturated. {advice[kind]}",
                 stacklevel=3,
             )

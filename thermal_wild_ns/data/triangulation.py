@@ -53,7 +53,11 @@ class TriangulationConfig:
 
 def cache_key(frames: Sequence[ThermalFrame], radiometric_range: RadiometricRange, config: TriangulationConfig) -> str:
     h = hashlib.sha256()
-    h.update(json.dumps({"version": CACHE_VERSION, "config": asdict(config), "range": asdict(radiometric_range)}, sort_keys=True).encode())
+    h.update(
+        json.dumps(
+            {"version": CACHE_VERSION, "config": asdict(config), "range": asdict(radiometric_range)}, sort_keys=True
+        ).encode()
+    )
     for f in frames:
         # name, size and the file's first and last 64 KiB: stable across copies (mtimes are not)
         with open(f.image, "rb") as file:
@@ -62,7 +66,9 @@ def cache_key(frames: Sequence[ThermalFrame], radiometric_range: RadiometricRang
             tail = file.read()
         h.update(f"{f.image.name}:{f.image.stat().st_size}:".encode() + hashlib.sha1(head + tail).digest())
         # rounded: the same poses read from COLMAP text and from transforms.json differ in the last bits
-        h.update(np.round(np.asarray([*f.camera_to_world.reshape(-1), f.fx, f.fy, f.cx, f.cy, *f.distortion]), 6).tobytes())
+        h.update(
+            np.round(np.asarray([*f.camera_to_world.reshape(-1), f.fx, f.fy, f.cx, f.cy, *f.distortion]), 6).tobytes()
+        )
     return h.hexdigest()[:16]
 
 
@@ -146,7 +152,14 @@ def triangulate(
         if len(descriptors[i]) < 2 or len(descriptors[j]) < 2:
             continue
         knn = matcher.knnMatch(descriptors[i], descriptors[j], k=2)
-        good = np.array([(m[0].queryIdx, m[0].trainIdx) for m in knn if len(m) == 2 and m[0].distance < config.ratio * m[1].distance], dtype=np.uint32).reshape(-1, 2)
+        good = np.array(
+            [
+                (m[0].queryIdx, m[0].trainIdx)
+                for m in knn
+                if len(m) == 2 and m[0].distance < config.ratio * m[1].distance
+            ],
+            dtype=np.uint32,
+        ).reshape(-1, 2)
         distance = _sampson(_fundamental(frames[i], frames[j]), keypoints[i][good[:, 0]], keypoints[j][good[:, 1]])
         inliers = good[distance < config.max_epipolar_px]
         inlier_counts.append(len(inliers))
@@ -178,7 +191,10 @@ def triangulate(
 
 
 def cached_triangulation(
-    frames: Sequence[ThermalFrame], radiometric_range: RadiometricRange, cache_root: Path, config: TriangulationConfig = TriangulationConfig()
+    frames: Sequence[ThermalFrame],
+    radiometric_range: RadiometricRange,
+    cache_root: Path,
+    config: TriangulationConfig = TriangulationConfig(),
 ) -> Tuple[np.ndarray, Dict]:
     """Triangulated points [N, 3] and the report, computed once per (frames, poses, parameters)."""
     key = cache_key(frames, radiometric_range, config)

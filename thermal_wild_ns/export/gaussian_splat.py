@@ -13,17 +13,13 @@ positions, which it copies unchanged and in order.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
-from pathlib import Path
-from typing import List, Union
+from typing import List
 
 import numpy as np
 import torch
 import tyro
 from nerfstudio.scripts import exporter as ns_export
-from typing_extensions import Annotated
-
 
 
 def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
@@ -50,8 +46,10 @@ def thermal_values(pipeline) -> np.ndarray:
 def header_comments(pipeline) -> List[str]:
     rng = pipeline.datamanager.train_dataset.thermal_range
     lines = [
-        f"frame_embedding {pipeline.model.config.inference_embedding} (the emission MLP was baked with this frame embedding)",
-        f"thermal: baked emission in native units ({rng.dtype}) at the canonical photometric state (median training LUT)",
+        f"frame_embedding {pipeline.model.config.inference_embedding} (the emission MLP was baked with this frame "
+        f"embedding)",
+        f"thermal: baked emission in native units ({rng.dtype}) at the canonical photometric state (median training "
+        f"LUT)",
         "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",
         f"native_range {rng.low:g} {rng.high:g}",
     ]
@@ -72,18 +70,23 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
         def add_thermal(map_to_tensors):
             pipeline = loaded["pipeline"]
             means = pipeline.model.means.detach().cpu().numpy()
-            exported = np.concatenate([map_to_tensors[k][:, None] if map_to_tensors[k].ndim == 1 else map_to_tensors[k] for k in "xyz"], 1)
+            exported = np.concatenate(
+                [map_to_tensors[k][:, None] if map_to_tensors[k].ndim == 1 else map_to_tensors[k] for k in "xyz"], 1
+            )
             map_to_tensors["thermal"] = thermal_values(pipeline)[_kept_rows(means, exported)]
 
-        with gaussian_splat_export_hooks(lambda pipeline: loaded.update(pipeline=pipeline), add_thermal, lambda: header_comments(loaded["pipeline"])):
+        with gaussian_splat_export_hooks(
+            lambda pipeline: loaded.update(pipeline=pipeline), add_thermal, lambda: header_comments(loaded["pipeline"])
+        ):
             super().main()
 
 
-Commands = tyro.conf.FlagConversionOff[Union[Annotated[ExportThermalSplat, tyro.conf.subcommand(name="gaussian-splat")]]]
-
-
 def entrypoint():
-    tyro.cli(Commands).main()
+    # a subcommand even though there is one format (a one-member Union would collapse into none),
+    # so the command reads like ns-export's: wild-thermal-export gaussian-splat --load-config ...
+    tyro.extras.subcommand_cli_from_dict(
+        {"gaussian-splat": tyro.conf.FlagConversionOff[ExportThermalSplat]}, description=__doc__.splitlines()[0]
+    ).main()
 
 
 if __name__ == "__main__":

@@ -18,7 +18,9 @@ def _gaussian_window(size: int, sigma: float, device, dtype) -> Tensor:
     return (g[:, None] * g[None, :])[None, None]  # [1, 1, size, size]
 
 
-def ssim(pred: Tensor, target: Tensor, data_range: float | Tensor = 1.0, window: int = 11, sigma: float = 1.5) -> Tensor:
+def ssim(
+    pred: Tensor, target: Tensor, data_range: float | Tensor = 1.0, window: int = 11, sigma: float = 1.5
+) -> Tensor:
     """Mean SSIM (Wang et al. 2004) of two single-channel images [H, W, 1], Gaussian 11x11 window,
     K1 = 0.01, K2 = 0.03, 'valid' filtering (as pytorch_msssim, which nerfstudio reports)."""
     x = pred.permute(2, 0, 1)[None]  # [1, 1, H, W]

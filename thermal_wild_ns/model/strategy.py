@@ -72,7 +72,9 @@ class BudgetedDefaultStrategy(strategy_with_hooks_class()):
         visible = info["radii"][0] > 0.0  # [N]
         state["grad2d"] += torch.where(visible, grads[0].norm(dim=-1), 0.0)
         state["count"] += visible
-        if self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(info["width"], info["height"], self.grow_scale2d):
+        if self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(
+            info["width"], info["height"], self.grow_scale2d
+        ):
             # screen radius normalised to [0, 1], as gsplat
             radii = torch.where(visible, info["radii"][0], 0) / float(max(info["width"], info["height"]))
             torch.maximum(state["radii"], radii, out=state["radii"])

@@ -18,18 +18,18 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Literal, Optional, Tuple, Type, Union
 
 import torch
-from torch.profiler import record_function
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, random_quat_tensor
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
 from torch.nn import Parameter
+from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import viewer_control_class
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
-from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
+from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
 
 
@@ -128,7 +128,9 @@ class WildThermalModel(SplatfactoModel):
         num_frames = max(self.num_train_data, 1)
         self.frame_embed = nn.Embedding(num_frames, cfg.frame_embed_dim)
         indices = self.kwargs.get("metadata", {}).get("frame_indices")
-        self.frame_times: List[float] = [float(t) for t in indices] if indices is not None else [float(k) for k in range(num_frames)]
+        self.frame_times: List[float] = (
+            [float(t) for t in indices] if indices is not None else [float(k) for k in range(num_frames)]
+        )
         """Capture position (capture-order frame index) of each training image, i.e. of each row of
         `frame_embed`: the time axis along which the photometric state is interpolated."""
         self.embedding_override: Optional[Tensor] = None
@@ -148,7 +150,9 @@ class WildThermalModel(SplatfactoModel):
         self.background_mlp = (
             BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
         )
-        self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(num_cameras=self.num_train_data, device="cpu")
+        self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
+            num_cameras=self.num_train_data, device="cpu"
+        )
         self.step = 0
         self.optimizers = {}  # set by splatfacto's step_cb once training starts
         self.crop_box = None
@@ -194,23 +198,41 @@ class WildThermalModel(SplatfactoModel):
         self.on_photometric_state_change = None
         """Called after the viewer changes the state (the pipeline updates the colour bar)."""
         self.viewer_colormap = ViewerDropdown(
-            "Thermal colormap", self.config.colormap, ["iron", "inferno", "grey"], cb_hook=set_colormap, hint="colours of the rgb output"
+            "Thermal colormap",
+            self.config.colormap,
+            ["iron", "inferno", "grey"],
+            cb_hook=set_colormap,
+            hint="colours of the rgb output",
         )
         self.viewer_state = ViewerDropdown(
-            "Photometric state", "canonical", ["canonical", "capture time"], cb_hook=set_state,
-            hint="canonical: the state every novel view renders with; capture time: the sensor's state at the slider's position",
+            "Photometric state",
+            "canonical",
+            ["canonical", "capture time"],
+            cb_hook=set_state,
+            hint="canonical: the state every novel view renders with; capture time: the sensor's state at the "
+            "slider's position",
         )
         first, last = min(self.frame_times), max(self.frame_times)
         self.viewer_time = ViewerSlider(
-            "Capture time", first, first, max(last, first + 1e-3), step=0.1, cb_hook=set_state,
+            "Capture time",
+            first,
+            first,
+            max(last, first + 1e-3),
+            step=0.1,
+            cb_hook=set_state,
             hint="capture position (frame index); between training frames the state is interpolated",
         )
-        self.viewer_colour_bar = ViewerText("Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap")
-        self.viewer_control = viewer_control_class()(  # the viewer opens looking at the scene, not from an arbitrary pose
-            lambda client: self._look_through_training_camera(self._nearest_training_image(), client)
+        self.viewer_colour_bar = ViewerText(
+            "Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap"
+        )
+        self.viewer_control = (
+            viewer_control_class()(  # the viewer opens looking at the scene, not from an arbitrary pose
+                lambda client: self._look_through_training_camera(self._nearest_training_image(), client)
+            )
         )
         self.viewer_go_to_frame = ViewerButton(
-            "Look through the nearest training camera", cb_hook=lambda _: self._look_through_training_camera(self._nearest_training_image())
+            "Look through the nearest training camera",
+            cb_hook=lambda _: self._look_through_training_camera(self._nearest_training_image()),
         )
 
     def _nearest_training_image(self) -> int:
@@ -356,7 +378,12 @@ class WildThermalModel(SplatfactoModel):
         Adam updates in place without bumping tensor versions), an in-place edit or load (versions)
         or densification (identities). The check runs on the host: no GPU round trip per frame.
         The cache holds the tensors themselves, so their identities cannot be recycled."""
-        tensors = (self.gauss_params["emission"], self.gauss_params["gauss_embed"], *self.emission_mlp.parameters(), frame_embed)
+        tensors = (
+            self.gauss_params["emission"],
+            self.gauss_params["gauss_embed"],
+            *self.emission_mlp.parameters(),
+            frame_embed,
+        )
         versions = (self.step, *(t._version for t in tensors))
         cached = getattr(self, "_baked", None)
         if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
@@ -390,7 +417,15 @@ class WildThermalModel(SplatfactoModel):
         dirs = dirs @ camera_to_world[:3, :3].T  # [h, w, 3]
         return dirs / dirs.norm(dim=-1, keepdim=True)
 
-    def background(self, K: Tensor, camera_to_world: Tensor, frame_embed: Tensor, width: int, height: int, cam_idx: Optional[int] = None) -> Tensor:
+    def background(
+        self,
+        K: Tensor,
+        camera_to_world: Tensor,
+        frame_embed: Tensor,
+        width: int,
+        height: int,
+        cam_idx: Optional[int] = None,
+    ) -> Tensor:
         """Background radiance per pixel [H, W, 1], evaluated on the `background_stride` grid and
         upsampled. `cam_idx` names a training camera whose pose is fixed (no pose optimisation):
         its encoded directions are computed once and reused."""
@@ -408,7 +443,9 @@ class WildThermalModel(SplatfactoModel):
         if coarse.shape[:2] == (height, width):
             return coarse
         # align_corners=False: coarse samples sit at the centres of stride x stride pixel blocks
-        return torch.nn.functional.interpolate(coarse.permute(2, 0, 1)[None], size=(height, width), mode="bilinear", align_corners=False)[0].permute(1, 2, 0)
+        return torch.nn.functional.interpolate(
+            coarse.permute(2, 0, 1)[None], size=(height, width), mode="bilinear", align_corners=False
+        )[0].permute(1, 2, 0)
 
     def get_outputs(self, camera: Cameras) -> Dict[str, Union[Tensor, List]]:
         if not isinstance(camera, Cameras):
@@ -430,7 +467,12 @@ class WildThermalModel(SplatfactoModel):
             camera.rescale_output_resolution(scale)
         self.last_size = (H, W)
         frame_embed = self.frame_embedding(camera)
-        fixed_pose = self.training and self.config.camera_optimizer.mode == "off" and camera.metadata and "cam_idx" in camera.metadata
+        fixed_pose = (
+            self.training
+            and self.config.camera_optimizer.mode == "off"
+            and camera.metadata
+            and "cam_idx" in camera.metadata
+        )
         with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
             background = self.background(
                 K[0], camera_to_world[0], frame_embed, W, H, int(camera.metadata["cam_idx"]) if fixed_pose else None
@@ -476,7 +518,9 @@ class WildThermalModel(SplatfactoModel):
                 backend=self.config.rasterizer,
             )  # [1, H, W, 1(+1)], [1, H, W, 1]
         if self.training and torch.is_grad_enabled():  # no densification statistics from no-grad renders
-            self.strategy.step_pre_backward(self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info)
+            self.strategy.step_pre_backward(
+                self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
+            )
         alpha = alpha[0]
         thermal = render[0, ..., :1] + (1.0 - alpha) * background  # premultiplied render over background
         depth = None
@@ -556,7 +600,8 @@ class WildThermalModel(SplatfactoModel):
         cfg = self.config
         losses = {
             "l1_loss": cfg.l1_lambda * (gt - pred).abs().mean(),
-            "ssim_loss": cfg.ssim_lambda * (1.0 - (heat_aware_ssim(pred, gt, contrast) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0))),
+            "ssim_loss": cfg.ssim_lambda
+            * (1.0 - (heat_aware_ssim(pred, gt, contrast) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0))),
         }
         if cfg.alpha_lambda > 0:
             losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(
@@ -580,14 +625,16 @@ class WildThermalModel(SplatfactoModel):
             present = any(k.startswith(prefix) for k in state_dict)
             if present != wanted:
                 raise ValueError(
-                    f"checkpoint {'has' if present else 'lacks'} the {what} but this config {'disables' if present else 'enables'} it: "
+                    f"checkpoint {'has' if present else 'lacks'} the {what} but this config "
+                    f"{'disables' if present else 'enables'} it: "
                     "load it with the config it was trained with (its config.yml)"
                 )
         frames = state_dict.get("frame_embed.weight")
         if frames is not None and tuple(frames.shape) != tuple(self.frame_embed.weight.shape):
             raise ValueError(
                 f"checkpoint has {frames.shape[0]} frame embeddings of size {frames.shape[1]}, this config "
-                f"{self.frame_embed.weight.shape[0]} of size {self.frame_embed.weight.shape[1]}: it was trained on other data or settings"
+                f"{self.frame_embed.weight.shape[0]} of size {self.frame_embed.weight.shape[1]}: it was trained on "
+                f"other data or settings"
             )
         return super().load_state_dict(state_dict, strict=strict, **kwargs)
 

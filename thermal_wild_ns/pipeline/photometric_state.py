@@ -48,7 +48,10 @@ def parse_state(spec: str) -> Tuple[str, Optional[float]]:
                 return kind, position
     except ValueError:
         pass
-    raise ValueError(f"photometric state '{spec}': expected canonical, frame:N (a training frame's index) or time:T (a capture position)")
+    raise ValueError(
+        f"photometric state '{spec}': expected canonical, frame:N (a training frame's index) or time:T (a capture "
+        f"position)"
+    )
 
 
 def _model_embedding(model, t: Optional[float]) -> Optional[Tensor]:
@@ -76,7 +79,9 @@ def canonical_state(pipeline) -> PhotometricState:
 def state_at(pipeline, t: float) -> PhotometricState:
     """state(t) from the training frames around capture position `t`."""
     sequence = getattr(pipeline.datamanager, "preprocessed", None)
-    return PhotometricState(f"time:{t:g}", _model_embedding(pipeline.model, t), None if sequence is None else sequence.lut_at(t))
+    return PhotometricState(
+        f"time:{t:g}", _model_embedding(pipeline.model, t), None if sequence is None else sequence.lut_at(t)
+    )
 
 
 def resolve_state(pipeline, spec: str) -> PhotometricState:
@@ -87,7 +92,10 @@ def resolve_state(pipeline, spec: str) -> PhotometricState:
     if kind == "frame":
         train = list(pipeline.datamanager.train_dataset.metadata["frame_indices"])
         if int(value) not in train:
-            raise ValueError(f"photometric state '{spec}': frame {int(value)} is not a training frame (use time:{int(value)} for its interpolated state)")
+            raise ValueError(
+                f"photometric state '{spec}': frame {int(value)} is not a training frame (use time:{int(value)} for "
+                f"its interpolated state)"
+            )
         state = state_at(pipeline, value)
         return PhotometricState(f"frame:{int(value)}", state.embedding, state.lut)
     return state_at(pipeline, value)

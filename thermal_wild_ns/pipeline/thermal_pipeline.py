@@ -55,7 +55,9 @@ class ThermalPipeline(VanillaPipeline):
 
     def update_colour_bar(self) -> None:
         state = self.viewer_state()
-        self.model.viewer_colour_bar.value = f"{self.model.config.colormap} 0->1 at {state.label}: {colour_bar(self, state)}"
+        self.model.viewer_colour_bar.value = (
+            f"{self.model.config.colormap} 0->1 at {state.label}: {colour_bar(self, state)}"
+        )
 
     @torch.no_grad()
     def get_eval_image_metrics_and_images(self, step: int):
@@ -74,7 +76,9 @@ class ThermalPipeline(VanillaPipeline):
         self.train()
         return metrics, {"img": image}
 
-    def get_average_eval_image_metrics(self, step: Optional[int] = None, output_path: Optional[Path] = None, get_std: bool = False):
+    def get_average_eval_image_metrics(
+        self, step: Optional[int] = None, output_path: Optional[Path] = None, get_std: bool = False
+    ):
         from thermal_wild_ns.analysis.evaluation import evaluate
 
         result = evaluate(self, out_dir=output_path, fit_steps=self.config.eval_fit_steps)
@@ -82,14 +86,19 @@ class ThermalPipeline(VanillaPipeline):
         metrics = {key: value for key, value in result.items() if isinstance(value, float)}
         if get_std:
             metrics.update({f"{key}_std": float(np.std([r[key] for r in rows])) for key in list(metrics)})
+        protocols = (
+            "novel: canonical state; time: state from the neighbouring training frames; "
+            "aligned: novel + per-view gain/offset; half: fitted on the left half, right half scored; "
+            "oracle: the frame's own LUT and embedding fitted on all its pixels "
+            "(uses the test pixels; an upper bound only)"
+        )
         metrics.update(
             {
-                "psnr": metrics["psnr_time"],  # nerfstudio's headline key: a held-out frame of a sequence at its time state
+                # nerfstudio's headline keys: a held-out frame of a sequence at its time state
+                "psnr": metrics["psnr_time"],
                 "ssim": metrics["ssim_time"],
                 "space": "original radiometric (dataset-normalised), target = the raw held-out frame",
-                "protocols": "novel: canonical state; time: state from the neighbouring training frames; aligned: novel + "
-                "per-view gain/offset; half: fitted on the left half, right half scored; oracle: the frame's own LUT and "
-                "embedding fitted on all its pixels (uses the test pixels; an upper bound only)",
+                "protocols": protocols,
                 "views": len(rows),
                 "gaussians": result["gaussians"],
             }

@@ -60,7 +60,9 @@ class LevelGrid:
         """Frame values -> integer levels (int64 [H, W])."""
         if self.step == 1.0 and self.offset == 0.0 and np.issubdtype(frame.dtype, np.integer):
             return frame.astype(np.int64)
-        return np.clip(np.round((frame.astype(np.float64) - self.offset) / self.step), 0, self.num_levels - 1).astype(np.int64)
+        return np.clip(np.round((frame.astype(np.float64) - self.offset) / self.step), 0, self.num_levels - 1).astype(
+            np.int64
+        )
 
     def values(self, levels: np.ndarray) -> np.ndarray:
         return self.offset + np.asarray(levels, dtype=np.float64) * self.step
@@ -190,7 +192,9 @@ def frame_luts(
         else:
             mapped = identity
         if config.equalizes:
-            equalized = equalize_mapping(hist, lo, hi) if config.variant == "histeq" else bbhe_mapping(mapped, hist, lo, hi)
+            equalized = (
+                equalize_mapping(hist, lo, hi) if config.variant == "histeq" else bbhe_mapping(mapped, hist, lo, hi)
+            )
             mapped = mapped + config.equalization_strength * (equalized - mapped)
         if config.variant != "none":
             mapped = strictly_increasing(mapped, hist)

@@ -114,8 +114,14 @@ class PreprocessedSequence:
         return rng.normalize(np.interp(levels, np.arange(grid.num_levels, dtype=np.float64), lut))
 
 
-def _key(frames: Sequence[ThermalFrame], train: Sequence[bool], rng: RadiometricRange, config: PhotometricConfig) -> str:
-    h = hashlib.sha256(json.dumps({"v": CACHE_VERSION, "range": asdict(rng), "config": asdict(config), "train": list(train)}, sort_keys=True).encode())
+def _key(
+    frames: Sequence[ThermalFrame], train: Sequence[bool], rng: RadiometricRange, config: PhotometricConfig
+) -> str:
+    h = hashlib.sha256(
+        json.dumps(
+            {"v": CACHE_VERSION, "range": asdict(rng), "config": asdict(config), "train": list(train)}, sort_keys=True
+        ).encode()
+    )
     for f in frames:
         stat = f.image.stat()
         h.update(f"{f.image.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
@@ -153,7 +159,9 @@ def preprocess(
     work = Path(tempfile.mkdtemp(prefix=".preprocessing-", dir=cache_root))
     try:
         (work / "frames").mkdir()
-        luts = np.lib.format.open_memmap(work / "luts.npy", mode="w+", dtype=np.float64, shape=(len(frames), grid.num_levels))
+        luts = np.lib.format.open_memmap(
+            work / "luts.npy", mode="w+", dtype=np.float64, shape=(len(frames), grid.num_levels)
+        )
         current: List[np.ndarray] = []  # the frame frame_luts is on: each file is read once
 
         def raw_frames():

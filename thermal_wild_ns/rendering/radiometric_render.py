@@ -29,7 +29,6 @@ from nerfstudio.scripts import render as ns_render
 from typing_extensions import Annotated
 
 
-
 @dataclass
 class RadiometricOptions:
     photometric_state: str = "canonical"
@@ -50,9 +49,15 @@ class RadiometricFrameWriter:
         datamanager = pipeline.datamanager
         rng = datamanager.train_dataset.thermal_range
         if mode == "celsius" and (rng.celsius_low is None or rng.celsius_high is None):
-            raise ValueError(f"{datamanager.config.dataparser.data}: the dataset documents no temperature bounds; use --radiometric uint16")
+            raise ValueError(
+                f"{datamanager.config.dataparser.data}: the dataset documents no temperature bounds; use "
+                f"--radiometric uint16"
+            )
         if mode == "uint16" and not (rng.low >= 0 and rng.high <= 65535):
-            raise ValueError(f"{datamanager.config.dataparser.data}: native range {rng.low}..{rng.high} ({rng.dtype}) does not fit 16 bits; use --radiometric celsius")
+            raise ValueError(
+                f"{datamanager.config.dataparser.data}: native range {rng.low}..{rng.high} ({rng.dtype}) does not "
+                f"fit 16 bits; use --radiometric celsius"
+            )
         self.pipeline, self.state, self.rng, self.folder, self.mode, self.frames = pipeline, state, rng, folder, mode, 0
         folder.mkdir(parents=True, exist_ok=True)
 
@@ -64,22 +69,31 @@ class RadiometricFrameWriter:
 
         normalised = np.clip(to_original(self.pipeline, thermal[..., 0].float().cpu().numpy(), self.state), 0.0, 1.0)
         if self.mode == "uint16":
-            cv2.imwrite(str(self.folder / f"{self.frames:05d}.png"), np.round(self.rng.to_native(normalised)).astype(np.uint16))
+            cv2.imwrite(
+                str(self.folder / f"{self.frames:05d}.png"), np.round(self.rng.to_native(normalised)).astype(np.uint16)
+            )
         else:
             np.save(self.folder / f"{self.frames:05d}.npy", self.rng.to_celsius(normalised).astype(np.float32))
         self.frames += 1
 
     def close(self) -> None:
         rng = self.rng
-        (self.folder / "radiometry.json").write_text(json.dumps({
-            "frames": self.frames,
-            "format": {"uint16": "16-bit PNG, native levels", "celsius": "float32 .npy, degC"}[self.mode],
-            "native_range": [rng.low, rng.high],
-            "native_dtype": rng.dtype,
-            "celsius_range": [rng.celsius_low, rng.celsius_high],
-            "mapping": "render -> the state's LUT inverse -> dataset range" if self.state.lut is not None else "render -> dataset range",
-            "photometric_state": self.state.label,
-        }, indent=1))
+        (self.folder / "radiometry.json").write_text(
+            json.dumps(
+                {
+                    "frames": self.frames,
+                    "format": {"uint16": "16-bit PNG, native levels", "celsius": "float32 .npy, degC"}[self.mode],
+                    "native_range": [rng.low, rng.high],
+                    "native_dtype": rng.dtype,
+                    "celsius_range": [rng.celsius_low, rng.celsius_high],
+                    "mapping": "render -> the state's LUT inverse -> dataset range"
+                    if self.state.lut is not None
+                    else "render -> dataset range",
+                    "photometric_state": self.state.label,
+                },
+                indent=1,
+            )
+        )
 
 
 @contextlib.contextmanager
@@ -96,7 +110,9 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
         state = resolve_state(pipeline, options.photometric_state)
         frames = None
         if options.radiometric != "none":
-            frames = RadiometricFrameWriter(pipeline, state, options.radiometric_folder(output_path), options.radiometric)
+            frames = RadiometricFrameWriter(
+                pipeline, state, options.radiometric_folder(output_path), options.radiometric
+            )
         with rendering_at(pipeline.model, state):
             yield None if frames is None else (lambda outputs: frames.write(outputs["thermal"]))
         if frames is not None:

@@ -294,17 +294,27 @@ def rasterization(
     assert covars is not None and covars.shape == (N, 3, 3), covars.shape
 
     radii, means2d, depths, conics, compensations = project_gaussians(
-        means, covars, viewmats, Ks, width, height, eps2d, near_plane, far_plane, radius_clip,
-        rasterize_mode == "antialiased", camera_model,
+        means,
+        covars,
+        viewmats,
+        Ks,
+        width,
+        height,
+        eps2d,
+        near_plane,
+        far_plane,
+        radius_clip,
+        rasterize_mode == "antialiased",
+        camera_model,
     )  # [C, N], [C, N, 2], [C, N], [C, N, 3]
     opacities = opacities.expand(C, N)
     if compensations is not None:
         opacities = opacities * compensations
 
     if sh_degree is None:
-        assert (colors.dim() == 2 and colors.shape[0] == N) or (
-            colors.dim() == 3 and colors.shape[:2] == (C, N)
-        ), colors.shape
+        assert (colors.dim() == 2 and colors.shape[0] == N) or (colors.dim() == 3 and colors.shape[:2] == (C, N)), (
+            colors.shape
+        )
         colors = colors.expand(C, N, colors.shape[-1])
     else:
         assert colors.shape[-1] == 3 and colors.shape[-3] == N, colors.shape
@@ -340,12 +350,25 @@ def rasterization(
     tile_width = math.ceil(width / tile_size)
     tile_height = math.ceil(height / tile_size)
     tiles_per_gauss, pair_tile, pair_splat = intersect_tiles(
-        means2d_flat.detach(), radii.reshape(-1), depths.detach().reshape(-1), camera_ids.reshape(-1),
-        tile_size, tile_width, tile_height,
+        means2d_flat.detach(),
+        radii.reshape(-1),
+        depths.detach().reshape(-1),
+        camera_ids.reshape(-1),
+        tile_size,
+        tile_width,
+        tile_height,
     )
     render_colors, render_alphas = composite_tiles(
-        means2d_flat, conics.reshape(-1, 3), opacities.reshape(-1), colors.reshape(-1, colors.shape[-1]),
-        pair_tile, pair_splat, C, width, height, tile_size,
+        means2d_flat,
+        conics.reshape(-1, 3),
+        opacities.reshape(-1),
+        colors.reshape(-1, colors.shape[-1]),
+        pair_tile,
+        pair_splat,
+        C,
+        width,
+        height,
+        tile_size,
         absgrad_holder=meta_means2d if absgrad else None,
     )
     if backgrounds is not None:

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from typing import Deque, Dict, List, Optional, Type
 
 import torch
-from torch.profiler import record_function
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
+from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
 
@@ -72,7 +72,9 @@ class DivergenceGuard:
         self.consecutive = 0
         self.rollbacks = 0
 
-    def check_step(self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str], frame: Optional[int] = None) -> Optional[str]:
+    def check_step(
+        self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str], frame: Optional[int] = None
+    ) -> Optional[str]:
         """Why this step must be skipped, or None. One host sync: the loss and the sum of all
         gradient norms (one fused kernel; NaN/inf anywhere makes it non-finite) travel together.
         `frame`: the training image of this step, for telling spikes from hard frames."""
@@ -134,7 +136,8 @@ class DivergenceGuard:
             opacity = float(torch.sigmoid(model.opacities.detach()).mean())
             if opacity < self.config.min_mean_opacity:
                 raise TrainingDiverged(
-                    f"step {step}: mean Gaussian opacity {opacity:.2e} < {self.config.min_mean_opacity:g}; the scene has turned "
+                    f"step {step}: mean Gaussian opacity {opacity:.2e} < {self.config.min_mean_opacity:g}; the "
+                    f"scene has turned "
                     "transparent (the background explains every pixel)"
                 )
 
@@ -156,7 +159,10 @@ class GuardedTrainer(trainer_after_load_class()):
         model = self.pipeline.model
         with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
             reason = self.guard.check_step(
-                getattr(model, "last_train_loss", None), self.optimizers.parameters, param_groups, getattr(model, "last_train_frame", None)
+                getattr(model, "last_train_loss", None),
+                self.optimizers.parameters,
+                param_groups,
+                getattr(model, "last_train_frame", None),
             )
         model.skip_densification_step = reason is not None  # the strategy must not record this step's gradients either
         self.guard.record(self._step, reason)
@@ -188,8 +194,10 @@ class GuardedTrainer(trainer_after_load_class()):
             model.skip_densification_step = True  # this step's statistics belong to the discarded state
             self.guard.rollbacks += 1
             self.guard.consecutive = 0
-            CONSOLE.log(f"[yellow]{err} -> rolled back to the healthy state of step {healthy['step']} "
-                        f"({self.guard.rollbacks} of at most {self.config.guard.max_rollbacks} rollbacks)")
+            CONSOLE.log(
+                f"[yellow]{err} -> rolled back to the healthy state of step {healthy['step']} "
+                f"({self.guard.rollbacks} of at most {self.config.guard.max_rollbacks} rollbacks)"
+            )
             zero = torch.zeros((), device=self.pipeline.device)
             return zero, {"rolled_back": zero}, {}
         return result
@@ -205,6 +213,8 @@ class GuardedTrainer(trainer_after_load_class()):
 
     def _restore(self, healthy: dict) -> None:
         self.pipeline.model.load_state_dict(copy.deepcopy(healthy["model"]))
-        repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())  # the load replaced the Gaussian parameters
+        repoint_optimizers(
+            self.optimizers, self.pipeline.get_param_groups()
+        )  # the load replaced the Gaussian parameters
         for name, optimizer in self.optimizers.optimizers.items():
             optimizer.load_state_dict(copy.deepcopy(healthy["optimizers"][name]))
