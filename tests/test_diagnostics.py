@@ -1,6 +1,7 @@
 """Dataset diagnostics: each measure on inputs whose answer is known, and the command end to end."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -109,11 +110,15 @@ def test_diagnose_advises_against_preprocessing_a_stable_capture(tmp_path):
     from thermal_wild_ns.data.demo_scene import generate_demo_scene, stress_scene_config
 
     scene = generate_demo_scene(tmp_path / "clean", stress_scene_config("clean", path_views=0))
+    frame = json.loads((scene / "transforms.json").read_text())["frames"][5]["file_path"]
+    image = cv2.imread(str(scene / frame), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(scene / frame), np.zeros_like(image))  # a dead read-out among the frames
     result = diagnose(
         DiagnoseArgs(data=scene, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4)
     )
     assert result["after"]["std_delta_i"] > result["before"]["std_delta_i"]
     assert "less consistent" in result["advice"] and "wild-thermal-emission-mlp" in result["advice"]
+    assert result["degenerate_frames"] == [Path(frame).name] and result["frames"] == 39  # listed, left out
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))
         assert image is not None and image.shape[0] > 100

@@ -1,6 +1,9 @@
 """Resuming from a checkpoint continues the same run: the same step, optimizer state, embeddings,
 densification statistics and training order, so the parameters match the uninterrupted run."""
 
+import subprocess
+import sys
+
 import pytest
 import torch
 
@@ -32,14 +35,41 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, demo_scene_dir):
     torch.manual_seed(0)
     straight = _run(tmp_path / "a", demo_scene_dir, steps=60, save_every=1000)
     torch.manual_seed(0)
-    first = _run(tmp_path / "b", demo_scene_dir, steps=30, save_every=1000)  # saves step 29 at the end
+    first = _run(tmp_path / "b", demo_scene_dir, steps=30, save_every=1000)
     checkpoints = first.checkpoint_dir
-    assert sorted(p.name for p in checkpoints.glob("*.ckpt")) == ["step-000000029.ckpt"]
+    # a short run saves every 10 % of its steps (here every 3) whatever --steps-per-save says, and at its end
+    assert sorted(p.name for p in checkpoints.glob("*.ckpt")) == [f"step-{s:09d}.ckpt" for s in (*range(3, 30, 3), 29)]
     torch.manual_seed(123)  # whatever the process did in between
-    # nerfstudio counts max_num_iterations from the resumed step: 30 more steps end at step 59
-    resumed = _run(tmp_path / "c", demo_scene_dir, steps=30, save_every=1000, load_dir=checkpoints)
+    # --max-num-iterations is the total: resumed after step 29, the run trains steps 30..59
+    resumed = _run(tmp_path / "c", demo_scene_dir, steps=60, save_every=1000, load_dir=checkpoints)
     assert resumed._start_step == 30
     a, b = straight.pipeline.model, resumed.pipeline.model
     assert a.num_points == b.num_points != 2340  # the refinement at step 50 grew and pruned alike
     for (name, pa), (_, pb) in zip(a.named_parameters(), b.named_parameters()):
         torch.testing.assert_close(pa, pb, msg=name)
+
+
+def test_resume_stops_at_the_total_and_a_missing_load_dir_is_one_line(tmp_path, demo_scene_dir):
+    first = _run(tmp_path / "b", demo_scene_dir, steps=12, save_every=1000)
+    done = _run(tmp_path / "c", demo_scene_dir, steps=12, save_every=1000, load_dir=first.checkpoint_dir)
+    assert done._start_step == 12 and not list((tmp_path / "c").rglob("*.ckpt"))  # nothing left to train
+    with pytest.raises(SystemExit, match=r"--load-dir .*nowhere: no such folder"):
+        _run(tmp_path / "d", demo_scene_dir, steps=12, save_every=1000, load_dir=tmp_path / "nowhere")
+    # through ns-train: the message, exit status 1, no traceback
+    ns_train = [str(__import__("pathlib").Path(sys.executable).parent / "ns-train"), "wild-thermal"]
+    result = subprocess.run(
+        [
+            *ns_train,
+            "--load-dir",
+            str(tmp_path / "nowhere"),
+            "--output-dir",
+            str(tmp_path / "e"),
+            "--vis",
+            "tensorboard",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 1 and "no such folder" in result.stderr and "Traceback" not in result.stderr

@@ -2,6 +2,8 @@
 errors that name the file and the problem for every kind of bad input."""
 
 import json
+import os
+import re
 import threading
 
 import cv2
@@ -60,7 +62,7 @@ def test_palette_roundtrip_within_one_level(name, tmp_path):
 def test_palette_detected_through_jpeg_within_a_level(tmp_path):
     levels = fx.thermal_image(160, 120, 0, np.uint8)
     cv2.imwrite(str(tmp_path / "c.jpg"), apply_palette(levels, "inferno")[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
-    rng = scan_frames([tmp_path / "c.jpg"])
+    rng = scan_frames([tmp_path / "c.jpg"]).range
     assert rng.palette == "inferno"
     error = np.abs(read_raw_frame(tmp_path / "c.jpg", "inferno").astype(int) - levels)
     assert np.median(error) <= 1
@@ -81,7 +83,7 @@ def test_normalisation_is_per_dataset_not_per_frame(tmp_path):
     warm[:, :15] += 100
     for name, image in (("a.png", cold), ("b.png", warm)):
         cv2.imwrite(str(tmp_path / name), image)
-    rng = scan_frames([tmp_path / "a.png", tmp_path / "b.png"], percentiles=(0.0, 100.0))
+    rng = scan_frames([tmp_path / "a.png", tmp_path / "b.png"], percentiles=(0.0, 100.0)).range
     assert (rng.low, rng.high) == (3600.0, 4000.0)
     a, b = rng.read(tmp_path / "a.png"), rng.read(tmp_path / "b.png")
     assert a.mean() == pytest.approx(0.125) and b.mean() == pytest.approx(
@@ -144,7 +146,7 @@ def test_pose_image_count_mismatch(tmp_path):
 
 
 @pytest.mark.parametrize("fault, message", [("nan", "non-finite"), ("scaled", "not rigid")])
-def test_bad_pose_names_the_file(tmp_path, fault, message):
+def test_bad_pose_names_the_file_and_the_frame(tmp_path, fault, message):
     fx.write_thermalnerf(tmp_path / "s")
     meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
     pose = np.array(meta["frames"][3]["transform_matrix"])
@@ -152,7 +154,8 @@ def test_bad_pose_names_the_file(tmp_path, fault, message):
     pose[0, 3] = np.nan if fault == "nan" else pose[0, 3]
     meta["frames"][3]["transform_matrix"] = pose.tolist()
     (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
-    with pytest.raises(ValueError, match=rf"transforms\.json: camera pose .*{message}"):
+    frame = re.escape(meta["frames"][3]["file_path"])
+    with pytest.raises(ValueError, match=rf"transforms\.json, frame {frame}: camera pose .*{message}"):
         _parse(tmp_path / "s")
 
 
@@ -193,8 +196,34 @@ def test_wrong_folder_lists_the_layouts_tried(tmp_path):
 def test_constant_frames_have_no_range(tmp_path):
     for i in range(3):
         cv2.imwrite(str(tmp_path / f"c{i}.png"), np.full((8, 8), 3700, np.uint16))
-    with pytest.raises(ValueError, match=r"have no contrast: range \[3700.0, 3700.0\] is empty"):
+    with pytest.raises(ValueError, match=r"every frame to measure the range from is degenerate"):
         scan_frames(sorted(tmp_path.glob("c*.png")))
+
+
+def test_degenerate_frames_are_named_left_out_and_never_move_the_range(tmp_path):
+    """An all-zero and a constant frame among real ones: reported by name, left out (or kept when
+    asked), and the measured range is the one without them."""
+    clean, faulty = tmp_path / "clean", tmp_path / "faulty"
+    fx.write_nerfstudio(clean)
+    fx.write_nerfstudio(faulty)
+    cv2.imwrite(str(faulty / "images" / "0003.png"), np.zeros((48, 64), np.uint16))
+    cv2.imwrite(str(faulty / "images" / "0005.png"), np.full((48, 64), 3700, np.uint16))
+    scan = scan_frames(sorted((faulty / "images").glob("*.png")))
+    assert scan.degenerate == [3, 5]
+    others = [p for p in sorted((clean / "images").glob("*.png")) if p.name not in ("0003.png", "0005.png")]
+    without = scan_frames(others).range  # the range of the same capture without those two frames
+    assert scan.range == without
+    assert scan_frames(sorted((clean / "images").glob("*.png"))).range != without  # (they would have moved it)
+
+    def parser(root, **kw):
+        return ThermalDataParserConfig(data=root, split="all", seed_points="random", num_random_points=8, **kw).setup()
+
+    left_out = parser(faulty)
+    names = [f.image.name for f in left_out.capture().frames]
+    assert "0003.png" not in names and "0005.png" not in names and len(names) == 8
+    assert left_out.radiometric_range() == without
+    kept = parser(faulty, keep_degenerate_frames=True)
+    assert len(kept.capture().frames) == 10 and kept.radiometric_range() == without
 
 
 def test_a_cache_folder_published_twice_keeps_the_first_copy(tmp_path):
@@ -217,3 +246,43 @@ def test_a_cache_folder_published_twice_keeps_the_first_copy(tmp_path):
     with pytest.raises(OSError):
         publish_cache_folder(work, other, "report.json")
     assert (work / "report.json").is_file()  # nothing lost
+
+
+@pytest.mark.parametrize(
+    "own_file, content, message",
+    [
+        ("transforms.json", '{"frames": [1, 2,,]}', r"transforms\.json: not valid JSON"),
+        ("transforms.json", "[]", r"transforms\.json: expected a JSON object with a 'frames' list"),
+        ("poses_bounds.npy", "not numpy", r"poses_bounds\.npy: unreadable"),
+    ],
+)
+def test_a_broken_layout_file_stops_detection(tmp_path, own_file, content, message):
+    """A COLMAP model beside a broken transforms.json / poses_bounds.npy: detection reports the
+    broken file instead of falling through to the COLMAP layout."""
+    fx.write_colmap(tmp_path / "s")
+    (tmp_path / "s" / own_file).write_text(content)
+    with pytest.raises(ValueError, match=message):
+        detect_layout(tmp_path / "s")
+    (tmp_path / "s" / own_file).unlink()
+    assert detect_layout(tmp_path / "s") == "colmap"  # the same folder without it is plain COLMAP
+
+
+def test_stale_work_folders_of_dead_processes_are_removed_live_ones_kept(tmp_path):
+    import subprocess
+    import sys
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(dead.stdout)  # a process that has exited
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # a concurrent run
+    try:
+        for pid in (dead_pid, live.pid):
+            (tmp_path / f".preprocessing-{pid}-abcd").mkdir()
+            (tmp_path / f".preprocessing-{pid}-abcd" / "frame.npy").write_bytes(b"partial")
+        (tmp_path / f".triangulation-{dead_pid}-abcd").mkdir()  # another stage's: not this call's business
+        work = thermal_io.make_work_folder(tmp_path, ".preprocessing-")
+        left = sorted(p.name for p in tmp_path.iterdir())
+        assert f".preprocessing-{dead_pid}-abcd" not in left
+        assert f".preprocessing-{live.pid}-abcd" in left and f".triangulation-{dead_pid}-abcd" in left
+        assert work.is_dir() and work.name.startswith(f".preprocessing-{os.getpid()}-")
+    finally:
+        live.kill()

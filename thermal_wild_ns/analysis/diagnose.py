@@ -177,6 +177,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         "data": str(args.data),
         "layout": capture.layout,
         "frames": len(capture.frames),
+        "degenerate_frames": parser.degenerate_frames,  # no contrast: left out of training and of these statistics
         "radiometric_range": {"low": rng.low, "high": rng.high, "dtype": rng.dtype},
         "preprocessing": asdict(args.preprocessing),
         # the stored processed frames mapped back through their inverse LUTs, against the raw frames
@@ -218,6 +219,8 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     )
     _frames_png(raw, processed, args.output_dir / "frames.png")
     print(result["summary"])
+    if parser.degenerate_frames:
+        print(f"frames with no contrast (left out): {', '.join(parser.degenerate_frames)}")
     print(f"advice: {result['advice']}")
     print(
         f"written: {args.output_dir / 'diagnostics.json'}, {args.output_dir / 'diagnostics.png'}, "

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Literal, Optional
+from typing import List, Literal, Optional, Union
 
 import numpy as np
 
@@ -73,8 +73,9 @@ class ThermalCapture:
     """The layout's own sparse points (SfM), when it ships a non-empty set."""
 
 
-def check_pose(c2w: np.ndarray, source: Path) -> np.ndarray:
-    """A finite rigid [4, 4] camera-to-world pose, or an error naming `source`."""
+def check_pose(c2w: np.ndarray, source: Union[Path, str]) -> np.ndarray:
+    """A finite rigid [4, 4] camera-to-world pose, or an error naming `source` (the file, and the frame
+    where one file holds every pose)."""
     c2w = np.asarray(c2w, dtype=np.float64)
     if c2w.shape == (3, 4):
         c2w = np.concatenate([c2w, [[0.0, 0.0, 0.0, 1.0]]])

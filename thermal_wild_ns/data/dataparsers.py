@@ -44,7 +44,7 @@ from thermal_wild_ns.data.capture import (
 )
 from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, generate_demo_scene, stress_scene_config
 from thermal_wild_ns.data.palettes import PALETTE_NAMES
-from thermal_wild_ns.data.thermal_io import RadiometricRange, scan_frames
+from thermal_wild_ns.data.thermal_io import DEGENERATE_SHARE, RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
 
 DEMO_SCENE_DIR = Path("outputs/thermal-demo-scene")
@@ -72,6 +72,9 @@ class ThermalDataParserConfig(DataParserConfig):
     train_split_fraction: float = 0.9
     palette: PaletteName = "auto"
     """Palette of colour-mapped frames; 'auto' uses the layout's or detects it."""
+    keep_degenerate_frames: bool = False
+    """Train on frames with no contrast (nearly all pixels at one value: an all-zero read-out, a
+    frozen frame). By default they are reported by name and left out."""
     range_percentiles: Tuple[float, float] = (0.1, 99.9)
     """Percentiles of all pixels of all frames mapped to 0 and 1 when the dataset declares no range."""
     thermalmix_celsius: Optional[Tuple[float, float]] = None
@@ -102,6 +105,8 @@ class ThermalDataParser(DataParser):
         self._capture: Optional[ThermalCapture] = None
         self._range: Optional[RadiometricRange] = None
         self._seeds: Optional[SeedPoints] = None
+        self.degenerate_frames: List[str] = []
+        """File names of the frames with no contrast (left out unless `keep_degenerate_frames`)."""
 
     # ------------------------------------------------------------------ reading
     def capture(self) -> ThermalCapture:
@@ -128,22 +133,42 @@ class ThermalDataParser(DataParser):
                 for frame, split in zip(capture.frames, override()):
                     frame.split = split
                 capture.split_rule = f"split='{self.config.split}'"
+            self._range = self._scan(capture)
             self._capture = capture
         return self._capture
 
+    def _scan(self, capture: ThermalCapture) -> RadiometricRange:
+        """Read every frame once (`scan_frames`); drop the degenerate ones unless told to keep them."""
+        palette = None if self.config.palette == "auto" else self.config.palette
+        scan = scan_frames(
+            [f.image for f in capture.frames],
+            sizes=[(f.width, f.height) for f in capture.frames],
+            declared=capture.declared_range,
+            palette=palette or capture.palette,
+            percentiles=self.config.range_percentiles,
+            measure=[f.split != "test" for f in capture.frames],  # held-out pixels never set the scale
+        )
+        self.degenerate_frames = [capture.frames[i].image.name for i in scan.degenerate]
+        if scan.degenerate:
+            names = ", ".join(self.degenerate_frames)
+            share = f"{DEGENERATE_SHARE:.0%}"
+            if self.config.keep_degenerate_frames:
+                CONSOLE.log(f"[yellow]{capture.root}: training on frames with no contrast (kept as asked): {names}")
+            else:
+                CONSOLE.log(
+                    f"[yellow]{capture.root}: left out {len(scan.degenerate)} frame(s) with no contrast (at least "
+                    f"{share} of the pixels at one value): {names}. The dataparser's --keep-degenerate-frames True "
+                    "keeps them"
+                )
+                dropped = set(scan.degenerate)
+                capture.frames = [f for i, f in enumerate(capture.frames) if i not in dropped]
+                if not any(f.split != "test" for f in capture.frames):
+                    raise ValueError(f"{capture.root}: no training frame is left once the degenerate ones are out")
+        return scan.range
+
     def radiometric_range(self) -> RadiometricRange:
         """Dataset-level range: declared by the dataset or measured over the training frames, once."""
-        if self._range is None:
-            capture = self.capture()
-            palette = None if self.config.palette == "auto" else self.config.palette
-            self._range = scan_frames(
-                [f.image for f in capture.frames],
-                sizes=[(f.width, f.height) for f in capture.frames],
-                declared=capture.declared_range,
-                palette=palette or capture.palette,
-                percentiles=self.config.range_percentiles,
-                measure=[f.split != "test" for f in capture.frames],  # held-out pixels never set the scale
-            )
+        self.capture()
         return self._range
 
     # ------------------------------------------------------------------ seed points

@@ -20,13 +20,14 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, Tuple
 
 import cv2
 import numpy as np
+
+from thermal_wild_ns.data.thermal_io import make_work_folder
 
 GENERATOR_VERSION = (
     3  # bump when an unchanged config would give different frames (3: outlier gain on the normalised scale)
@@ -241,7 +242,7 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
     rng = np.random.default_rng(cfg.seed + 1)
     faults = sensor_faults(cfg)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".demo-", dir=out_dir.parent))
+    tmp = make_work_folder(out_dir.parent, ".demo-")
     (tmp / "images").mkdir()
     (tmp / "ground_truth").mkdir()
     (tmp / "depth").mkdir()

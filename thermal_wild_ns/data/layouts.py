@@ -101,7 +101,7 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
                 f"{path}: camera_model {model} of {f.get('file_path')} is not supported (OPENCV or PINHOLE)"
             )
         try:
-            c2w = check_pose(np.array(f["transform_matrix"], dtype=np.float64), path)
+            c2w = check_pose(np.array(f["transform_matrix"], dtype=np.float64), f"{path}, frame {f.get('file_path')}")
             intrinsics = [float(get(k)) for k in ("fl_x", "fl_y", "cx", "cy")] + [int(get(k)) for k in ("w", "h")]
         except (KeyError, TypeError) as err:
             raise ValueError(f"{path}: frame {f.get('file_path')} lacks {err} (pose or intrinsics)") from err
@@ -373,7 +373,7 @@ def read_llff(root: Path, layout: str = "llff") -> ThermalCapture:
         c2w = np.eye(4)
         c2w[:3, :3] = np.stack([right, down, -back], axis=1)  # OpenCV: x right, y down, z forward
         c2w[:3, 3] = m[:, 3]
-        c2w = check_pose(c2w, path)
+        c2w = check_pose(c2w, f"{path}, row {len(frames)} ({Path(image).name})")
         h, w, f = m[:, 4]
         frames.append(ThermalFrame(image, c2w, f, f, w / 2.0, h / 2.0, int(round(w)), int(round(h))))
     # LLFF records the size the poses were computed at; rescale to the stored frames
@@ -416,10 +416,15 @@ def _transforms_mismatch(thermal_flag: bool) -> Callable[[Path], Optional[str]]:
         path = root / "transforms.json"
         if not path.is_file():
             return "no transforms.json"
+        # the layout's own file is there: if it is broken, that is the error, and detection must not
+        # fall through to a layout it happens to resemble as well (a COLMAP sparse/0 beside it)
         try:
-            flagged = any(f.get("is_thermal") for f in json.loads(path.read_text()).get("frames", []))
-        except (json.JSONDecodeError, AttributeError):
-            return "transforms.json is not valid JSON"
+            meta = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise ValueError(f"{path}: not valid JSON ({err})") from None
+        if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+            raise ValueError(f"{path}: expected a JSON object with a 'frames' list")
+        flagged = any(isinstance(f, dict) and f.get("is_thermal") for f in meta["frames"])
         if flagged != thermal_flag:
             return "frames flagged is_thermal (ThermalNeRF)" if flagged else "no frame flagged is_thermal"
         return None
@@ -435,6 +440,23 @@ def _thermalmix_mismatch(root: Path) -> Optional[str]:
     if not ((root / "thermal").is_dir() or (root / "warped_thermal").is_dir()):
         return "no thermal/ or warped_thermal/"
     return None
+
+
+def _poses_bounds_mismatch(*parts: str) -> Callable[[Path], Optional[str]]:
+    """LLFF-style: `poses_bounds.npy` (plus `parts`); a present but unreadable file stops detection."""
+
+    def mismatch(root: Path) -> Optional[str]:
+        path = root / "poses_bounds.npy"
+        if path.is_file():
+            try:
+                array = np.load(path, allow_pickle=False)
+            except (OSError, ValueError) as err:
+                raise ValueError(f"{path}: unreadable ({err})") from None
+            if array.ndim != 2 or array.shape[1] != 17:
+                raise ValueError(f"{path}: shape {array.shape}, expected [N, 17] (LLFF poses and bounds)")
+        return _needs("poses_bounds.npy", *parts)(root)
+
+    return mismatch
 
 
 def _colmap_mismatch(root: Path) -> Optional[str]:
@@ -458,10 +480,8 @@ LAYOUTS: Dict[str, Layout] = {
         "MSX / RGBT-Scenes (ThermalGaussian): thermal/{train,test}/ + sparse/0",
     ),
     "thermalmix": Layout(read_thermalmix, _thermalmix_mismatch, "ThermalMix (Ozer et al.): thermal/ + colmap_sparse/0"),
-    "mvtv": Layout(
-        read_mvtv, _needs("poses_bounds.npy", "thermal"), "MVTV (assumed LLFF): poses_bounds.npy + thermal/"
-    ),
-    "llff": Layout(read_llff, _needs("poses_bounds.npy"), "LLFF: poses_bounds.npy + images/"),
+    "mvtv": Layout(read_mvtv, _poses_bounds_mismatch("thermal"), "MVTV (assumed LLFF): poses_bounds.npy + thermal/"),
+    "llff": Layout(read_llff, _poses_bounds_mismatch(), "LLFF: poses_bounds.npy + images/"),
     "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
     "ti-nsd": Layout(
         lambda root: read_colmap(root, layout="ti-nsd"),
@@ -472,7 +492,8 @@ LAYOUTS: Dict[str, Layout] = {
 
 
 def detect_layout(root: Path) -> str:
-    """The first layout `root` looks like; an error listing every layout tried (and why not)."""
+    """The first layout `root` looks like; an error listing every layout tried (and why not). A
+    layout whose own file is present but broken stops detection with that file's error."""
     if not Path(root).is_dir():
         raise FileNotFoundError(f"{root}: data folder not found")
     reasons = {}

@@ -7,12 +7,14 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 import threading
 import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -26,6 +28,29 @@ IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 # recursion depth in interpreter-wide state: two threads parsing at once can raise "SystemError: AST
 # constructor recursion depth mismatch" (cpython gh-106905). nerfstudio caches images from a thread pool.
 _NPY_HEADER_LOCK = threading.Lock()
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def make_work_folder(parent: Path, prefix: str) -> Path:
+    """A fresh temporary folder `parent/{prefix}{pid}-XXXX` for a cache being built (published with
+    `publish_cache_folder`). Folders of the same prefix left by a process that is gone (killed
+    during setup) are removed first; a live process's folder, a concurrent run's, is never touched.
+    Assumes the cache is not shared between hosts (PIDs are per host)."""
+    parent.mkdir(parents=True, exist_ok=True)
+    for stale in parent.glob(f"{prefix}*"):
+        pid = stale.name[len(prefix) :].split("-")[0]
+        if stale.is_dir() and pid.isdigit() and not _process_alive(int(pid)):
+            shutil.rmtree(stale, ignore_errors=True)
+    return Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-", dir=parent))
 
 
 def publish_cache_folder(work: Path, final: Path, complete_marker: str) -> None:
@@ -133,6 +158,27 @@ class RadiometricRange:
         return self.celsius_low + normalised * (self.celsius_high - self.celsius_low)
 
 
+DEGENERATE_SHARE = 0.95
+"""A frame with at least this share of its pixels at one value (an all-zero read-out, a frozen or
+shutter-closed frame) carries no scene: it is reported, excluded by default, and never measures
+the dataset's range."""
+
+
+@dataclass(frozen=True)
+class FrameScan:
+    range: "RadiometricRange"
+    degenerate: List[int]
+    """Indices of the frames with no contrast (`DEGENERATE_SHARE` of their pixels at one value)."""
+
+
+def _dominant_share(raw: np.ndarray, counts: Optional[np.ndarray]) -> float:
+    """Share of the pixels at the frame's most common value."""
+    if counts is not None:
+        return float(counts.max()) / raw.size
+    _, repeats = np.unique(raw, return_counts=True)
+    return float(repeats.max()) / raw.size
+
+
 def scan_frames(
     paths: Sequence[Path],
     sizes: Optional[Sequence[Tuple[int, int]]] = None,
@@ -140,8 +186,9 @@ def scan_frames(
     palette: Optional[str] = None,
     percentiles: Tuple[float, float] = (0.1, 99.9),
     measure: Optional[Sequence[bool]] = None,
-) -> RadiometricRange:
-    """Read every frame once: check it, and measure the dataset-level range unless one is declared.
+) -> FrameScan:
+    """Read every frame once: check it, find the degenerate ones, and measure the dataset-level
+    range unless one is declared.
 
     Checks: each file is readable, all frames share one pixel type (mixing bit depths would mix
     radiometric scales) and one palette, each frame's size matches its camera (`sizes`, (W, H)),
@@ -151,7 +198,7 @@ def scan_frames(
     warning: preprocessing clips those pixels, and a frame mostly outside the range is saturated.
     `measure[i]`: whether frame i counts towards the measured range and the palette detection
     (default: all). The dataparser passes the training frames: a held-out frame's pixels must not
-    shape the scale the model trains in.
+    shape the scale the model trains in. Degenerate frames never count towards the range either.
     """
     if not paths:
         raise ValueError("No thermal frames to read")
@@ -166,6 +213,7 @@ def scan_frames(
     hist = None
     samples = []
     tails = []  # per frame: the values with OUT_OF_RANGE_SHARE of its pixels below / above them
+    degenerate = []
     for i, path in enumerate(tqdm(paths, desc="Checking thermal frames", leave=False, disable=len(paths) < 50)):
         raw = read_raw_frame(path, palette)
         if dtype is None:
@@ -176,8 +224,16 @@ def scan_frames(
             raise ValueError(
                 f"{path}: image is {raw.shape[1]}x{raw.shape[0]} but its camera says {sizes[i][0]}x{sizes[i][1]}"
             )
+        if raw.dtype not in (np.uint8, np.uint16) and not np.all(np.isfinite(raw)):
+            raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
+        counts = None
         if raw.dtype in (np.uint8, np.uint16):
             counts = np.bincount(raw.reshape(-1), minlength=1 << (8 * raw.dtype.itemsize))
+        if _dominant_share(raw, counts) >= DEGENERATE_SHARE:
+            degenerate.append(i)
+            tails.append((np.inf, -np.inf))  # never flagged out of range: it is reported as degenerate
+            continue
+        if counts is not None:
             if measure[i]:
                 hist = counts if hist is None else hist + counts
             cdf = np.cumsum(counts) / raw.size
@@ -185,8 +241,6 @@ def scan_frames(
                 (float(np.searchsorted(cdf, OUT_OF_RANGE_SHARE)), float(np.searchsorted(cdf, 1.0 - OUT_OF_RANGE_SHARE)))
             )
         else:
-            if not np.all(np.isfinite(raw)):
-                raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
             if measure[i]:
                 samples.append(raw.reshape(-1)[:: max(1, raw.size // 65536)])
             tails.append(tuple(float(v) for v in np.quantile(raw, [OUT_OF_RANGE_SHARE, 1.0 - OUT_OF_RANGE_SHARE])))
@@ -194,7 +248,9 @@ def scan_frames(
         if declared.dtype != str(np.dtype(dtype)):
             raise ValueError(f"{paths[0]}: frames are {dtype} but the dataset declares {declared.dtype}")
         _warn_out_of_range(paths, tails, declared.low, declared.high, "declared")
-        return replace(declared, palette=palette)
+        return FrameScan(replace(declared, palette=palette), degenerate)
+    if hist is None and not samples:
+        raise ValueError(f"{Path(paths[0]).parent}: every frame to measure the range from is degenerate (one value)")
     if hist is not None:
         cdf = np.cumsum(hist) / hist.sum()
         low = float(np.searchsorted(cdf, percentiles[0] / 100.0, side="right"))  # first level above the percentile
@@ -204,7 +260,7 @@ def scan_frames(
     if not high > low:
         raise ValueError(f"Thermal frames ({paths[0].parent}) have no contrast: range [{low}, {high}] is empty")
     _warn_out_of_range(paths, tails, low, high, "measured")
-    return RadiometricRange(low=low, high=high, dtype=str(np.dtype(dtype)), palette=palette)
+    return FrameScan(RadiometricRange(low=low, high=high, dtype=str(np.dtype(dtype)), palette=palette), degenerate)
 
 
 OUT_OF_RANGE_SHARE = 0.01
@@ -226,9 +282,7 @@ def _warn_out_of_range(
             listed = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
             warnings.warn(
                 f"{Path(paths[0]).parent}: {len(names)} frame(s) have over {OUT_OF_RANGE_SHARE:.0%} of their pixels "
-                f"{side} the "
-                f"{kind} radiometric range ({side} {bound:g}): {listed}. Preprocessing clips those pixels; a frame "
-                f"mostly "
-                f"outside the range is saturated. {advice[kind]}",
+                f"{side} the {kind} radiometric range ({side} {bound:g}): {listed}. Preprocessing clips those "
+                f"pixels; a frame mostly outside the range is saturated. {advice[kind]}",
                 stacklevel=3,
             )

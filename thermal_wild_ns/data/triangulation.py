@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -28,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, publish_cache_folder
+from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, make_work_folder, publish_cache_folder
 
 CACHE_VERSION = 1
 
@@ -201,8 +200,7 @@ def cached_triangulation(
     final = Path(cache_root) / f"triangulation-{key}"
     if (final / "report.json").is_file():
         return load_npy(final / "points.npy"), json.loads((final / "report.json").read_text())
-    Path(cache_root).mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=".triangulation-", dir=cache_root))
+    work = make_work_folder(Path(cache_root), ".triangulation-")
     try:
         start = time.perf_counter()
         xyz, errors, report = triangulate(frames, radiometric_range, work, config)

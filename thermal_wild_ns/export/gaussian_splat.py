@@ -64,6 +64,9 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
 
     def main(self) -> None:
         from thermal_wild_ns._upstream import gaussian_splat_export_hooks
+        from thermal_wild_ns.pipeline.run_check import check_trained_run
+
+        check_trained_run(self.load_config)  # before ns-export creates the output folder
 
         loaded = {}
 

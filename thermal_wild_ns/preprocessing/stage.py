@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-import tempfile
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -28,7 +27,13 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, publish_cache_folder, read_raw_frame
+from thermal_wild_ns.data.thermal_io import (
+    RadiometricRange,
+    load_npy,
+    make_work_folder,
+    publish_cache_folder,
+    read_raw_frame,
+)
 from thermal_wild_ns.preprocessing.photometric import (
     LevelGrid,
     PhotometricConfig,
@@ -155,8 +160,7 @@ def preprocess(
     sequence = PreprocessedSequence(folder, grid, rng, config)
     if (folder / "meta.json").is_file():
         return sequence
-    Path(cache_root).mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=".preprocessing-", dir=cache_root))
+    work = make_work_folder(Path(cache_root), ".preprocessing-")
     try:
         (work / "frames").mkdir()
         luts = np.lib.format.open_memmap(

@@ -102,8 +102,10 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
     and, unless `--radiometric none`, every frame it renders also goes to a RadiometricFrameWriter."""
     from thermal_wild_ns._upstream import trajectory_render_hooks
     from thermal_wild_ns.pipeline.photometric_state import parse_state, rendering_at, resolve_state
+    from thermal_wild_ns.pipeline.run_check import check_trained_run
 
     parse_state(options.photometric_state)  # a bad name fails before the model loads
+    check_trained_run(options.load_config)
 
     @contextlib.contextmanager
     def per_trajectory(pipeline):

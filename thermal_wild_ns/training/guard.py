@@ -17,6 +17,7 @@ import collections
 import copy
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Deque, Dict, List, Optional, Type
 
 import torch
@@ -142,12 +143,23 @@ class DivergenceGuard:
                 )
 
 
+SAVES_PER_RUN = 10
+"""A run saves a checkpoint at least this many times (every 10 % of its steps), as well as every
+`--steps-per-save`: a short run killed part-way leaves something to resume from."""
+
+
 class GuardedTrainer(trainer_after_load_class()):
-    """nerfstudio's Trainer with `DivergenceGuard` between backward and the optimizer step."""
+    """nerfstudio's Trainer with `DivergenceGuard` between backward and the optimizer step, where
+    `--max-num-iterations` is the run's total step count, resumed or not."""
 
     config: GuardedTrainerConfig
 
     def setup(self, test_mode="val"):
+        load_dir = self.config.load_dir
+        if load_dir is not None and not sorted(Path(load_dir).glob("step-*.ckpt")):
+            what = "no such folder" if not Path(load_dir).is_dir() else "no step-*.ckpt checkpoint in it"
+            # a user's typo, not a bug: one line, no traceback (before the data is read)
+            raise SystemExit(f"--load-dir {load_dir}: {what} (a run's checkpoints are in RUN/nerfstudio_models)")
         super().setup(test_mode=test_mode)
         self.guard = DivergenceGuard(self.config.guard)
         self._step = 0
@@ -167,6 +179,21 @@ class GuardedTrainer(trainer_after_load_class()):
         model.skip_densification_step = reason is not None  # the strategy must not record this step's gradients either
         self.guard.record(self._step, reason)
         return reason is None
+
+    def train(self) -> None:
+        # nerfstudio trains max_num_iterations steps after the step it resumed from; here it is the
+        # total, so a resumed run ends where the uninterrupted one would
+        total, every = self.config.max_num_iterations, self.config.steps_per_save
+        remaining = max(0, total - self._start_step)
+        if remaining == 0:
+            CONSOLE.log(f"the checkpoint is at step {self._start_step - 1}: --max-num-iterations {total} is reached")
+            return
+        self.config.max_num_iterations = remaining
+        self.config.steps_per_save = min(every, max(1, total // SAVES_PER_RUN))
+        try:
+            super().train()
+        finally:
+            self.config.max_num_iterations, self.config.steps_per_save = total, every
 
     def after_checkpoint_load(self) -> None:
         # splatfacto's load_state_dict replaced the Gaussian parameters after the optimizers were built

@@ -1,0 +1,54 @@
+"""Commands that load a trained run check it before reading any data, and say what is wrong in
+one line: no traceback, nothing written."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.pipeline.run_check import check_trained_run
+
+
+def _saved_config(out: Path, method: str) -> Path:
+    config = demo_trainer_config(out, steps=10, max_gaussians=100)
+    config.method_name = method
+    config.set_timestamp()
+    config.save_config()
+    return config.get_base_dir() / "config.yml"
+
+
+def test_trained_run_checks(tmp_path):
+    with pytest.raises(SystemExit, match=r"nowhere\.yml: no such file"):
+        check_trained_run(tmp_path / "nowhere.yml")
+    (tmp_path / "bad.yml").write_text("key: [unclosed")
+    with pytest.raises(SystemExit, match=r"bad\.yml: not a nerfstudio config"):
+        check_trained_run(tmp_path / "bad.yml")
+    with pytest.raises(SystemExit, match=r"a 'splatfacto' run; this command needs a wild-thermal\* run"):
+        check_trained_run(_saved_config(tmp_path / "a", "splatfacto"))
+    untrained = _saved_config(tmp_path / "b", "wild-thermal")
+    with pytest.raises(SystemExit, match=r"no checkpoint in .*nerfstudio_models"):
+        check_trained_run(untrained)
+    checkpoints = untrained.parent / "nerfstudio_models"
+    checkpoints.mkdir()
+    (checkpoints / "step-000000009.ckpt").write_bytes(b"")
+    check_trained_run(untrained)  # passes: what is in the checkpoint is the loader's business
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", [["wild-thermal-export", "gaussian-splat"], ["wild-thermal-render", "spiral"]])
+def test_loading_commands_fail_fast_and_leave_nothing(tmp_path, command):
+    config = _saved_config(tmp_path / "run", "splatfacto")
+    out = tmp_path / "out"
+    where = ["--output-dir", str(out)] if command[0] == "wild-thermal-export" else ["--output-path", str(out / "v.mp4")]
+    result = subprocess.run(
+        [str(Path(sys.executable).parent / command[0]), *command[1:], "--load-config", str(config), *where],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 1 and "a 'splatfacto' run" in result.stderr, result.stderr[-1500:]
+    assert "Traceback" not in result.stderr
+    assert not out.exists() and not (tmp_path / "outputs").exists()  # no output folder, no data cache
