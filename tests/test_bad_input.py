@@ -52,3 +52,26 @@ def test_loading_commands_fail_fast_and_leave_nothing(tmp_path, command):
     assert result.returncode == 1 and "a 'splatfacto' run" in result.stderr, result.stderr[-1500:]
     assert "Traceback" not in result.stderr
     assert not out.exists() and not (tmp_path / "outputs").exists()  # no output folder, no data cache
+
+
+@pytest.mark.slow
+def test_a_data_error_in_ns_train_is_one_line_unless_debugging(tmp_path):
+    import json
+    import os
+
+    import layout_fixtures as fx
+
+    fx.write_nerfstudio(tmp_path / "s")
+    meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
+    meta["frames"][2]["transform_matrix"][0][3] = float("nan")
+    (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
+    ns_train = [str(Path(sys.executable).parent / "ns-train"), "wild-thermal", "--vis", "tensorboard"]
+    command = [*ns_train, "--output-dir", str(tmp_path / "out"), "thermal", "--data", str(tmp_path / "s")]
+    env = {k: v for k, v in os.environ.items() if k != "THERMAL_WILD_NS_DEBUG"}
+    result = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert "error: " in result.stderr and "frame images/0002.png: camera pose has non-finite values" in result.stderr
+    debug = subprocess.run(
+        command, capture_output=True, text=True, timeout=300, cwd=tmp_path, env={**env, "THERMAL_WILD_NS_DEBUG": "1"}
+    )
+    assert debug.returncode == 1 and "Traceback" in debug.stderr and "non-finite values" in debug.stderr

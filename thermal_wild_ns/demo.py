@@ -103,6 +103,9 @@ def main(args: DemoArgs) -> dict:
 
 
 def entrypoint():
+    from thermal_wild_ns.errors import report_input_errors_briefly
+
+    report_input_errors_briefly()
     main(tyro.cli(DemoArgs))
 
 

@@ -230,6 +230,9 @@ def diagnose(args: DiagnoseArgs) -> Dict:
 
 
 def entrypoint():
+    from thermal_wild_ns.errors import report_input_errors_briefly
+
+    report_input_errors_briefly()
     diagnose(tyro.cli(DiagnoseArgs))
 
 

@@ -16,6 +16,7 @@ from typing import List, Literal, Optional, Union
 import numpy as np
 
 from thermal_wild_ns.data.thermal_io import RadiometricRange
+from thermal_wild_ns.errors import InputError, MissingInput
 
 Split = Literal["train", "test"]
 
@@ -80,13 +81,13 @@ def check_pose(c2w: np.ndarray, source: Union[Path, str]) -> np.ndarray:
     if c2w.shape == (3, 4):
         c2w = np.concatenate([c2w, [[0.0, 0.0, 0.0, 1.0]]])
     if c2w.shape != (4, 4):
-        raise ValueError(f"{source}: camera pose has shape {c2w.shape}, expected 4x4 or 3x4")
+        raise InputError(f"{source}: camera pose has shape {c2w.shape}, expected 4x4 or 3x4")
     if not np.all(np.isfinite(c2w)):
-        raise ValueError(f"{source}: camera pose has non-finite values")
+        raise InputError(f"{source}: camera pose has non-finite values")
     rotation = c2w[:3, :3]
     orthogonality = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if orthogonality > 1e-3 or abs(np.linalg.det(rotation) - 1.0) > 1e-3 or np.abs(c2w[3] - [0, 0, 0, 1]).max() > 1e-6:
-        raise ValueError(
+        raise InputError(
             f"{source}: camera pose is not rigid (rotation part deviates from orthonormal by {orthogonality:.2g}, "
             f"det {np.linalg.det(rotation):.4f}); poses must be rotation + translation"
         )
@@ -96,22 +97,22 @@ def check_pose(c2w: np.ndarray, source: Union[Path, str]) -> np.ndarray:
 def validate(capture: ThermalCapture) -> ThermalCapture:
     """Errors (naming the file) for missing images, bad poses, bad intrinsics, half-set splits."""
     if not capture.frames:
-        raise ValueError(f"{capture.root}: no thermal frames found ({capture.layout} layout)")
+        raise InputError(f"{capture.root}: no thermal frames found ({capture.layout} layout)")
     for frame in capture.frames:
         if not frame.image.is_file():
-            raise FileNotFoundError(f"{frame.image}: thermal frame listed by the {capture.layout} layout is missing")
+            raise MissingInput(f"{frame.image}: thermal frame listed by the {capture.layout} layout is missing")
         check_pose(frame.camera_to_world, frame.image)
         values = [frame.fx, frame.fy, frame.cx, frame.cy, frame.width, frame.height]
         if not np.all(np.isfinite(values)) or min(frame.fx, frame.fy, frame.width, frame.height) <= 0:
-            raise ValueError(
+            raise InputError(
                 f"{frame.image}: invalid intrinsics fx={frame.fx} fy={frame.fy} size={frame.width}x{frame.height}"
             )
     has_split = [f.split is not None for f in capture.frames]
     if any(has_split) and not all(has_split):
         missing = next(f.image for f in capture.frames if f.split is None)
-        raise ValueError(f"{missing}: the {capture.layout} layout gives a split for some frames but not this one")
+        raise InputError(f"{missing}: the {capture.layout} layout gives a split for some frames but not this one")
     if all(has_split) and not any(f.split == "train" for f in capture.frames):
-        raise ValueError(f"{capture.root}: no training frames in the {capture.layout} layout's split")
+        raise InputError(f"{capture.root}: no training frames in the {capture.layout} layout's split")
     return capture
 
 

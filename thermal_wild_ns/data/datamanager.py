@@ -17,6 +17,7 @@ from nerfstudio.data.datasets.base_dataset import InputDataset
 from thermal_wild_ns._upstream import set_training_order, single_channel_datamanager_class
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
+from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 
@@ -28,7 +29,7 @@ class ThermalDataset(InputDataset):
     def thermal_range(self) -> RadiometricRange:
         value = self.metadata.get("thermal_range")
         if not isinstance(value, RadiometricRange):
-            raise ValueError("ThermalDataset needs a thermal dataparser (metadata['thermal_range'] is missing)")
+            raise InputError("ThermalDataset needs a thermal dataparser (metadata['thermal_range'] is missing)")
         return value
 
     def frame_index(self, image_idx: int) -> int:
@@ -57,7 +58,7 @@ class ThermalDataset(InputDataset):
         return torch.from_numpy(self.get_numpy_image(image_idx))
 
     def get_image_uint8(self, image_idx: int) -> torch.Tensor:
-        raise ValueError("Thermal frames are float radiometric data; use cache_images_type='float32'")
+        raise InputError("Thermal frames are float radiometric data; use cache_images_type='float32'")
 
     def __getitem__(self, image_idx: int) -> dict:
         """A display copy for nerfstudio's viewer, which draws `dataset[idx]["image"]` as RGB
@@ -99,7 +100,7 @@ class ThermalDatamanager(single_channel_datamanager_class()):
 
     def __init__(self, config: ThermalDatamanagerConfig, *args, **kwargs):
         if config.train_cameras_sampling_strategy != "random":
-            raise ValueError(
+            raise InputError(
                 f"train_cameras_sampling_strategy '{config.train_cameras_sampling_strategy}' is not supported by "
                 f"the thermal "
                 "datamanager: it visits the training frames in a seeded random order per pass (train_order_seed), "

@@ -46,6 +46,7 @@ from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, gene
 from thermal_wild_ns.data.palettes import PALETTE_NAMES
 from thermal_wild_ns.data.thermal_io import DEGENERATE_SHARE, RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
+from thermal_wild_ns.errors import InputError, report_input_errors_briefly
 
 DEMO_SCENE_DIR = Path("outputs/thermal-demo-scene")
 MIN_SEED_POINTS = 4
@@ -102,6 +103,7 @@ class ThermalDataParser(DataParser):
 
     def __init__(self, config: ThermalDataParserConfig):
         super().__init__(config)
+        report_input_errors_briefly()  # a bad dataset is the user's to fix: one line, not a traceback
         self._capture: Optional[ThermalCapture] = None
         self._range: Optional[RadiometricRange] = None
         self._seeds: Optional[SeedPoints] = None
@@ -163,7 +165,7 @@ class ThermalDataParser(DataParser):
                 dropped = set(scan.degenerate)
                 capture.frames = [f for i, f in enumerate(capture.frames) if i not in dropped]
                 if not any(f.split != "test" for f in capture.frames):
-                    raise ValueError(f"{capture.root}: no training frame is left once the degenerate ones are out")
+                    raise InputError(f"{capture.root}: no training frame is left once the degenerate ones are out")
         return scan.range
 
     def radiometric_range(self) -> RadiometricRange:
@@ -195,7 +197,7 @@ class ThermalDataParser(DataParser):
                 seeds = sparse
             elif route == "sfm":
                 found = "no sparse points" if sparse is None else f"only {len(sparse.xyz)} sparse points"
-                raise ValueError(f"{capture.root}: seed_points='sfm' but the {capture.layout} layout has {found}")
+                raise InputError(f"{capture.root}: seed_points='sfm' but the {capture.layout} layout has {found}")
             elif sparse is not None:
                 CONSOLE.log(
                     f"[yellow]{capture.root}: the {capture.layout} layout's sparse model has only {len(sparse.xyz)} "
@@ -212,7 +214,7 @@ class ThermalDataParser(DataParser):
                 if len(xyz) >= 4:
                     seeds = SeedPoints(xyz=xyz, source="triangulated")
                 elif route == "triangulate":
-                    raise ValueError(
+                    raise InputError(
                         f"{capture.root}: triangulation found only {len(xyz)} points (SIFT finds too little texture)"
                     )
             if seeds is None:
@@ -242,7 +244,7 @@ class ThermalDataParser(DataParser):
         wanted = "train" if split == "train" else "test"
         indices = [i for i, f in enumerate(frames) if f.split == wanted or self.config.split == "all"]
         if not indices:
-            raise ValueError(f"{capture.root}: no '{wanted}' frames ({capture.split_rule})")
+            raise InputError(f"{capture.root}: no '{wanted}' frames ({capture.split_rule})")
         chosen = [frames[i] for i in indices]
 
         def column(name: str, dtype: torch.dtype) -> torch.Tensor:

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from thermal_wild_ns.data.thermal_io import make_work_folder
+from thermal_wild_ns.errors import InputError
 
 GENERATOR_VERSION = (
     3  # bump when an unchanged config would give different frames (3: outlier gain on the normalised scale)
@@ -217,7 +218,7 @@ def stress_scene_config(fault: str, path_views: int = 60) -> DemoSceneConfig:
     elif fault in STRESS_FAULTS:
         changes = STRESS_FAULTS[fault]
     else:
-        raise ValueError(f"unknown stress fault '{fault}' (one of {', '.join([*STRESS_FAULTS, 'all'])})")
+        raise InputError(f"unknown stress fault '{fault}' (one of {', '.join([*STRESS_FAULTS, 'all'])})")
     return DemoSceneConfig(**{**_NO_FAULTS, **changes, "path_views": path_views})
 
 

@@ -25,6 +25,7 @@ from thermal_wild_ns.data.capture import (
     opencv_to_opengl,
 )
 from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange, load_npy
+from thermal_wild_ns.errors import InputError, MissingInput
 
 THERMALMIX_CELSIUS = {
     "face": (22.5, 35.2),
@@ -60,7 +61,7 @@ def _read_ply_points(path: Path) -> Optional[SeedPoints]:
     try:
         vertex = PlyData.read(str(path))["vertex"]
     except Exception as err:  # plyfile raises several types for bad files
-        raise ValueError(f"{path}: unreadable point cloud ({err})") from err
+        raise InputError(f"{path}: unreadable point cloud ({err})") from err
     if len(vertex) == 0:
         return None
     xyz = np.stack([np.asarray(vertex[a], dtype=np.float64) for a in ("x", "y", "z")], -1)
@@ -79,16 +80,16 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
     path = root / "transforms.json" if root.suffix != ".json" else root
     root = path.parent
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no transforms.json")
+        raise MissingInput(f"{path}: no transforms.json")
     try:
         meta = json.loads(path.read_text())
     except json.JSONDecodeError as err:
-        raise ValueError(f"{path}: not valid JSON ({err})") from err
+        raise InputError(f"{path}: not valid JSON ({err})") from err
     if not isinstance(meta.get("frames"), list):
-        raise ValueError(f"{path}: no 'frames' list")
+        raise InputError(f"{path}: no 'frames' list")
     raw_frames = [f for f in meta["frames"] if f.get("is_thermal", False)] if thermal_only else meta["frames"]
     if thermal_only and not raw_frames:
-        raise ValueError(f"{path}: no frame is flagged is_thermal (ThermalNeRF layout)")
+        raise InputError(f"{path}: no frame is flagged is_thermal (ThermalNeRF layout)")
     frames = []
     for f in raw_frames:
 
@@ -97,14 +98,14 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
 
         model = get("camera_model", "OPENCV")
         if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
-            raise ValueError(
+            raise InputError(
                 f"{path}: camera_model {model} of {f.get('file_path')} is not supported (OPENCV or PINHOLE)"
             )
         try:
             c2w = check_pose(np.array(f["transform_matrix"], dtype=np.float64), f"{path}, frame {f.get('file_path')}")
             intrinsics = [float(get(k)) for k in ("fl_x", "fl_y", "cx", "cy")] + [int(get(k)) for k in ("w", "h")]
         except (KeyError, TypeError) as err:
-            raise ValueError(f"{path}: frame {f.get('file_path')} lacks {err} (pose or intrinsics)") from err
+            raise InputError(f"{path}: frame {f.get('file_path')} lacks {err} (pose or intrinsics)") from err
         frames.append(
             ThermalFrame(
                 image=root / f["file_path"],
@@ -153,13 +154,13 @@ def _read_colmap_model(folder: Path):
     import pycolmap
 
     if not folder.is_dir() or not any((folder / f"images{ext}").is_file() for ext in (".bin", ".txt")):
-        raise FileNotFoundError(f"{folder}: no COLMAP model (images.bin/.txt, cameras.bin/.txt)")
+        raise MissingInput(f"{folder}: no COLMAP model (images.bin/.txt, cameras.bin/.txt)")
     try:
         rec = pycolmap.Reconstruction(str(folder))
     except Exception as err:  # pycolmap raises RuntimeError/ValueError for corrupt models
-        raise ValueError(f"{folder}: unreadable COLMAP model ({err})") from err
+        raise InputError(f"{folder}: unreadable COLMAP model ({err})") from err
     if rec.num_images() == 0:
-        raise ValueError(f"{folder}: the COLMAP model has no images (empty sparse model)")
+        raise InputError(f"{folder}: the COLMAP model has no images (empty sparse model)")
     return rec
 
 
@@ -177,7 +178,7 @@ def _colmap_intrinsics(camera, source: str) -> Tuple[float, float, float, float,
         if model == "OPENCV":
             dist[[0, 1, 4, 5]] = p[4:8]
     else:
-        raise ValueError(f"{source}: COLMAP camera model {model} is not supported (PINHOLE, SIMPLE_*, RADIAL, OPENCV)")
+        raise InputError(f"{source}: COLMAP camera model {model} is not supported (PINHOLE, SIMPLE_*, RADIAL, OPENCV)")
     return fx, fy, cx, cy, dist
 
 
@@ -241,7 +242,7 @@ def read_msx(root: Path) -> ThermalCapture:
         for split in ("train", "test"):
             if (root / "thermal" / split / base).is_file():
                 return root / "thermal" / split / base, split
-        raise FileNotFoundError(
+        raise MissingInput(
             f"{root / 'thermal'}/{{train,test}}/{base}: thermal frame of COLMAP image '{name}' is missing"
         )
 
@@ -272,14 +273,14 @@ def read_thermalmix(
         for path in candidates:
             if path.is_file():
                 return path, None
-        raise FileNotFoundError(
+        raise MissingInput(
             f"{candidates[0]}: thermal frame of COLMAP image '{name}' is missing (also tried .png/.npy, "
             f"warped_thermal/)"
         )
 
     frames = _colmap_frames(rec, model, find, order="id")
     if not 0 <= holdout_index < len(frames):
-        raise ValueError(f"{model}: held-out view index {holdout_index} is outside the {len(frames)} frames")
+        raise InputError(f"{model}: held-out view index {holdout_index} is outside the {len(frames)} frames")
     for i, frame in enumerate(frames):
         frame.split = "test" if i == holdout_index else "train"
     bounds = celsius or THERMALMIX_CELSIUS.get(root.name.lower())
@@ -314,17 +315,17 @@ def read_ye(root: Path) -> ThermalCapture:
         poses = sorted((folder / "pose").glob("*.txt"), key=lambda p: natural_key(p.name))
         intrinsics = sorted((folder / "intrinsics").glob("*.txt"), key=lambda p: natural_key(p.name))
         if not (len(images) == len(poses) == len(intrinsics)):
-            raise ValueError(
+            raise InputError(
                 f"{folder}: {len(images)} images in rgb/, {len(poses)} poses in pose/, {len(intrinsics)} files in "
                 "intrinsics/: the counts must match"
             )
         for image, pose, intr in zip(images, poses, intrinsics):
             if not (image.stem == pose.stem == intr.stem):
-                raise ValueError(f"{pose}: pose file does not match image {image.name} (files are paired by name)")
+                raise InputError(f"{pose}: pose file does not match image {image.name} (files are paired by name)")
             c2w = check_pose(_read_matrix(pose), pose)
             K = _read_matrix(intr)
             if K.shape not in ((4, 4), (3, 3)):
-                raise ValueError(f"{intr}: intrinsics must be a 3x3 or 4x4 matrix, got {K.shape}")
+                raise InputError(f"{intr}: intrinsics must be a 3x3 or 4x4 matrix, got {K.shape}")
             # image size: from the principal point until the frame is read (scan_frames checks it)
             frames.append(ThermalFrame(image, c2w, K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0, 0, split=split))
     if frames:  # the layout does not record the image size
@@ -339,7 +340,7 @@ def _read_matrix(path: Path) -> np.ndarray:
     try:
         return np.loadtxt(path, dtype=np.float64, ndmin=2)
     except ValueError as err:
-        raise ValueError(f"{path}: not a whitespace-separated matrix ({err})") from err
+        raise InputError(f"{path}: not a whitespace-separated matrix ({err})") from err
 
 
 def _frame_size(path: Path) -> Tuple[int, int]:
@@ -359,13 +360,13 @@ def read_llff(root: Path, layout: str = "llff") -> ThermalCapture:
     try:
         table = load_npy(path)
     except (OSError, ValueError) as err:
-        raise ValueError(f"{path}: unreadable poses_bounds.npy ({err})") from err
+        raise InputError(f"{path}: unreadable poses_bounds.npy ({err})") from err
     if table.ndim != 2 or table.shape[1] != 17:
-        raise ValueError(f"{path}: expected an [N, 17] array, got {table.shape}")
+        raise InputError(f"{path}: expected an [N, 17] array, got {table.shape}")
     folder = next((root / d for d in ("images", "thermal") if (root / d).is_dir()), root / "images")
     images = _image_files(folder, IMAGE_SUFFIXES | {".npy"}) if folder.is_dir() else []
     if len(images) != len(table):
-        raise ValueError(f"{path}: {len(table)} poses but {len(images)} images in {folder}: pose/image count mismatch")
+        raise InputError(f"{path}: {len(table)} poses but {len(images)} images in {folder}: pose/image count mismatch")
     frames = []
     for row, image in zip(table, images):
         m = row[:15].reshape(3, 5)
@@ -421,9 +422,9 @@ def _transforms_mismatch(thermal_flag: bool) -> Callable[[Path], Optional[str]]:
         try:
             meta = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise ValueError(f"{path}: not valid JSON ({err})") from None
+            raise InputError(f"{path}: not valid JSON ({err})") from None
         if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
-            raise ValueError(f"{path}: expected a JSON object with a 'frames' list")
+            raise InputError(f"{path}: expected a JSON object with a 'frames' list")
         flagged = any(isinstance(f, dict) and f.get("is_thermal") for f in meta["frames"])
         if flagged != thermal_flag:
             return "frames flagged is_thermal (ThermalNeRF)" if flagged else "no frame flagged is_thermal"
@@ -451,9 +452,9 @@ def _poses_bounds_mismatch(*parts: str) -> Callable[[Path], Optional[str]]:
             try:
                 array = np.load(path, allow_pickle=False)
             except (OSError, ValueError) as err:
-                raise ValueError(f"{path}: unreadable ({err})") from None
+                raise InputError(f"{path}: unreadable ({err})") from None
             if array.ndim != 2 or array.shape[1] != 17:
-                raise ValueError(f"{path}: shape {array.shape}, expected [N, 17] (LLFF poses and bounds)")
+                raise InputError(f"{path}: shape {array.shape}, expected [N, 17] (LLFF poses and bounds)")
         return _needs("poses_bounds.npy", *parts)(root)
 
     return mismatch
@@ -495,7 +496,7 @@ def detect_layout(root: Path) -> str:
     """The first layout `root` looks like; an error listing every layout tried (and why not). A
     layout whose own file is present but broken stops detection with that file's error."""
     if not Path(root).is_dir():
-        raise FileNotFoundError(f"{root}: data folder not found")
+        raise MissingInput(f"{root}: data folder not found")
     reasons = {}
     for name, layout in LAYOUTS.items():
         reason = layout.mismatch(Path(root))
@@ -503,4 +504,4 @@ def detect_layout(root: Path) -> str:
             return name
         reasons[name] = reason
     tried = "\n".join(f"  - {name} ({LAYOUTS[name].description}): {why}" for name, why in reasons.items())
-    raise ValueError(f"{root}: not a thermal dataset layout this plugin knows. Tried:\n{tried}")
+    raise InputError(f"{root}: not a thermal dataset layout this plugin knows. Tried:\n{tried}")

@@ -19,6 +19,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from thermal_wild_ns.errors import InputError
+
 PALETTE_NAMES = ("grey", "iron", "inferno", "jet")
 MAX_MEDIAN_DISTANCE = 12.0
 """A palette fits an image when the median RGB distance (0..255 units) of its pixels to the palette
@@ -54,7 +56,7 @@ def palette_rgb(name: str) -> np.ndarray:
         code = cv2.COLORMAP_INFERNO if name == "inferno" else cv2.COLORMAP_JET
         return cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], code)[:, 0, ::-1].copy()
     else:
-        raise ValueError(f"unknown palette '{name}' (known: {', '.join(PALETTE_NAMES)})")
+        raise InputError(f"unknown palette '{name}' (known: {', '.join(PALETTE_NAMES)})")
     return np.round(rgb * 255.0).astype(np.uint8)
 
 
@@ -91,7 +93,7 @@ def detect_palette(rgb: np.ndarray, path: Path) -> str:
     best = min(fit, key=fit.get)
     if fit[best] > MAX_MEDIAN_DISTANCE:
         report = ", ".join(f"{n}: {d:.1f}" for n, d in sorted(fit.items(), key=lambda kv: kv[1]))
-        raise ValueError(
+        raise InputError(
             f"{path}: colour-mapped frame in an unknown palette (median RGB distance to each known palette: "
             f"{report}; at most {MAX_MEDIAN_DISTANCE:g} is accepted). Export the frames as raw/greyscale "
             f"values or add the palette to thermal_wild_ns/data/palettes.py"
@@ -104,7 +106,7 @@ def decode_colour_frame(rgb: np.ndarray, path: Path, palette: Optional[str]) -> 
     name = palette or detect_palette(rgb, path)
     levels, distance = invert_palette(rgb, name)
     if float(np.median(distance)) > MAX_MEDIAN_DISTANCE:
-        raise ValueError(
+        raise InputError(
             f"{path}: colours do not match the dataset's '{name}' palette (median RGB distance "
             f"{float(np.median(distance)):.1f} > {MAX_MEDIAN_DISTANCE:g}); were frames exported with different "
             f"palettes?"

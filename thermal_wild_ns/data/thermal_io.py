@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
+from thermal_wild_ns.errors import InputError, MissingInput
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 
@@ -76,18 +77,18 @@ def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
     colour-mapped frame (then RGB uint8 [H, W, 3])."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: thermal frame not found")
+        raise MissingInput(f"{path}: thermal frame not found")
     if path.suffix.lower() == ".npy":
         try:
             image = load_npy(path)
         except (ValueError, OSError) as err:
-            raise ValueError(f"{path}: unreadable .npy thermal frame ({err})") from err
+            raise InputError(f"{path}: unreadable .npy thermal frame ({err})") from err
     elif path.suffix.lower() in IMAGE_SUFFIXES:
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None:
-            raise ValueError(f"{path}: unreadable image file")
+            raise InputError(f"{path}: unreadable image file")
     else:
-        raise ValueError(
+        raise InputError(
             f"{path}: unsupported thermal frame type '{path.suffix}' (use {sorted(IMAGE_SUFFIXES)} or .npy)"
         )
     if image.ndim == 3 and image.shape[2] in (1, 3, 4):
@@ -95,7 +96,7 @@ def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
         if np.all(image[..., :1] == image):
             return image[..., 0], False
         if image.dtype != np.uint8:
-            raise ValueError(f"{path}: {image.dtype} colour image; colour-mapped frames must be 8-bit")
+            raise InputError(f"{path}: {image.dtype} colour image; colour-mapped frames must be 8-bit")
         return image[..., ::-1], True  # OpenCV reads BGR
     return image, False
 
@@ -111,9 +112,9 @@ def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
     if colour:
         image = decode_colour_frame(image, Path(path), palette)
     if image.ndim != 2:
-        raise ValueError(f"{path}: expected a 2D thermal frame, got shape {image.shape}")
+        raise InputError(f"{path}: expected a 2D thermal frame, got shape {image.shape}")
     if image.dtype not in (np.uint8, np.uint16) and not np.issubdtype(image.dtype, np.floating):
-        raise ValueError(f"{path}: unsupported pixel type {image.dtype} (uint8, uint16 or float)")
+        raise InputError(f"{path}: unsupported pixel type {image.dtype} (uint8, uint16 or float)")
     return image
 
 
@@ -154,7 +155,7 @@ class RadiometricRange:
     def to_celsius(self, normalised: np.ndarray) -> np.ndarray:
         """Normalised values -> degC (linear between the documented bounds)."""
         if self.celsius_low is None or self.celsius_high is None:
-            raise ValueError("this dataset documents no temperature bounds (celsius_low/celsius_high)")
+            raise InputError("this dataset documents no temperature bounds (celsius_low/celsius_high)")
         return self.celsius_low + normalised * (self.celsius_high - self.celsius_low)
 
 
@@ -201,12 +202,12 @@ def scan_frames(
     shape the scale the model trains in. Degenerate frames never count towards the range either.
     """
     if not paths:
-        raise ValueError("No thermal frames to read")
+        raise InputError("No thermal frames to read")
     if palette is None and declared is not None:
         palette = declared.palette
     measure = [True] * len(paths) if measure is None else list(measure)
     if not any(measure):
-        raise ValueError(f"{Path(paths[0]).parent}: no frames to measure the radiometric range from")
+        raise InputError(f"{Path(paths[0]).parent}: no frames to measure the radiometric range from")
     if palette is None:
         palette = frame_palette(paths[measure.index(True)])
     dtype = None
@@ -219,13 +220,13 @@ def scan_frames(
         if dtype is None:
             dtype = raw.dtype
         elif raw.dtype != dtype:
-            raise ValueError(f"{path}: pixel type {raw.dtype} differs from the dataset's {dtype} (mixed bit depths)")
+            raise InputError(f"{path}: pixel type {raw.dtype} differs from the dataset's {dtype} (mixed bit depths)")
         if sizes is not None and (raw.shape[1], raw.shape[0]) != tuple(sizes[i]):
-            raise ValueError(
+            raise InputError(
                 f"{path}: image is {raw.shape[1]}x{raw.shape[0]} but its camera says {sizes[i][0]}x{sizes[i][1]}"
             )
         if raw.dtype not in (np.uint8, np.uint16) and not np.all(np.isfinite(raw)):
-            raise ValueError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
+            raise InputError(f"{path}: {int((~np.isfinite(raw)).sum())} non-finite pixel values")
         counts = None
         if raw.dtype in (np.uint8, np.uint16):
             counts = np.bincount(raw.reshape(-1), minlength=1 << (8 * raw.dtype.itemsize))
@@ -246,11 +247,11 @@ def scan_frames(
             tails.append(tuple(float(v) for v in np.quantile(raw, [OUT_OF_RANGE_SHARE, 1.0 - OUT_OF_RANGE_SHARE])))
     if declared is not None:
         if declared.dtype != str(np.dtype(dtype)):
-            raise ValueError(f"{paths[0]}: frames are {dtype} but the dataset declares {declared.dtype}")
+            raise InputError(f"{paths[0]}: frames are {dtype} but the dataset declares {declared.dtype}")
         _warn_out_of_range(paths, tails, declared.low, declared.high, "declared")
         return FrameScan(replace(declared, palette=palette), degenerate)
     if hist is None and not samples:
-        raise ValueError(f"{Path(paths[0]).parent}: every frame to measure the range from is degenerate (one value)")
+        raise InputError(f"{Path(paths[0]).parent}: every frame to measure the range from is degenerate (one value)")
     if hist is not None:
         cdf = np.cumsum(hist) / hist.sum()
         low = float(np.searchsorted(cdf, percentiles[0] / 100.0, side="right"))  # first level above the percentile
@@ -258,7 +259,7 @@ def scan_frames(
     else:
         low, high = (float(v) for v in np.percentile(np.concatenate(samples), percentiles))
     if not high > low:
-        raise ValueError(f"Thermal frames ({paths[0].parent}) have no contrast: range [{low}, {high}] is empty")
+        raise InputError(f"Thermal frames ({paths[0].parent}) have no contrast: range [{low}, {high}] is empty")
     _warn_out_of_range(paths, tails, low, high, "measured")
     return FrameScan(RadiometricRange(low=low, high=high, dtype=str(np.dtype(dtype)), palette=palette), degenerate)
 

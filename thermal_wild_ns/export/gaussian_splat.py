@@ -85,6 +85,9 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
 
 
 def entrypoint():
+    from thermal_wild_ns.errors import report_input_errors_briefly
+
+    report_input_errors_briefly()
     # a subcommand even though there is one format (a one-member Union would collapse into none),
     # so the command reads like ns-export's: wild-thermal-export gaussian-splat --load-config ...
     tyro.extras.subcommand_cli_from_dict(

@@ -23,6 +23,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from thermal_wild_ns.errors import InputError
+
 
 @dataclass(frozen=True)
 class PhotometricState:
@@ -48,7 +50,7 @@ def parse_state(spec: str) -> Tuple[str, Optional[float]]:
                 return kind, position
     except ValueError:
         pass
-    raise ValueError(
+    raise InputError(
         f"photometric state '{spec}': expected canonical, frame:N (a training frame's index) or time:T (a capture "
         f"position)"
     )
@@ -92,7 +94,7 @@ def resolve_state(pipeline, spec: str) -> PhotometricState:
     if kind == "frame":
         train = list(pipeline.datamanager.train_dataset.metadata["frame_indices"])
         if int(value) not in train:
-            raise ValueError(
+            raise InputError(
                 f"photometric state '{spec}': frame {int(value)} is not a training frame (use time:{int(value)} for "
                 f"its interpolated state)"
             )

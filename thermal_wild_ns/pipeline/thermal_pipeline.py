@@ -13,6 +13,7 @@ import torch
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
+from thermal_wild_ns.errors import report_input_errors_briefly
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
 
 
@@ -43,6 +44,7 @@ class ThermalPipeline(VanillaPipeline):
     def __init__(self, config: ThermalPipelineConfig, *args, **kwargs):
         # every nerfstudio command that loads a checkpoint of this plugin builds this pipeline first
         prepare_checkpoint_commands()
+        report_input_errors_briefly()
         super().__init__(config, *args, **kwargs)
         if getattr(self.model, "viewer_colour_bar", None) is not None:
             self.model.on_photometric_state_change = self.update_colour_bar

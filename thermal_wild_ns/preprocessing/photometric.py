@@ -29,6 +29,8 @@ from typing import Iterable, Iterator, Literal, Optional, Sequence, Tuple, get_a
 
 import numpy as np
 
+from thermal_wild_ns.errors import InputError
+
 Variant = Literal["none", "histeq", "bbhe", "stab", "stab+bbhe"]
 VARIANTS = get_args(Variant)
 MIN_STEP = 0.05
@@ -151,11 +153,11 @@ class PhotometricConfig:
 
     def __post_init__(self):
         if self.variant not in VARIANTS:
-            raise ValueError(f"unknown preprocessing variant '{self.variant}' (one of {', '.join(VARIANTS)})")
+            raise InputError(f"unknown preprocessing variant '{self.variant}' (one of {', '.join(VARIANTS)})")
         if not (0.0 < self.alpha <= 1.0 and 0.0 <= self.beta <= 1.0):
-            raise ValueError(f"alpha must be in (0, 1] and beta in [0, 1], got alpha={self.alpha}, beta={self.beta}")
+            raise InputError(f"alpha must be in (0, 1] and beta in [0, 1], got alpha={self.alpha}, beta={self.beta}")
         if not 0.0 <= self.equalization_strength <= 1.0:
-            raise ValueError(f"equalization_strength must be in [0, 1], got {self.equalization_strength}")
+            raise InputError(f"equalization_strength must be in [0, 1], got {self.equalization_strength}")
 
 
 def frame_luts(
@@ -181,7 +183,7 @@ def frame_luts(
         if frame.size == 0:
             raise ValueError(f"frame {t} is empty")
         if np.issubdtype(frame.dtype, np.floating) and not np.all(np.isfinite(frame)):
-            raise ValueError(f"frame {t} has non-finite values (NaN/inf); preprocessing needs finite frames")
+            raise InputError(f"frame {t} has non-finite values (NaN/inf); preprocessing needs finite frames")
         hist = histogram(grid.levels(frame), grid.num_levels)
         cdf = cdf_of(hist)
         if config.variant in ("stab", "stab+bbhe"):

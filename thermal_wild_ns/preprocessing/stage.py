@@ -34,6 +34,7 @@ from thermal_wild_ns.data.thermal_io import (
     publish_cache_folder,
     read_raw_frame,
 )
+from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.preprocessing.photometric import (
     LevelGrid,
     PhotometricConfig,
@@ -136,7 +137,7 @@ def _key(
 def _checked(path: Path, palette: Optional[str]) -> np.ndarray:
     frame = read_raw_frame(path, palette)
     if np.issubdtype(frame.dtype, np.floating) and not np.all(np.isfinite(frame)):
-        raise ValueError(f"{path}: non-finite pixel values; preprocessing needs finite frames")
+        raise InputError(f"{path}: non-finite pixel values; preprocessing needs finite frames")
     return frame
 
 
@@ -152,9 +153,9 @@ def preprocess(
     of a whole capture); the others never touch the stabilization reference."""
     train = [True] * len(frames) if train is None else [bool(x) for x in train]
     if len(train) != len(frames):
-        raise ValueError(f"{len(train)} training flags for {len(frames)} frames")
+        raise InputError(f"{len(train)} training flags for {len(frames)} frames")
     if not any(train):
-        raise ValueError("no training frames to preprocess")
+        raise InputError("no training frames to preprocess")
     grid = LevelGrid.for_dtype(rng.dtype, rng.low, rng.high)
     folder = Path(cache_root) / f"preprocessed-{_key(frames, train, rng, config)}"
     sequence = PreprocessedSequence(folder, grid, rng, config)

@@ -161,6 +161,9 @@ Commands = tyro.conf.FlagConversionOff[
 
 
 def entrypoint():
+    from thermal_wild_ns.errors import report_input_errors_briefly
+
+    report_input_errors_briefly()
     tyro.cli(Commands).main()
 
 

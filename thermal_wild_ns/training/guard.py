@@ -26,6 +26,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
+from thermal_wild_ns.errors import report_input_errors_briefly
 
 
 class TrainingDiverged(RuntimeError):
@@ -155,6 +156,7 @@ class GuardedTrainer(trainer_after_load_class()):
     config: GuardedTrainerConfig
 
     def setup(self, test_mode="val"):
+        report_input_errors_briefly()
         load_dir = self.config.load_dir
         if load_dir is not None and not sorted(Path(load_dir).glob("step-*.ckpt")):
             what = "no such folder" if not Path(load_dir).is_dir() else "no step-*.ckpt checkpoint in it"
