@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import List, Tuple
+from typing import List, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -223,17 +223,32 @@ def write_msx(root: Path, n: int = 16) -> List[Tuple[np.ndarray, np.ndarray]]:
     return [(c2w, K) for c2w in poses]
 
 
-def write_thermalmix(root: Path, n: int = 24) -> List[Tuple[np.ndarray, np.ndarray]]:
-    """`root` should be named after a scene (e.g. .../lion) for its published degC bounds."""
+def write_thermalmix(
+    root: Path, n: int = 24, fmt: str = "jpg", missing: Sequence[int] = ()
+) -> List[Tuple[np.ndarray, np.ndarray]]:
+    """The authors' structure (`mert-o/thermalnerfs`): `rgb/IMG_xxx.JPG`, unwarped `thermal/*.jpg`
+    (deliberately different pixels: they must never be read), the frames the poses belong to in
+    `warped_thermal/` (`.jpg` 8-bit or `.npy` degC), `colmap_sparse/0`. Images in `missing` have no
+    warped frame. `root` should be named after a scene (e.g. .../lion) for its published bounds."""
     K = _K(90.0, 90.0, 40.0, 30.0)
-    (root / "thermal").mkdir(parents=True)
-    (root / "rgb").mkdir()
+    for folder in ("thermal", "rgb", "warped_thermal"):
+        (root / folder).mkdir(parents=True, exist_ok=True)
     names = [f"IMG_{i:03d}.JPG" for i in range(n)]
     for i in range(n):
-        cv2.imwrite(str(root / "thermal" / f"IMG_{i:03d}.jpg"), thermal_image(80, 60, i, np.uint8))
+        frame = thermal_image(80, 60, i, np.uint8)
+        cv2.imwrite(str(root / "thermal" / f"IMG_{i:03d}.jpg"), 255 - frame)
+        cv2.imwrite(str(root / "rgb" / f"IMG_{i:03d}.JPG"), np.dstack([frame] * 3))
+        if i in missing:
+            continue
+        if fmt == "npy":
+            np.save(
+                root / "warped_thermal" / f"IMG_{i:03d}.npy", (16.8 + frame * (48.3 - 16.8) / 255).astype(np.float32)
+            )
+        else:
+            cv2.imwrite(str(root / "warped_thermal" / f"IMG_{i:03d}.jpg"), frame)
     poses = cameras(n)
     write_colmap_model(root / "colmap_sparse" / "0", names, poses, K, (80, 60))
-    return [(c2w, K) for c2w in poses]
+    return [(c2w, K) for i, (c2w, _) in enumerate(zip(poses, names)) if i not in missing]
 
 
 def write_colmap(
@@ -255,4 +270,17 @@ def write_colmap(
         with_point=with_point,
         extra_points=extra_points,
     )
+    return [(c2w, K) for c2w in poses]
+
+
+def write_ti_nsd(root: Path, n: int = 20) -> List[Tuple[np.ndarray, np.ndarray]]:
+    """TI-NSD (Thermal3D-GS) as released: `images/` with numeric, unpadded names (1.jpg ... n.jpg,
+    8-bit grey), `sparse/0` binary, PINHOLE. Returns (c2w, K) in capture order (1, 2, ...)."""
+    K = _K(60.0, 60.0, 32.0, 24.0)
+    (root / "images").mkdir(parents=True)
+    names = [f"{i + 1}.jpg" for i in range(n)]
+    for i, name in enumerate(names):
+        cv2.imwrite(str(root / "images" / name), thermal_image(64, 48, i, np.uint8))
+    poses = cameras(n)
+    write_colmap_model(root / "sparse" / "0", names, poses, K, (64, 48))
     return [(c2w, K) for c2w in poses]

@@ -5,6 +5,8 @@ same known cameras in its layout's convention; after parsing, a known 3D point m
 the pixel the true camera sees it at, in every layout and split.
 """
 
+import json
+
 import layout_fixtures as fx
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ import torch
 from thermal_wild_ns.data.capture import fraction_split
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.layouts import detect_layout
+from thermal_wild_ns.data.thermal_io import read_raw_frame
 
 
 def reproject(outputs, index: int, point: np.ndarray) -> np.ndarray:
@@ -177,3 +180,54 @@ def test_fraction_split_is_nerfstudios_rule(num_frames, fraction, held_out):
     assert [i for i, s in enumerate(split) if s == "test"] == held_out
     _, i_eval = get_train_eval_split_fraction([f"{i}.png" for i in range(num_frames)], fraction)
     assert i_eval.tolist() == held_out  # and nerfstudio's own code agrees
+
+
+@pytest.mark.parametrize("fmt", ["jpg", "npy"])
+def test_thermalmix_reads_warped_thermal_and_drops_missing_frames_before_the_holdout(tmp_path, fmt):
+    """As the authors' loader: the warped frames (never the unwarped thermal/), and the held-out
+    index counts only the images that have a frame."""
+    fx.write_thermalmix(tmp_path / "lion", fmt=fmt, missing=[5])
+    parser = ThermalDataParserConfig(
+        data=tmp_path / "lion", layout="thermalmix", seed_points="random", num_random_points=8
+    ).setup()
+    with pytest.warns(UserWarning, match=r"1 of the 24 images .* have no frame"):
+        capture = parser.capture()
+    assert len(capture.frames) == 23
+    assert all(f.image.parent.name == "warped_thermal" and f.image.suffix == f".{fmt}" for f in capture.frames)
+    assert [f.image.stem for f in capture.frames if f.split == "test"] == ["IMG_021"]  # view 20 of the 23
+    raw = read_raw_frame(capture.frames[0].image).astype(np.float64)
+    warped = fx.thermal_image(80, 60, 0, np.uint8).astype(np.float64)
+    if fmt == "npy":
+        warped = 16.8 + warped * (48.3 - 16.8) / 255
+        assert parser.radiometric_range().celsius_low == 16.8
+    assert np.abs(raw - warped).mean() < 0.05 * np.ptp(warped)  # the warped frame's pixels, not thermal/'s
+
+
+def test_thermalnerf_missing_point_cloud_warns_and_seeds_otherwise(tmp_path):
+    fx.write_thermalnerf(tmp_path / "scene")
+    meta = json.loads((tmp_path / "scene" / "transforms.json").read_text())
+    meta["ply_file_path"] = "sparse_pc.ply"  # named in transforms.json, but not shipped
+    (tmp_path / "scene" / "transforms.json").write_text(json.dumps(meta))
+    parser = ThermalDataParserConfig(
+        data=tmp_path / "scene", layout="thermalnerf", seed_points="random", num_random_points=8
+    ).setup()
+    with pytest.warns(UserWarning, match=r"ply_file_path sparse_pc\.ply is missing; seeds from --seed-points"):
+        outputs = parser.get_dataparser_outputs("train")
+    assert outputs.metadata["seed_points"]["source"] == "random"
+
+
+def test_ti_nsd_is_detected_by_its_numeric_names_and_sorted_as_3dgs_does(tmp_path):
+    fx.write_ti_nsd(tmp_path / "scene")
+    assert detect_layout(tmp_path / "scene") == "ti-nsd"
+
+    def held_out(layout):
+        parser = ThermalDataParserConfig(
+            data=tmp_path / "scene", layout=layout, seed_points="random", num_random_points=8
+        ).setup()
+        return [f.image.stem for f in parser.capture().frames if f.split == "test"]
+
+    # 3DGS sorts image names as strings (1, 10, ..., 19, 2, 20, 3, ...) and holds out every 8th from the first
+    assert held_out("ti-nsd") == ["1", "17", "6"]
+    assert held_out("colmap") == ["1", "9", "17"]  # the generic reader's natural order
+    fx.write_colmap(tmp_path / "plain")  # frame_0.png ...: not numeric, so plain COLMAP
+    assert detect_layout(tmp_path / "plain") == "colmap"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
@@ -131,13 +132,19 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
     for frame, split in zip(frames, splits):
         frame.split = split
     ply = meta.get("ply_file_path")
+    points = None
+    if ply and not (root / ply).is_file():
+        # the frames and poses are all there: train on the configured seeds rather than refuse the scene
+        warnings.warn(f"{path}: ply_file_path {ply} is missing; seeds from --seed-points instead", stacklevel=2)
+    elif ply:
+        points = _read_ply_points(root / ply)
     return ThermalCapture(
         layout="thermalnerf" if thermal_only else "nerfstudio",
         root=root,
         frames=frames,
         split_rule=rule,
         declared_range=_declared_range(meta),
-        points=_read_ply_points(root / ply) if ply else None,
+        points=points,
     )
 
 
@@ -186,9 +193,12 @@ def _colmap_frames(
     rec, folder: Path, find_image: Callable[[str], Tuple[Path, Optional[str]]], order: str = "name"
 ) -> List[ThermalFrame]:
     """Frames of a COLMAP model; `find_image(name)` gives the thermal file and split of an image."""
-    images = sorted(
-        rec.images.values(), key=(lambda im: natural_key(im.name)) if order == "name" else (lambda im: im.image_id)
-    )
+    keys = {
+        "name": lambda im: natural_key(im.name),  # frame_2 before frame_10
+        "string": lambda im: Path(im.name).stem,  # 3DGS's sort of image names: "10" before "2"
+        "id": lambda im: im.image_id,
+    }
+    images = sorted(rec.images.values(), key=keys[order])
     frames = []
     for image in images:
         camera = rec.cameras[image.camera_id]
@@ -221,13 +231,19 @@ def _colmap_points(rec) -> Optional[SeedPoints]:
 
 def read_colmap(root: Path, images: str = "images", layout: str = "colmap") -> ThermalCapture:
     """Generic COLMAP: `sparse/0` (binary or text) + a folder of thermal frames named as in the
-    model. Also TI-NSD (Thermal3D-GS): `images/` + `sparse/0/*.bin`, sorted by name, every 8th
-    image held out (the 3DGS `llffhold` rule)."""
+    model, in natural name order (frame_2 before frame_10), every 8th held out.
+
+    TI-NSD (Thermal3D-GS, `mzzcdf/Thermal3DGS`, `scene/dataset_readers.py`) is the same layout
+    (`images/` + `sparse/0`, PINHOLE, numeric names) read as 3DGS reads it: image names sorted as
+    strings ("10" before "2"), every 8th from the first held out (`--eval`, llffhold 8). The two
+    orders give different held-out frames once names are unpadded numbers past 9."""
     rec = _read_colmap_model(root / "sparse" / "0")
-    frames = _colmap_frames(rec, root / "sparse" / "0", lambda name: (root / images / name, None))
+    order = "string" if layout == "ti-nsd" else "name"
+    frames = _colmap_frames(rec, root / "sparse" / "0", lambda name: (root / images / name, None), order=order)
     for frame, split in zip(frames, interval_split(len(frames))):
         frame.split = split
-    return ThermalCapture(layout, root, frames, "sorted by name, every 8th frame held out", points=_colmap_points(rec))
+    rule = f"sorted by name{' as strings' if order == 'string' else ''}, every 8th frame held out"
+    return ThermalCapture(layout, root, frames, rule, points=_colmap_points(rec))
 
 
 def read_msx(root: Path) -> ThermalCapture:
@@ -255,34 +271,48 @@ def read_msx(root: Path) -> ThermalCapture:
 def read_thermalmix(
     root: Path, holdout_index: int = 20, celsius: Optional[Tuple[float, float]] = None
 ) -> ThermalCapture:
-    """ThermalMix (Ozer et al.): COLMAP model in `colmap_sparse/0` (or `sparse/0`); thermal
-    frames named after the model's images: `thermal/*.jpg` (8-bit grey, linear in degC between
-    the scene's bounds) or float degC `.npy` (`warped_thermal/` in the authors' loader,
-    `colmap_provider.py`, which orders frames by image id and holds out one view, `--val_idx`:
-    20 in their README's example). Bounds per scene (`THERMALMIX_CELSIUS`) come from the folder
-    name unless `celsius` is given; without either the range is measured."""
+    """ThermalMix (Ozer et al.), as the authors' loader reads it (`mert-o/thermalnerfs`,
+    `nerf/colmap_provider.py` at c8e8f8b): the COLMAP model in `colmap_sparse/0` (or `sparse/0`);
+    for each model image, in image-id order, the thermal frame the poses belong to is
+    `warped_thermal/<stem>.npy` (float degC). Where only `warped_thermal/<stem>.jpg` exists (8-bit
+    grey, linear in degC between the scene's bounds, which `img_temp_mapper.py` turns into the
+    `.npy`), that is read. The unwarped `thermal/` frames are never used (they do not match the
+    poses). Model images without a frame are dropped BEFORE the held-out view is picked by its
+    index (`--val_idx`, 20 in the authors' README), as their loader does. Bounds per scene
+    (`THERMALMIX_CELSIUS`) come from the folder name unless `celsius` is given; without either the
+    range is measured."""
     model = next(
         (root / d / "0" for d in ("colmap_sparse", "sparse") if (root / d / "0").is_dir()), root / "colmap_sparse" / "0"
     )
     rec = _read_colmap_model(model)
+    folder = root / "warped_thermal"
+    if not folder.is_dir():
+        raise MissingInput(f"{folder}: no warped_thermal/ (the frames the poses belong to; thermal/ is not used)")
 
     def find(name: str):
         stem = Path(name).stem
-        candidates = [root / "thermal" / f"{stem}{ext}" for ext in (".jpg", ".png", ".npy")]
-        candidates.append(root / "warped_thermal" / f"{stem}.npy")
-        for path in candidates:
+        for path in (folder / f"{stem}.npy", folder / f"{stem}.jpg", folder / f"{stem}.png"):
             if path.is_file():
                 return path, None
-        raise MissingInput(
-            f"{candidates[0]}: thermal frame of COLMAP image '{name}' is missing (also tried .png/.npy, "
-            f"warped_thermal/)"
-        )
+        return None, None
 
-    frames = _colmap_frames(rec, model, find, order="id")
+    listed = _colmap_frames(rec, model, find, order="id")
+    frames = [f for f in listed if f.image is not None]
+    if not frames:
+        raise MissingInput(f"{folder}: none of the {len(listed)} images of {model} has a frame here (.npy/.jpg)")
+    if len(frames) < len(listed):
+        warnings.warn(
+            f"{folder}: {len(listed) - len(frames)} of the {len(listed)} images of {model} have no frame; "
+            "dropped before the held-out view is picked, as the authors' loader does",
+            stacklevel=2,
+        )
     if not 0 <= holdout_index < len(frames):
         raise InputError(f"{model}: held-out view index {holdout_index} is outside the {len(frames)} frames")
     for i, frame in enumerate(frames):
         frame.split = "test" if i == holdout_index else "train"
+    suffixes = {f.image.suffix for f in frames}
+    if len(suffixes) > 1:
+        raise InputError(f"{folder}: frames of mixed formats ({', '.join(sorted(suffixes))}); use one")
     bounds = celsius or THERMALMIX_CELSIUS.get(root.name.lower())
     declared = None
     if bounds is not None:
@@ -296,7 +326,7 @@ def read_thermalmix(
         "thermalmix",
         root,
         frames,
-        f"view {holdout_index} (by image id) held out",
+        f"view {holdout_index} (by image id, among the images with a frame) held out",
         declared_range=declared,
         points=_colmap_points(rec),
     )
@@ -438,8 +468,8 @@ def _thermalmix_mismatch(root: Path) -> Optional[str]:
         return "no colmap_sparse/0 or sparse/0"
     if (root / "thermal" / "train").is_dir():
         return "thermal/train/ (that is MSX)"
-    if not ((root / "thermal").is_dir() or (root / "warped_thermal").is_dir()):
-        return "no thermal/ or warped_thermal/"
+    if not (root / "warped_thermal").is_dir():
+        return "no warped_thermal/"
     return None
 
 
@@ -464,6 +494,17 @@ def _colmap_mismatch(root: Path) -> Optional[str]:
     return _needs("sparse/0", "images")(root)
 
 
+def _ti_nsd_mismatch(root: Path) -> Optional[str]:
+    """TI-NSD's cue: COLMAP's layout whose images all have numeric names (1.jpg, 2.jpg, ...)."""
+    reason = _colmap_mismatch(root)
+    if reason is not None:
+        return reason
+    stems = [p.stem for p in (root / "images").iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+    if not stems or not all(stem.isdigit() for stem in stems):
+        return "image names are not all numbers (TI-NSD's are)"
+    return None
+
+
 # Detection order matters: the specific layouts come before the generic ones they resemble.
 LAYOUTS: Dict[str, Layout] = {
     "thermalnerf": Layout(
@@ -480,15 +521,21 @@ LAYOUTS: Dict[str, Layout] = {
         _needs("thermal/train", "sparse/0"),
         "MSX / RGBT-Scenes (ThermalGaussian): thermal/{train,test}/ + sparse/0",
     ),
-    "thermalmix": Layout(read_thermalmix, _thermalmix_mismatch, "ThermalMix (Ozer et al.): thermal/ + colmap_sparse/0"),
-    "mvtv": Layout(read_mvtv, _poses_bounds_mismatch("thermal"), "MVTV (assumed LLFF): poses_bounds.npy + thermal/"),
+    "thermalmix": Layout(
+        read_thermalmix, _thermalmix_mismatch, "ThermalMix (Ozer et al.): warped_thermal/ + colmap_sparse/0"
+    ),
+    "mvtv": Layout(
+        read_mvtv,
+        _poses_bounds_mismatch("thermal"),
+        "MVTV (Xu et al.): layout unconfirmed (no public loader), assumed LLFF: poses_bounds.npy + thermal/",
+    ),
     "llff": Layout(read_llff, _poses_bounds_mismatch(), "LLFF: poses_bounds.npy + images/"),
-    "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
     "ti-nsd": Layout(
         lambda root: read_colmap(root, layout="ti-nsd"),
-        _colmap_mismatch,
-        "TI-NSD (Thermal3D-GS): images/ + sparse/0, read as COLMAP",
+        _ti_nsd_mismatch,
+        "TI-NSD (Thermal3D-GS): images/ with numeric names + sparse/0, names sorted as strings",
     ),
+    "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
 }
 
 
