@@ -5,6 +5,7 @@ import json
 import os
 import re
 import threading
+from pathlib import Path
 
 import cv2
 import layout_fixtures as fx
@@ -14,8 +15,9 @@ import pytest
 from thermal_wild_ns.data import thermal_io
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.layouts import detect_layout
-from thermal_wild_ns.data.palettes import PALETTE_NAMES, apply_palette, invert_palette, palette_rgb
+from thermal_wild_ns.data.palettes import PALETTE_NAMES, apply_palette, detect_palette, invert_palette, palette_rgb
 from thermal_wild_ns.data.thermal_io import load_npy, read_raw_frame, scan_frames
+from thermal_wild_ns.errors import InputError
 
 
 @pytest.mark.parametrize("suffix", [".png", ".tiff"])
@@ -286,3 +288,34 @@ def test_stale_work_folders_of_dead_processes_are_removed_live_ones_kept(tmp_pat
         assert work.is_dir() and work.name.startswith(f".preprocessing-{os.getpid()}-")
     finally:
         live.kill()
+
+
+RGBT_FRAMES = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgbt_frames"
+
+
+@pytest.mark.skipif(not RGBT_FRAMES.is_dir(), reason=f"{RGBT_FRAMES} (real RGBT-Scenes frames) is not here")
+@pytest.mark.parametrize("frame", sorted(p.name for p in RGBT_FRAMES.glob("*.jpg")) if RGBT_FRAMES.is_dir() else [])
+def test_real_rgbt_frames_decode_as_iron_monotonically(frame):
+    """The 7 real colour-mapped frames: auto-detection picks iron (not jet, not a refusal), the
+    levels span most of the palette, and they rise with the image's brightness (iron's luminance
+    rises from its cold end to its hot end), so hot regions decode hotter than cold ones."""
+    from scipy.stats import spearmanr
+
+    path = RGBT_FRAMES / frame
+    rgb = cv2.imread(str(path), cv2.IMREAD_COLOR)[..., ::-1]
+    assert detect_palette(rgb, path) == "iron"
+    levels = read_raw_frame(path)  # the reader's own route: detection, then nearest-colour inversion
+    low, high = np.percentile(levels, [1, 99])
+    assert high - low >= 150, (low, high)
+    luminance = rgb.astype(np.float64) @ [0.299, 0.587, 0.114]
+    assert spearmanr(levels.ravel()[::7], luminance.ravel()[::7]).correlation > 0.98
+
+
+def test_iron_table_rises_in_brightness_and_a_palette_is_judged_on_its_far_pixels(tmp_path):
+    iron = palette_rgb("iron").astype(np.float64)
+    assert np.all(np.diff(iron @ [0.299, 0.587, 0.114]) > 0)  # cold to hot is dark to bright
+    image = apply_palette(np.tile(np.arange(256, dtype=np.uint8), (64, 1)), "iron")
+    assert detect_palette(image, tmp_path / "a.jpg") == "iron"
+    image[:, ::4] = (0, 255, 0)  # a quarter of the pixels in no palette: the median still fits iron exactly
+    with pytest.raises(InputError, match=r"a\.jpg: colour-mapped frame in an unknown palette \(90th-percentile"):
+        detect_palette(image, tmp_path / "a.jpg")
