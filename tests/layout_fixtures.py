@@ -209,8 +209,10 @@ def write_colmap_model(
 
 
 def write_msx(root: Path, n: int = 16) -> List[Tuple[np.ndarray, np.ndarray]]:
+    """RGBT-Scenes as released: img_001.jpg ... in rgb/{train,test} and thermal/{train,test} (same
+    names), the test views every 8th from the first (img_001, img_009, ...), sparse/0 on the RGB."""
     K = _K(500.0, 500.0, 320.0, 240.0)
-    names = [f"{i:04d}.jpg" for i in range(n)]
+    names = [f"img_{i + 1:03d}.jpg" for i in range(n)]
     for i, name in enumerate(names):
         split = "test" if i % 8 == 0 else "train"
         for sub in ("rgb", "thermal"):
