@@ -231,3 +231,13 @@ def test_ti_nsd_is_detected_by_its_numeric_names_and_sorted_as_3dgs_does(tmp_pat
     assert held_out("colmap") == ["1", "9", "17"]  # the generic reader's natural order
     fx.write_colmap(tmp_path / "plain")  # frame_0.png ...: not numeric, so plain COLMAP
     assert detect_layout(tmp_path / "plain") == "colmap"
+
+
+def test_mvtv_is_marked_layout_unconfirmed(tmp_path):
+    """No public source confirms MVTV's release layout: --help and the detection message say so."""
+    from thermal_wild_ns.data.dataparsers import mvtv_dataparser
+
+    assert "layout unconfirmed" in mvtv_dataparser.description
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match=r"- mvtv \(MVTV \(Xu et al\.\): layout unconfirmed"):
+        detect_layout(tmp_path / "empty")
