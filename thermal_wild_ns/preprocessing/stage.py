@@ -103,7 +103,14 @@ class PreprocessedSequence:
         captured at. The median of strictly increasing LUTs is strictly increasing, and one
         photometric outlier frame cannot move it (tests/test_preprocessing.py). Computed once."""
         if self._median is None:
-            self._median = np.median(np.asarray(self.luts[self.train_indices]), axis=0)
+            # a band of levels at a time, through a mapping opened per band: memory stays flat in
+            # the frame count (all training LUTs at once are 0.5 MB per frame on a 16-bit grid)
+            rows, levels = self.train_indices, self.grid.num_levels
+            median = np.empty(levels)
+            for start in range(0, levels, _LEVEL_BAND):
+                band = np.array(self.luts[rows, start : start + _LEVEL_BAND])
+                median[start : start + _LEVEL_BAND] = np.median(band, axis=0)
+            self._median = median
         return self._median
 
     def to_original_normalised(self, normalised: np.ndarray, lut: np.ndarray) -> np.ndarray:
@@ -141,6 +148,10 @@ def _checked(path: Path, palette: Optional[str]) -> np.ndarray:
     return frame
 
 
+_LEVEL_BAND = 4096
+"""Levels per band when the median LUT is computed."""
+
+
 def preprocess(
     frames: List[ThermalFrame],
     rng: RadiometricRange,
@@ -164,9 +175,11 @@ def preprocess(
     work = make_work_folder(Path(cache_root), ".preprocessing-")
     try:
         (work / "frames").mkdir()
-        luts = np.lib.format.open_memmap(
-            work / "luts.npy", mode="w+", dtype=np.float64, shape=(len(frames), grid.num_levels)
-        )
+        # written row by row through the file, not a writable mapping: a mapping's dirty pages would
+        # all count as this process's memory until the end (0.5 MB per frame on a 16-bit grid)
+        luts = open(work / "luts.npy", "wb")
+        header = {"descr": "<f8", "fortran_order": False, "shape": (len(frames), grid.num_levels)}
+        np.lib.format.write_array_header_1_0(luts, header)
         current: List[np.ndarray] = []  # the frame frame_luts is on: each file is read once
 
         def raw_frames():
@@ -176,11 +189,10 @@ def preprocess(
 
         stream = frame_luts(raw_frames(), grid, rng.low, rng.high, config, in_reference=train)
         for t, lut in enumerate(tqdm(stream, total=len(frames), desc=f"Preprocessing ({config.variant})")):
-            luts[t] = lut
+            luts.write(np.ascontiguousarray(lut, dtype="<f8").tobytes())
             if train[t]:
                 np.save(work / "frames" / f"{t:05d}.npy", rng.normalize(apply_lut(lut, current[0], grid)))
-        luts.flush()
-        del luts
+        luts.close()
         meta = {
             "config": asdict(config),
             "range": asdict(rng),
