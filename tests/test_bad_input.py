@@ -75,3 +75,21 @@ def test_a_data_error_in_ns_train_is_one_line_unless_debugging(tmp_path):
         command, capture_output=True, text=True, timeout=300, cwd=tmp_path, env={**env, "THERMAL_WILD_NS_DEBUG": "1"}
     )
     assert debug.returncode == 1 and "Traceback" in debug.stderr and "non-finite values" in debug.stderr
+
+
+@pytest.mark.slow
+def test_ns_eval_of_a_run_without_checkpoints_fails_before_reading_data(tmp_path):
+    config = _saved_config(tmp_path / "run", "wild-thermal")
+    ns_eval = str(Path(sys.executable).parent / "ns-eval")
+    result = subprocess.run(
+        [ns_eval, "--load-config", str(config), "--output-path", str(tmp_path / "eval.json")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 1 and "no checkpoint of this run to load" in result.stderr, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    # the demo dataparser would have generated its scene, and preprocessing filled its cache
+    assert not (tmp_path / "run" / "scene").exists() and not (tmp_path / "run" / ".thermal_cache").exists()
+    assert not (tmp_path / "eval.json").exists()

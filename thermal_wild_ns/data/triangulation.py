@@ -19,6 +19,7 @@ import json
 import shutil
 import time
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Dict, Sequence, Tuple
 
@@ -123,12 +124,19 @@ def triangulate(
 
     sift = cv2.SIFT_create(nfeatures=config.max_features, contrastThreshold=config.contrast_threshold)
     clahe = cv2.createCLAHE(clipLimit=config.clahe_clip, tileGridSize=(8, 8))
-    keypoints, descriptors = [], []
-    for frame in tqdm(frames, desc="SIFT on thermal frames"):
+    keypoints = []
+    # descriptors (~0.5-1 MB per frame) wait on disk, not in memory: memory stays flat in the frame count
+    store = work_dir / "descriptors"
+    store.mkdir()
+    for i, frame in enumerate(tqdm(frames, desc="SIFT on thermal frames")):
         kp, des = sift.detectAndCompute(_feature_image(frame, radiometric_range, clahe), None)
         # OpenCV puts pixel centres on integers, COLMAP at +0.5
         keypoints.append(np.array([k.pt for k in kp], dtype=np.float32).reshape(-1, 2) + 0.5)
-        descriptors.append(des if des is not None else np.zeros((0, 128), np.float32))
+        np.save(store / f"{i:05d}.npy", des if des is not None else np.zeros((0, 128), np.float32))
+
+    @lru_cache(maxsize=2 * config.neighbours + 2)  # pairs are sorted by their first frame: it stays cached
+    def descriptors(i: int) -> np.ndarray:
+        return np.load(store / f"{i:05d}.npy")
 
     rec = pycolmap.Reconstruction()
     database = pycolmap.Database.open(str(work_dir / "database.db"))
@@ -148,9 +156,9 @@ def triangulate(
     pairs = _pairs(frames, config)
     inlier_counts = []
     for i, j in tqdm(pairs, desc="Matching frame pairs"):
-        if len(descriptors[i]) < 2 or len(descriptors[j]) < 2:
+        if len(keypoints[i]) < 2 or len(keypoints[j]) < 2:
             continue
-        knn = matcher.knnMatch(descriptors[i], descriptors[j], k=2)
+        knn = matcher.knnMatch(descriptors(i), descriptors(j), k=2)
         good = np.array(
             [
                 (m[0].queryIdx, m[0].trainIdx)
@@ -168,6 +176,8 @@ def triangulate(
         geometry.inlier_matches = inliers
         database.write_two_view_geometry(i + 1, j + 1, geometry)
     database.close()
+    descriptors.cache_clear()
+    shutil.rmtree(store)
 
     (work_dir / "sparse").mkdir()
     # image_path: colours are not needed (and COLMAP would read RGB); the model lands in sparse/

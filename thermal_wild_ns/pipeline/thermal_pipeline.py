@@ -13,7 +13,7 @@ import torch
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
-from thermal_wild_ns.errors import report_input_errors_briefly
+from thermal_wild_ns.errors import MissingInput, report_input_errors_briefly
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
 
 
@@ -23,6 +23,9 @@ class ThermalPipelineConfig(VanillaPipelineConfig):
     eval_fit_steps: int = 100
     """Optimisation steps per held-out view of the `half` and `oracle` protocols (their frame
     embedding fit); 0 scores them without fitting an embedding."""
+    checkpoint_dir: Optional[Path] = None
+    """Where the run keeps its checkpoints, recorded when its config is saved, so that ns-eval,
+    ns-render and ns-viewer can find a run without checkpoints before they read any data."""
 
 
 def colour_bar(pipeline, state: PhotometricState, ticks: int = 5) -> str:
@@ -45,6 +48,10 @@ class ThermalPipeline(VanillaPipeline):
         # every nerfstudio command that loads a checkpoint of this plugin builds this pipeline first
         prepare_checkpoint_commands()
         report_input_errors_briefly()
+        test_mode = kwargs.get("test_mode", args[1] if len(args) > 1 else "val")
+        loads_a_run = test_mode in ("test", "inference")  # nerfstudio's eval_setup; training uses "val"
+        if loads_a_run and config.checkpoint_dir is not None and not list(Path(config.checkpoint_dir).glob("*.ckpt")):
+            raise MissingInput(f"{config.checkpoint_dir}: no checkpoint of this run to load (did it save one?)")
         super().__init__(config, *args, **kwargs)
         if getattr(self.model, "viewer_colour_bar", None) is not None:
             self.model.on_photometric_state_change = self.update_colour_bar

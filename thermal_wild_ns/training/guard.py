@@ -61,6 +61,12 @@ class GuardedTrainerConfig(TrainerConfig):
     guard: DivergenceGuardConfig = field(default_factory=DivergenceGuardConfig)
     """Divergence and collapse detection."""
 
+    def save_config(self) -> None:
+        # the loading commands check for checkpoints before reading data (ThermalPipeline)
+        if hasattr(self.pipeline, "checkpoint_dir"):
+            self.pipeline.checkpoint_dir = self.get_checkpoint_dir()
+        super().save_config()
+
 
 class DivergenceGuard:
     """The checks, independent of the trainer (`check_step` before the optimizer step,
