@@ -19,6 +19,12 @@ def _saved_config(out: Path, method: str) -> Path:
     return config.get_base_dir() / "config.yml"
 
 
+def _command(name: str, *args: str, cwd: Path, env=None) -> subprocess.CompletedProcess:
+    """One of the venv's commands, run to its end in `cwd`."""
+    command = [str(Path(sys.executable).parent / name), *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=cwd, env=env)
+
+
 def test_trained_run_checks(tmp_path):
     with pytest.raises(SystemExit, match=r"nowhere\.yml: no such file"):
         check_trained_run(tmp_path / "nowhere.yml")
@@ -42,13 +48,7 @@ def test_loading_commands_fail_fast_and_leave_nothing(tmp_path, command):
     config = _saved_config(tmp_path / "run", "splatfacto")
     out = tmp_path / "out"
     where = ["--output-dir", str(out)] if command[0] == "wild-thermal-export" else ["--output-path", str(out / "v.mp4")]
-    result = subprocess.run(
-        [str(Path(sys.executable).parent / command[0]), *command[1:], "--load-config", str(config), *where],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=tmp_path,
-    )
+    result = _command(command[0], *command[1:], "--load-config", str(config), *where, cwd=tmp_path)
     assert result.returncode == 1 and "a 'splatfacto' run" in result.stderr, result.stderr[-1500:]
     assert "Traceback" not in result.stderr
     assert not out.exists() and not (tmp_path / "outputs").exists()  # no output folder, no data cache
@@ -65,28 +65,21 @@ def test_a_data_error_in_ns_train_is_one_line_unless_debugging(tmp_path):
     meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
     meta["frames"][2]["transform_matrix"][0][3] = float("nan")
     (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
-    ns_train = [str(Path(sys.executable).parent / "ns-train"), "wild-thermal", "--vis", "tensorboard"]
-    command = [*ns_train, "--output-dir", str(tmp_path / "out"), "thermal", "--data", str(tmp_path / "s")]
+    args = ["wild-thermal", "--vis", "tensorboard", "--output-dir", str(tmp_path / "out"), "thermal"]
+    args += ["--data", str(tmp_path / "s")]
     env = {k: v for k, v in os.environ.items() if k != "THERMAL_WILD_NS_DEBUG"}
-    result = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
+    result = _command("ns-train", *args, cwd=tmp_path, env=env)
     assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr[-2000:]
     assert "error: " in result.stderr and "frame images/0002.png: camera pose has non-finite values" in result.stderr
-    debug = subprocess.run(
-        command, capture_output=True, text=True, timeout=300, cwd=tmp_path, env={**env, "THERMAL_WILD_NS_DEBUG": "1"}
-    )
+    debug = _command("ns-train", *args, cwd=tmp_path, env={**env, "THERMAL_WILD_NS_DEBUG": "1"})
     assert debug.returncode == 1 and "Traceback" in debug.stderr and "non-finite values" in debug.stderr
 
 
 @pytest.mark.slow
 def test_ns_eval_of_a_run_without_checkpoints_fails_before_reading_data(tmp_path):
     config = _saved_config(tmp_path / "run", "wild-thermal")
-    ns_eval = str(Path(sys.executable).parent / "ns-eval")
-    result = subprocess.run(
-        [ns_eval, "--load-config", str(config), "--output-path", str(tmp_path / "eval.json")],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=tmp_path,
+    result = _command(
+        "ns-eval", "--load-config", str(config), "--output-path", str(tmp_path / "eval.json"), cwd=tmp_path
     )
     assert result.returncode == 1 and "no checkpoint of this run to load" in result.stderr, result.stderr[-2000:]
     assert "Traceback" not in result.stderr

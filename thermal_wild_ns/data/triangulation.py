@@ -125,7 +125,8 @@ def triangulate(
     sift = cv2.SIFT_create(nfeatures=config.max_features, contrastThreshold=config.contrast_threshold)
     clahe = cv2.createCLAHE(clipLimit=config.clahe_clip, tileGridSize=(8, 8))
     keypoints = []
-    # descriptors (~0.5-1 MB per frame) wait on disk, not in memory: memory stays flat in the frame count
+    # descriptors (128 float32 per keypoint) wait on disk, not in memory, so memory does not grow
+    # with them as the frame count grows
     store = work_dir / "descriptors"
     store.mkdir()
     for i, frame in enumerate(tqdm(frames, desc="SIFT on thermal frames")):

@@ -6,6 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def checkpoints_in(folder: Path) -> list:
+    """The nerfstudio checkpoints (`step-*.ckpt`) in `folder`, oldest first; none if it is missing."""
+    return sorted(Path(folder).glob("step-*.ckpt"))
+
+
 def check_trained_run(load_config: Path) -> None:
     """`load_config` is a `wild-thermal*` run's config.yml with at least one checkpoint; otherwise
     exit with one line (a user's input error, not a bug: no traceback)."""
@@ -24,5 +29,5 @@ def check_trained_run(load_config: Path) -> None:
     if not str(method).startswith("wild-thermal"):
         raise SystemExit(f"--load-config {path}: a '{method}' run; this command needs a wild-thermal* run")
     checkpoints = Path(config.get_checkpoint_dir())
-    if not sorted(checkpoints.glob("step-*.ckpt")):
+    if not checkpoints_in(checkpoints):
         raise SystemExit(f"--load-config {path}: no checkpoint in {checkpoints} (did the run save one?)")

@@ -15,6 +15,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
 from thermal_wild_ns.errors import MissingInput, report_input_errors_briefly
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
+from thermal_wild_ns.pipeline.run_check import checkpoints_in
 
 
 @dataclass
@@ -50,7 +51,7 @@ class ThermalPipeline(VanillaPipeline):
         report_input_errors_briefly()
         test_mode = kwargs.get("test_mode", args[1] if len(args) > 1 else "val")
         loads_a_run = test_mode in ("test", "inference")  # nerfstudio's eval_setup; training uses "val"
-        if loads_a_run and config.checkpoint_dir is not None and not list(Path(config.checkpoint_dir).glob("*.ckpt")):
+        if loads_a_run and config.checkpoint_dir is not None and not checkpoints_in(config.checkpoint_dir):
             raise MissingInput(f"{config.checkpoint_dir}: no checkpoint of this run to load (did it save one?)")
         super().__init__(config, *args, **kwargs)
         if getattr(self.model, "viewer_colour_bar", None) is not None:

@@ -26,7 +26,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
-from thermal_wild_ns.errors import report_input_errors_briefly
+from thermal_wild_ns.pipeline.run_check import checkpoints_in
 
 
 class TrainingDiverged(RuntimeError):
@@ -162,9 +162,8 @@ class GuardedTrainer(trainer_after_load_class()):
     config: GuardedTrainerConfig
 
     def setup(self, test_mode="val"):
-        report_input_errors_briefly()
         load_dir = self.config.load_dir
-        if load_dir is not None and not sorted(Path(load_dir).glob("step-*.ckpt")):
+        if load_dir is not None and not checkpoints_in(load_dir):
             what = "no such folder" if not Path(load_dir).is_dir() else "no step-*.ckpt checkpoint in it"
             # a user's typo, not a bug: one line, no traceback (before the data is read)
             raise SystemExit(f"--load-dir {load_dir}: {what} (a run's checkpoints are in RUN/nerfstudio_models)")
