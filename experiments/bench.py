@@ -79,6 +79,9 @@ class BenchArgs:
     """Resolution warm-up of every method, splatfacto included: train at 1/2^n resolution first,
     halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
     128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
+    auto_stop: bool = True
+    """The automatic stop of this plugin's methods (`training/auto_stop.py`, its check interval scaled
+    with the schedule like the densification's); off: every run trains `--steps` steps."""
     fit_steps: int = 100
     """Embedding optimisation steps per view of the `half` and `oracle` protocols."""
     output_dir: Path = Path("outputs/bench")
@@ -161,6 +164,10 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     config.machine.device_type = "cuda" if torch.cuda.is_available() else "cpu"
     config.machine.seed = seed
     scale_schedule(config.pipeline.model, args.schedule or args.steps)
+    if hasattr(config, "auto_stop"):
+        config.auto_stop.enabled = args.auto_stop
+        schedule = min(args.schedule or args.steps, FULL_SCHEDULE)
+        config.auto_stop.check_every = max(config.auto_stop.check_every * schedule // FULL_SCHEDULE, 10)
     return config
 
 
@@ -277,14 +284,17 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
                 )
     fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
     seconds = recorder.seconds
+    steps = trainer.step + 1  # fewer than asked where the automatic stop ended the run
+    record = config.get_base_dir() / "auto_stop.json"
     return {
         "method": label,
         "scene": scene_name(scene),
         "seed": seed,
         "path": path,
-        "steps": args.steps,
+        "steps": steps,
+        "auto_stop": json.loads(record.read_text()) if record.exists() else None,
         "train_seconds": round(seconds, 2),
-        "ms_per_step": round(1000 * seconds / args.steps, 3),
+        "ms_per_step": round(1000 * seconds / steps, 3),
         "peak_gpu_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
         "torch_threads": torch.get_num_threads(),
         # set by the GPU queues: a timing shared with other runs is not that of a run alone
@@ -320,7 +330,8 @@ def aggregate(runs: List[Dict]) -> Dict[Tuple[str, str], Dict]:
         keys = [
             k
             for k in (done[0] if done else {})
-            if k.startswith(("psnr_", "ssim_")) or k in ("ms_per_step", "train_seconds", "gaussians", "model_mb")
+            if k.startswith(("psnr_", "ssim_"))
+            or k in ("steps", "ms_per_step", "train_seconds", "gaussians", "model_mb")
         ]
         out[key] = {k: spread([r[k] for r in done]) for k in keys}
         out[key]["failed"] = len(group) - len(done)
@@ -393,10 +404,21 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
             f" ({r['runs_per_gpu']} runs per GPU)" if r.get("runs_per_gpu", 1) > 1 else ""
         )  # not the timing of a run alone
         lines.append(
-            f"| {m} | {s} | {st['ms_per_step']['n']} | {r['steps']} | {_cell(st, 'train_seconds', 1)}{shared} | "
+            f"| {m} | {s} | {st['ms_per_step']['n']} | {_cell(st, 'steps', 0)} | "
+            f"{_cell(st, 'train_seconds', 1)}{shared} | "
             f"{_cell(st, 'ms_per_step')} | {mem} | {_cell(st, 'gaussians', 0)} | {_cell(st, 'model_mb', 1)} | "
             f"{fps_cell} |"
         )
+    stops = [r for r in runs if r.get("auto_stop")]
+    if stops:
+        lines += ["", "Automatic stop (`training/auto_stop.py`): steps trained of those asked, model kept, why:", ""]
+        for r in stops:
+            a = r["auto_stop"]
+            why = a["reason"] or "no plateau"
+            lines.append(
+                f"- {r['method']} on {r['scene']} (seed {r.get('seed', 0)}): {a['last_step'] + 1} of "
+                f"{a['steps_asked']} steps, model of step {a['kept_step']} kept; {why}"
+            )
     stress = [r for r in runs if r["scene"].startswith("stress-") and "failed" not in r and r.get("path")]
     if stress:
         faults = list(dict.fromkeys(r["scene"] for r in runs if r["scene"].startswith("stress-")))
@@ -452,31 +474,43 @@ def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "alig
             for r in runs
             if r["scene"] == scene and "failed" not in r and r["curve"] and f"psnr_{protocol}" in r["curve"][0]
         ]
+        reference = [r[f"psnr_{protocol}"] for r in done if r["method"].startswith("splatfacto")]
+        target = float(np.mean(reference)) if reference else None  # splatfacto's final level: time to quality
         for method in dict.fromkeys(r["method"] for r in done):
             curves = [r["curve"] for r in done if r["method"] == method]
-            steps = sorted(set.intersection(*({p["step"] for p in c} for c in curves)))
-            at = lambda c, key, steps=steps: [next(p[key] for p in c if p["step"] == s) for s in steps]
-            xs = np.mean([at(c, "seconds") for c in curves], axis=0)
-            ys = np.array([at(c, f"psnr_{protocol}") for c in curves])
+            # every checkpoint step some seed reached (a run the automatic stop ended has fewer)
+            steps = sorted(set.union(*({p["step"] for p in c} for c in curves)))
+            at = lambda key, s, curves=curves: [p[key] for c in curves for p in c if p["step"] == s]
+            xs = np.array([np.mean(at("seconds", s)) for s in steps])
+            ys = [np.array(at(f"psnr_{protocol}", s)) for s in steps]
+            mean = np.array([y.mean() for y in ys])
             style = (
                 {"lw": 2.5, "color": "black"}
                 if method == "wild-thermal"
                 else ({"ls": "--"} if method.startswith("splatfacto") else {})
             )
+            low = min(float(y.min()) for y in ys)
             label = f"{method} ({len(curves)} seed{'s' if len(curves) > 1 else ''})" + (
-                f" (falls to {ys.min():.0f} dB)" if ys.min() < floor else ""
+                f" (falls to {low:.0f} dB)" if low < floor else ""
             )
-            (line,) = ax.plot(xs, np.maximum(ys.mean(0), floor), marker="o", ms=3, label=label, **style)
-            minima.append(float(ys.min()))
+            (line,) = ax.plot(xs, np.maximum(mean, floor), marker="o", ms=3, label=label, **style)
             if len(curves) > 1:
                 ax.fill_between(
                     xs,
-                    np.maximum(ys.min(0), floor),
-                    np.maximum(ys.max(0), floor),
+                    np.maximum([y.min() for y in ys], floor),
+                    np.maximum([y.max() for y in ys], floor),
                     color=line.get_color(),
                     alpha=0.2,
                     lw=0,
                 )
+            reached = np.flatnonzero(mean >= target) if target is not None else []
+            if len(reached):  # where the method first reaches splatfacto's final score
+                k = int(reached[0])
+                ax.plot(xs[k], mean[k], marker="*", ms=14, color=line.get_color(), mec="black", zorder=5)
+            minima.append(low)
+        if target is not None:
+            label = f"splatfacto's final {protocol} (star: first reached)"
+            ax.axhline(target, color="grey", lw=0.8, ls=":", label=label)
         ax.set(
             title=f"{scene}: held-out {protocol} PSNR vs training time",
             xlabel="training wall-clock seconds (evaluation excluded)",
@@ -570,7 +604,9 @@ def _command_line(settings: BenchArgs) -> List[str]:
     command = [sys.executable, "-m", "experiments.bench"]
     for field in dataclasses.fields(settings):
         value = getattr(settings, field.name)
-        if field.name not in ("gpus", "runs_per_gpu", "merge") and value is not None:
+        if field.name not in ("gpus", "runs_per_gpu", "merge") and isinstance(value, bool):
+            command.append(f"--{'' if value else 'no-'}{field.name.replace('_', '-')}")
+        elif field.name not in ("gpus", "runs_per_gpu", "merge") and value is not None:
             command += [f"--{field.name.replace('_', '-')}", *map(str, value if isinstance(value, tuple) else (value,))]
     return command
 

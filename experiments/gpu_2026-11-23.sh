@@ -5,7 +5,7 @@
 # plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
 # image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b}
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 
@@ -53,6 +53,30 @@ case "$plan" in
   demo-b)
     bundle
     bench --scenes demo --methods wild-thermal-emission-mlp wild-thermal --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000
+    ;;
+  # the automatic stop (training/auto_stop.py) on: the same runs as dunr-wild-thermal and demo-b's full method
+  dunr-auto)  # the first 15,000 steps of the 30k schedule, the 3 seeds side by side on the one GPU (timings shared)
+    bundle
+    bench --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 15000 \
+      --schedule 30000 --eval-at 1000 2000 5000 10000 15000 --auto-stop --runs-per-gpu 3 --fps-frames 0
+    cp /tmp/bench-$plan/gpu0/*/runs/dunr/*/wild-thermal/run/auto_stop.json "$OUT/" 2>/dev/null
+    # where a baked frame's time goes (the first seed's run)
+    timeout 60 python3 -m experiments.render_fps --frames 300 --profile-frames 50 --output-dir "$OUT/render" \
+      --load-config /tmp/bench-$plan/gpu0/00_dunr_wild-thermal_seed0/runs/dunr/wild-thermal_seed0/wild-thermal/run/config.yml \
+      | tail -12
+    ;;
+  demo-auto)
+    bundle
+    bench --scenes demo --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --auto-stop
+    ;;
+  speed)  # a training step of the full method and of splatfacto on DUNR, then both in one bench run (no automatic stop)
+    bundle
+    for method in wild-thermal splatfacto; do
+      timeout 150 python3 -m experiments.profile_step --scene "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" \
+        --method $method --output-dir "$OUT/profile-$method" 2>&1 | grep -E "ms/step|syncs per step"
+    done
+    bench --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods splatfacto wild-thermal --steps 10000 \
+      --schedule 30000 --eval-at 1000 2000 5000 10000 --no-auto-stop --fit-steps 20
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -126,6 +126,7 @@ def profile(args: ProfileArgs) -> Dict:
         max_gaussians=args.max_gaussians,
         output_dir=args.output_dir,
         cache_dir=args.cache_dir,
+        auto_stop=False,  # every profiled step is a training step
     )
     trainer = setup_trainer(trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs"))
     cuda = torch.cuda.is_available()

@@ -8,7 +8,9 @@ cameras, in three ways:
 - `splat_only`: gsplat's rasterization of the same Gaussians and baked emission alone, no model
   code around it (the floor).
 Writes `fps.json` (frames per second per way, at the cameras' resolution, and the largest
-difference between baked and unbaked renders) to `--output-dir` and prints it.
+difference between baked and unbaked renders) to `--output-dir` and prints it. With
+`--profile-frames N` it also profiles N baked frames (host syncs by line, top operators by CPU
+time: where a frame's time goes beyond the splatting) into `render_profile.md`.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ class FpsArgs:
     frames: int = 500
     """Frames rendered per way (cycling over the test cameras), after 20 warm-up frames."""
     output_dir: Path = Path("outputs/render_fps")
+    profile_frames: int = 0
+    """Baked frames to profile (0: none)."""
 
 
 def _fps(render: Callable[[int], torch.Tensor], frames: int) -> float:
@@ -103,6 +107,42 @@ def measure_fps(pipeline, frames: int) -> Dict:
     return result
 
 
+def profile_baked(pipeline, frames: int) -> str:
+    """Markdown: host syncs per frame by line, and the top operators by CPU time, of `frames` baked renders."""
+    import collections
+    import warnings
+
+    from torch.profiler import ProfilerActivity, profile
+
+    model = pipeline.model
+    cameras = [camera.to(model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
+    render = lambda i: model.get_outputs_for_camera(cameras[i % len(cameras)])
+    syncs: Dict[str, int] = collections.Counter()
+    with torch.no_grad():
+        for i in range(5):
+            render(i)
+        if torch.cuda.is_available():
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                torch.cuda.set_sync_debug_mode("warn")
+                for i in range(5):
+                    render(i)
+                torch.cuda.set_sync_debug_mode(0)
+            for w in caught:
+                if "synchroniz" in str(w.message):
+                    syncs[f"{w.filename}:{w.lineno}"] += 1
+        activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if torch.cuda.is_available() else [])
+        with profile(activities=activities) as prof:
+            for i in range(frames):
+                render(i)
+            synchronize()
+    lines = ["Host syncs per baked frame:", ""] + [f"- {n / 5:.1f} x {k}" for k, n in syncs.most_common()]
+    lines += ["", "| operator | calls/frame | self CPU ms/frame |", "| --- | --- | --- |"]
+    events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)[:30]
+    lines += [f"| {e.key[:70]} | {e.count / frames:.1f} | {e.self_cpu_time_total / 1e3 / frames:.3f} |" for e in events]
+    return "\n".join(lines) + "\n"
+
+
 def measure(args: FpsArgs) -> Dict:
     from nerfstudio.utils.eval_utils import eval_setup
 
@@ -117,6 +157,8 @@ def measure(args: FpsArgs) -> Dict:
         **measure_fps(pipeline, args.frames),
     }
     args.output_dir.mkdir(parents=True, exist_ok=True)
+    if args.profile_frames > 0:
+        (args.output_dir / "render_profile.md").write_text(profile_baked(pipeline, args.profile_frames))
     (args.output_dir / "fps.json").write_text(json.dumps(result, indent=1))
     print(json.dumps(result, indent=1))
     return result

@@ -354,3 +354,23 @@ def test_viewer_controls_pick_colormap_and_embedding():
         model.viewer_state.options == ["canonical", "capture time"]
         and model.viewer_time.max == model.frame_times[-1] == len(model.frame_times) - 1
     )
+
+
+def test_world_to_camera_is_splatfactos_view_matrix():
+    """gsplat's view matrix: the inverse of the camera-to-world pose with y and z flipped (what
+    splatfacto's get_viewmat computes), bit for bit the product form it replaced."""
+    from thermal_wild_ns.rendering import world_to_camera
+
+    g = torch.Generator().manual_seed(5)
+    q, _ = torch.linalg.qr(torch.randn(3, 3, 3, generator=g))
+    c2w = torch.cat([q, torch.randn(3, 3, 1, generator=g)], dim=2)  # [3, 3, 4]
+    R = c2w[:, :3, :3] * torch.tensor([1.0, -1.0, -1.0])
+    expected = torch.zeros(3, 4, 4)
+    expected[:, :3, :3] = R.transpose(1, 2)
+    expected[:, :3, 3:4] = -R.transpose(1, 2) @ c2w[:, :3, 3:4]
+    expected[:, 3, 3] = 1.0
+    viewmat = world_to_camera(c2w)
+    assert torch.equal(viewmat, expected)
+    pose = torch.cat([c2w, torch.tensor([[[0.0, 0, 0, 1]]]).expand(3, 1, 4)], dim=1)
+    flip = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0]))
+    assert torch.allclose(viewmat @ pose @ flip, torch.eye(4).expand(3, 4, 4), atol=1e-5)

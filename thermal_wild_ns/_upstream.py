@@ -307,16 +307,25 @@ def single_channel_datamanager_class():
 
 def trainer_after_load_class():
     """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
-    state arrives. This subclass calls `after_checkpoint_load()` right after it."""
+    state arrives, and `Trainer._after_train` (private) saves the final checkpoint with no hook
+    before it. This subclass calls `after_checkpoint_load()` right after the first and
+    `before_final_checkpoint()` right before the second."""
     from nerfstudio.engine.trainer import Trainer
 
     class TrainerAfterLoad(Trainer):
         def after_checkpoint_load(self) -> None:
             pass
 
+        def before_final_checkpoint(self) -> None:
+            pass
+
         def _load_checkpoint(self) -> None:
             super()._load_checkpoint()
             self.after_checkpoint_load()
+
+        def _after_train(self) -> None:
+            self.before_final_checkpoint()
+            super()._after_train()
 
     return TrainerAfterLoad
 

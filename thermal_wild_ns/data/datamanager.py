@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Dict, List, Optional, Type
+from typing import Dict, List, Optional, Tuple, Type
 
 import numpy as np
 import torch
@@ -42,17 +42,23 @@ class ThermalDataset(InputDataset):
     def get_numpy_image(self, image_idx: int) -> np.ndarray:
         sequence: Optional[PreprocessedSequence] = self.metadata.get("preprocessed")
         if sequence is not None:  # training frames of preprocessed methods
-            image = sequence.read_frame(self.frame_index(image_idx))
+            image = self._scaled(sequence.read_frame(self.frame_index(image_idx)))
         else:  # raw frames (held-out views are always read raw: they are never preprocessed)
-            image = self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx])
-        if self.scale_factor != 1.0:
-            import cv2
-
-            h, w = image.shape
-            image = cv2.resize(
-                image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA
-            )
+            image = self.original_image(image_idx)
         return np.repeat(image[..., None], 3, axis=-1) if self.metadata.get("grey_rgb") else image[..., None]
+
+    def original_image(self, image_idx: int) -> np.ndarray:
+        """The frame as captured [H, W] float32, in the dataset-normalised radiometric scale (never
+        preprocessed), at the dataset's scale factor."""
+        return self._scaled(self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx]))
+
+    def _scaled(self, image: np.ndarray) -> np.ndarray:
+        if self.scale_factor == 1.0:
+            return image
+        import cv2
+
+        h, w = image.shape
+        return cv2.resize(image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)
 
     def get_image_float32(self, image_idx: int) -> torch.Tensor:
         return torch.from_numpy(self.get_numpy_image(image_idx))
@@ -130,21 +136,28 @@ class ThermalDatamanager(single_channel_datamanager_class()):
         outputs.metadata["grey_rgb"] = self.config.grey_rgb
         return outputs
 
+    held_back: Tuple[int, ...] = ()
+    """Training images kept out of the gradient (set by the trainer's automatic stop, which scores
+    the model on them)."""
+
+    def hold_back(self, images: Tuple[int, ...]) -> None:
+        self.held_back = tuple(sorted(images))
+        self._order = (None, [])
+
     def train_order(self, epoch: int) -> List[int]:
-        """The permutation of training images for pass `epoch` (a function of the seed and the pass only)."""
+        """The permutation of the trained images (all but `held_back`) for pass `epoch` (a function
+        of the seed, the pass and the held-back images only)."""
         if getattr(self, "_order", (None,))[0] != epoch:
-            count = len(self.train_dataset)
-            self._order = (
-                epoch,
-                np.random.default_rng([self.config.train_order_seed, epoch]).permutation(count).tolist(),
-            )
+            trained = [k for k in range(len(self.train_dataset)) if k not in self.held_back]
+            permutation = np.random.default_rng([self.config.train_order_seed, epoch]).permutation(len(trained))
+            self._order = (epoch, [trained[k] for k in permutation])
         return self._order[1]
 
     def next_train(self, step: int):
         # nerfstudio's next_train takes the head of its list of unseen cameras: make that the rest of this
         # pass from `step` on, so the image is a function of the step and a resumed run sees what the
         # uninterrupted one would (no per-step reshuffle: the list only refills at a pass's end)
-        epoch, position = divmod(step, len(self.train_dataset))
+        epoch, position = divmod(step, len(self.train_dataset) - len(self.held_back))
         set_training_order(self, self.train_order(epoch)[position:])
         camera, data = super().next_train(step)
         if self.config.host_cameras:

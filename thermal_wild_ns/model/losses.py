@@ -12,10 +12,10 @@ from torch import Tensor
 
 @functools.lru_cache(maxsize=8)  # built once per device and dtype, not at every loss evaluation
 def _gaussian_window(size: int, sigma: float, device, dtype) -> Tensor:
+    """The normalised 1-D Gaussian [size]; the 2-D SSIM window is its outer product."""
     x = torch.arange(size, device=device, dtype=dtype) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
-    g = g / g.sum()
-    return (g[:, None] * g[None, :])[None, None]  # [1, 1, size, size]
+    return g / g.sum()
 
 
 def ssim(
@@ -25,11 +25,14 @@ def ssim(
     K1 = 0.01, K2 = 0.03, 'valid' filtering (as pytorch_msssim, which nerfstudio reports)."""
     x = pred.permute(2, 0, 1)[None]  # [1, 1, H, W]
     y = target.permute(2, 0, 1)[None]
-    w = _gaussian_window(window, sigma, x.device, x.dtype).expand(5, 1, -1, -1)
+    g = _gaussian_window(window, sigma, x.device, x.dtype)
     c1 = (0.01 * data_range) ** 2
     c2 = (0.03 * data_range) ** 2
-    # the five local moments in one grouped convolution (one launch instead of five)
-    moments = F.conv2d(torch.cat([x, y, x * x, y * y, x * y], dim=1), w, groups=5)  # [1, 5, H', W']
+    # the five local moments in one grouped convolution per axis: the Gaussian window is separable,
+    # and two 1-D passes cost 2 x 11 instead of 121 multiply-adds per pixel
+    moments = torch.cat([x, y, x * x, y * y, x * y], dim=1)  # [1, 5, H, W]
+    moments = F.conv2d(moments, g.view(1, 1, -1, 1).expand(5, 1, -1, -1), groups=5)  # [1, 5, H', W]
+    moments = F.conv2d(moments, g.view(1, 1, 1, -1).expand(5, 1, -1, -1), groups=5)  # [1, 5, H', W']
     mu_x, mu_y, exx, eyy, exy = moments[0]
     mu_xy, mu_xx, mu_yy = mu_x * mu_y, mu_x * mu_x, mu_y * mu_y
     ssim_map = ((2 * mu_xy + c1) * (2 * (exy - mu_xy) + c2)) / ((mu_xx + mu_yy + c1) * (exx - mu_xx + eyy - mu_yy + c2))

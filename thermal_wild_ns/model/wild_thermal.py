@@ -15,7 +15,7 @@ Outside training the frame embedding is fixed (`inference_embedding`), so render
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Optional, Tuple, Type, Union
+from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
 import torch
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
@@ -327,6 +327,24 @@ class WildThermalModel(SplatfactoModel):
         i, j, w = time_weights(self.frame_times, t)
         weight = self.frame_embed.weight  # [F, Df]
         return weight[i] if w == 0.0 else (1.0 - w) * weight[i] + w * weight[j]
+
+    def interpolate_embeddings(self, rows: Sequence[int]) -> None:
+        """Set the embeddings of training images that take no gradient (held back to score the
+        run, `training/auto_stop.py`) to the state interpolated from the other training frames
+        around them, so that every use of the embeddings (their mean, `embedding_at`) sees
+        states the data shaped."""
+        from thermal_wild_ns.preprocessing.photometric import time_weights
+
+        held = set(int(r) for r in rows)
+        trained = [k for k in range(len(self.frame_times)) if k not in held]
+        if not held or not trained:
+            return
+        times = [self.frame_times[k] for k in trained]
+        weight = self.frame_embed.weight  # [F, Df]
+        with torch.no_grad():
+            for row in held:
+                i, j, w = time_weights(times, self.frame_times[row])
+                weight[row] = (1.0 - w) * weight[trained[i]] + w * weight[trained[j]]
 
     def inference_embedding(self) -> Tensor:
         """The frame embedding [Df] used outside training: `embedding_override` when set (evaluation
@@ -658,6 +676,12 @@ class WildThermalModel(SplatfactoModel):
             return
         with record_function("thermal/densify"):
             super().step_post_backward(step)
+
+    @property
+    def full_resolution_step(self) -> int:
+        """The first step trained at full resolution (splatfacto's warm-up halves the downscale
+        factor every `resolution_schedule` steps, from 2^num_downscales)."""
+        return self.config.num_downscales * self.config.resolution_schedule
 
     def schedule_moves_loss(self, step: int) -> bool:
         """Whether the training schedule itself moves the loss at `step`: the first step after an

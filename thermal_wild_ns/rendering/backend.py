@@ -38,9 +38,9 @@ def world_to_camera(camera_to_world: Tensor) -> Tensor:
     """gsplat's view matrices [C, 4, 4] (world to camera, OpenCV axes) from nerfstudio's
     camera-to-world poses [C, 3, 4] (OpenGL axes: y up, z back). The same as splatfacto's
     `get_viewmat`, without its `torch.compile` (which on a CPU compiles C++ at the first call)."""
-    R = camera_to_world[:, :3, :3] * torch.tensor(
-        [1.0, -1.0, -1.0], device=camera_to_world.device, dtype=camera_to_world.dtype
-    )  # [C, 3, 3]
+    # y and z flipped by negation, not by a product with a constant built from a Python list: that
+    # would be a host-to-device copy (and a sync) per render
+    R = torch.cat([camera_to_world[:, :3, :1], -camera_to_world[:, :3, 1:3]], dim=2)  # [C, 3, 3]
     t = camera_to_world[:, :3, 3:4]  # [C, 3, 1]
     viewmat = torch.zeros(camera_to_world.shape[0], 4, 4, device=camera_to_world.device, dtype=camera_to_world.dtype)
     viewmat[:, :3, :3] = R.transpose(1, 2)

@@ -9,12 +9,16 @@ changes), the recent losses are forgotten instead. Every
 the parameters hold NaN/inf, all Gaussians are gone or transparent, or too many steps in a row
 had to be skipped, training rolls back to that copy and goes on; after `max_rollbacks` it stops
 with `TrainingDiverged` (a clear message, and a non-zero exit code from `ns-train`).
+
+It also stops a run once the scene stops improving (`auto_stop.py`), says why, and writes the
+record of that decision to `auto_stop.json` beside the run's config.
 """
 
 from __future__ import annotations
 
 import collections
 import copy
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +31,7 @@ from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
 from thermal_wild_ns.pipeline.run_check import checkpoints_in
+from thermal_wild_ns.training.auto_stop import AutoStopConfig, PlateauRule, held_back_images, held_back_score
 
 
 class TrainingDiverged(RuntimeError):
@@ -60,6 +65,8 @@ class GuardedTrainerConfig(TrainerConfig):
     _target: Type = field(default_factory=lambda: GuardedTrainer)
     guard: DivergenceGuardConfig = field(default_factory=DivergenceGuardConfig)
     """Divergence and collapse detection."""
+    auto_stop: AutoStopConfig = field(default_factory=AutoStopConfig)
+    """Stop when the scene stops improving, scored on a few training frames held back from the gradient."""
 
     def save_config(self) -> None:
         # the loading commands check for checkpoints before reading data (ThermalPipeline)
@@ -172,6 +179,27 @@ class GuardedTrainer(trainer_after_load_class()):
         self._step = 0
         if self.config.guard.enabled:
             guard_optimizer_steps(self.optimizers, self._accept_step)
+        self._setup_auto_stop()
+
+    def _setup_auto_stop(self) -> None:
+        """Hold the scoring frames back from the datamanager's training order (before any step)."""
+        config, datamanager = self.config.auto_stop, self.pipeline.datamanager
+        self.progress: Optional[PlateauRule] = None
+        self.stop_reason: Optional[str] = None
+        if not config.enabled or not hasattr(datamanager, "hold_back"):
+            return
+        images = held_back_images(len(datamanager.train_dataset), config.held_back_frames)
+        if not images:
+            CONSOLE.log(
+                f"automatic stop off: {len(datamanager.train_dataset)} training images are too few to hold "
+                f"{config.held_back_frames} back"
+            )
+            return
+        datamanager.hold_back(images)
+        self.progress = PlateauRule(config.patience, config.min_improvement)
+        self._best: Optional[dict] = None
+        frames = [datamanager.train_dataset.frame_index(k) for k in images]
+        CONSOLE.log(f"automatic stop: capture frames {frames} are held back from training to score it")
 
     def _accept_step(self, param_groups) -> bool:
         """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
@@ -191,6 +219,7 @@ class GuardedTrainer(trainer_after_load_class()):
         # nerfstudio trains max_num_iterations steps after the step it resumed from; here it is the
         # total, so a resumed run ends where the uninterrupted one would
         total, every = self.config.max_num_iterations, self.config.steps_per_save
+        self.total_steps = total
         remaining = max(0, total - self._start_step)
         if remaining == 0:
             CONSOLE.log(f"the checkpoint is at step {self._start_step - 1}: --max-num-iterations {total} is reached")
@@ -208,6 +237,56 @@ class GuardedTrainer(trainer_after_load_class()):
 
     def train_iteration(self, step: int):
         self._step = step
+        result = self._guarded_iteration(step)
+        if self.progress is not None and (step + 1) % self.config.auto_stop.check_every == 0:
+            self._check_progress(step)
+        return result
+
+    def _check_progress(self, step: int) -> None:
+        """Score the held-back frames; stop training at a plateau. No score before the model trains
+        at full resolution: each step of the resolution warm-up moves the scores by itself."""
+        if step < getattr(self.pipeline.model, "full_resolution_step", 0):
+            return
+        score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
+        if self.progress.update(step, score) and self.config.auto_stop.keep_best:
+            self._best = self._snapshot(step)
+        if self.progress.plateaued and self.stop_reason is None:
+            self.stop_reason = self.progress.reason(self.config.auto_stop.check_every)
+            self.stop_training = True  # nerfstudio's loop ends before the next step
+            CONSOLE.log(f"[bold]step {step}: training stops: {self.stop_reason}")
+
+    def before_final_checkpoint(self) -> None:
+        if self.progress is None:
+            return
+        self.step = self._step  # the last step trained (nerfstudio's loop counted one past it at a stop)
+        if not self.progress.history or self.progress.history[-1][0] != self._step:
+            score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
+            self.progress.history.append((self._step, score))
+        final = self.progress.history[-1][1]
+        kept = self._step
+        if self._best is not None and self.progress.best > final + self.progress.min_improvement:
+            self._restore(self._best)
+            self.pipeline.model.step = self._step  # splatfacto's load_state_dict sets it to 30000
+            kept = self._best["step"]
+            CONSOLE.log(
+                f"[bold]kept the model of step {kept} ({self.progress.best:.2f} dB on the held-back frames, "
+                f"{final:.2f} at the end)"
+            )
+        datamanager = self.pipeline.datamanager
+        record = {
+            "held_back_frames": [datamanager.train_dataset.frame_index(k) for k in datamanager.held_back],
+            "steps_asked": self.total_steps,
+            "last_step": self._step,
+            "stopped_early": self.stop_reason is not None,
+            "reason": self.stop_reason,
+            "kept_step": kept,
+            "checks": [{"step": s, "psnr": round(v, 3)} for s, v in self.progress.history],
+        }
+        path = self.config.get_base_dir() / "auto_stop.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(record, indent=1))
+
+    def _guarded_iteration(self, step: int):
         if not self.config.guard.enabled:
             return super().train_iteration(step)
         moves_loss = getattr(self.pipeline.model, "schedule_moves_loss", None)

@@ -1,0 +1,130 @@
+"""The automatic stop: it ends a run whose held-back score has plateaued, lets one that is still
+improving train on, keeps the best model, and never trains on the frames it scores."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.training import auto_stop
+from thermal_wild_ns.training.auto_stop import PlateauRule, held_back_images
+
+
+def test_the_rule_stops_a_plateau_and_not_a_rise():
+    rising = PlateauRule(patience=3, min_improvement=0.05)
+    for k, score in enumerate([20.0, 20.5, 21.0, 21.2, 21.3, 21.4, 21.5]):
+        rising.update(k, score)
+        assert not rising.plateaued, k
+    flat = PlateauRule(patience=3, min_improvement=0.05)
+    for k, score in enumerate([20.0, 22.0, 22.03, 21.5, 22.04]):  # rises under 0.05 dB count as none
+        flat.update(k, score)
+    assert flat.plateaued and flat.best == 22.0 and flat.best_step == 1
+    assert not PlateauRule(3, 0.05, history=[]).plateaued
+
+
+def test_a_non_finite_score_is_never_a_best():
+    rule = PlateauRule(patience=2, min_improvement=0.0)
+    assert not rule.update(0, float("nan"))
+    assert rule.update(1, 10.0) and not rule.update(2, float("inf") * 0)
+
+
+def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():
+    assert held_back_images(45, 2) == (15, 29)
+    for n, k in [(10, 2), (40, 3), (200, 5)]:
+        images = held_back_images(n, k)
+        assert len(set(images)) == k and 0 < min(images) and max(images) < n - 1
+    assert held_back_images(9, 2) == () and held_back_images(30, 0) == ()
+
+
+def _trainer(tmp_path, demo_scene_dir, steps, **auto):
+    config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    for key, value in auto.items():
+        setattr(config.auto_stop, key, value)
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    return trainer
+
+
+def _scores(monkeypatch, values):
+    """Make the held-back score follow `values`, one per call (the rule's input, decided here)."""
+    calls = iter(values)
+    monkeypatch.setattr("thermal_wild_ns.training.guard.held_back_score", lambda pipeline, images: next(calls))
+
+
+def test_a_plateaued_run_stops_says_why_and_keeps_its_best_model(tmp_path, demo_scene_dir, monkeypatch):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=2)
+    kept = {}
+    snapshot = trainer._snapshot
+
+    def remember(step):
+        kept[step] = {k: v.detach().clone() for k, v in trainer.pipeline.model.named_parameters()}
+        return snapshot(step)
+
+    trainer._snapshot = remember
+    _scores(monkeypatch, [20.0, 25.0, 24.0, 24.5, 23.0])  # best at the 2nd check (step 7), then two without a rise
+    trainer.train()
+    record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
+    assert record["stopped_early"] and record["last_step"] == 15 and record["kept_step"] == 7
+    assert "has not risen" in record["reason"] and "step 7" in record["reason"]
+    assert [c["step"] for c in record["checks"]] == [3, 7, 11, 15]
+    assert trainer.step == 15  # the final checkpoint is named after the last step trained
+    for name, param in trainer.pipeline.model.named_parameters():  # the model of step 7 is what was saved
+        if name in kept[7] and param.shape == kept[7][name].shape:
+            assert torch.equal(param.detach(), kept[7][name]), name
+    assert sorted(p.name for p in trainer.checkpoint_dir.glob("step-*.ckpt"))[-1] == "step-000000015.ckpt"
+
+
+def test_an_improving_run_trains_every_step(tmp_path, demo_scene_dir, monkeypatch):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=24, check_every=4, patience=2)
+    _scores(monkeypatch, [20.0 + k for k in range(10)])
+    trainer.train()
+    record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
+    assert not record["stopped_early"] and record["last_step"] == 23 and record["kept_step"] == 23
+    assert record["reason"] is None
+
+
+def test_held_back_frames_take_no_gradient_and_get_their_neighbours_state(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=30, check_every=10)
+    datamanager, model = trainer.pipeline.datamanager, trainer.pipeline.model
+    held = datamanager.held_back
+    assert len(held) == 2
+    trained = len(datamanager.train_dataset) - 2
+    visited = {datamanager.train_order(epoch)[k] for epoch in range(3) for k in range(trained)}
+    assert visited.isdisjoint(held) and len(visited) == trained
+    trainer.train()
+    weight = model.frame_embed.weight.detach()
+    for row in held:  # linear between the trained neighbours (training images are in capture order)
+        t = model.frame_times
+        a, b = row - 1, row + 1
+        w = (t[row] - t[a]) / (t[b] - t[a])
+        assert torch.allclose(weight[row], (1 - w) * weight[a] + w * weight[b], atol=1e-6)
+    assert weight[held[0] - 1].abs().sum() > 0  # trained rows moved away from their zero start
+
+
+def test_the_score_is_the_time_protocol_on_the_held_back_frame(tmp_path, demo_scene_dir):
+    """PSNR in the original space, against the frame as captured, rendered with the embedding and
+    LUT interpolated between its trained neighbours (never its own LUT, which its pixels made)."""
+    from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
+    from thermal_wild_ns.preprocessing.photometric import blend_luts
+
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=1)
+    pipeline = trainer.pipeline
+    dataset, sequence, model = pipeline.datamanager.train_dataset, pipeline.datamanager.preprocessed, pipeline.model
+    image = pipeline.datamanager.held_back[0]
+    before, t, after = (dataset.frame_index(k) for k in (image - 1, image, image + 1))
+    lut = blend_luts(sequence.lut(before), sequence.lut(after), (t - before) / (after - before))
+    model.interpolate_embeddings(pipeline.datamanager.held_back)
+    camera = dataset.cameras[image : image + 1]
+    _, pred = render(pipeline, camera, PhotometricState("x", model.frame_embed.weight[image].detach(), lut))
+    truth = dataset.original_image(image)
+    expected = -10 * np.log10(np.mean((pred - truth) ** 2))
+    model.info = info = {"from": "the last training render"}
+    score = auto_stop.held_back_score(pipeline, [image])
+    assert score == pytest.approx(float(expected), abs=1e-3)
+    assert model.training and model.info is info  # scoring leaves the model as it found it
+    embedding = model.frame_embed.weight[image].detach()
+    _, own = render(pipeline, camera, PhotometricState("own", embedding, sequence.lut(t)))
+    assert abs(-10 * np.log10(np.mean((own - truth) ** 2)) - score) > 1e-3  # its own LUT would score otherwise

@@ -1,0 +1,120 @@
+"""Training that stops when the scene stops improving.
+
+A few training frames are held back from the gradient (evenly spread, never the first or last, so
+their photometric state can be interpolated from their neighbours). Every `check_every` steps, once
+the model trains at full resolution, it renders them at that interpolated state and is scored
+against them as captured (PSNR, original space): the question the `time` protocol asks of a
+held-out view, asked of frames that are not the test views. When the score has not risen by
+`min_improvement` dB in `patience` checks in a row, training stops, and the best-scoring model is
+kept. Quality on new views can fall after an early
+peak (frame-specific content leaking into the Gaussians); the held-back frames see that fall
+where the training loss, which keeps dropping, cannot.
+
+`PlateauRule` is the decision alone; `held_back_images` picks the frames; `held_back_score` scores.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+
+
+@dataclass
+class AutoStopConfig:
+    enabled: bool = True
+    """Stop once the held-back frames' score stops improving (off: train every step asked for)."""
+    held_back_frames: int = 2
+    """Training frames held back from the gradient to score the model on."""
+    check_every: int = 500
+    """Steps between two scores of the held-back frames."""
+    patience: int = 4
+    """Checks in a row without an improvement after which training stops."""
+    min_improvement: float = 0.05
+    """Rise of the score (PSNR, dB) over the best so far that counts as an improvement."""
+    keep_best: bool = True
+    """At a stop, and at the end of a run, go back to the model of the best-scoring check when the
+    last check scored lower."""
+
+
+@dataclass
+class PlateauRule:
+    """Whether a run's scores have stopped improving. `update` takes one score per check."""
+
+    patience: int
+    min_improvement: float
+    best: float = -math.inf
+    best_step: Optional[int] = None
+    since_best: int = 0
+    history: List[Tuple[int, float]] = field(default_factory=list)
+
+    def update(self, step: int, score: float) -> bool:
+        """Record the score of `step`; True when it is a new best (worth keeping)."""
+        self.history.append((step, float(score)))
+        if math.isfinite(score) and score > self.best + self.min_improvement:
+            self.best, self.best_step, self.since_best = float(score), step, 0
+            return True
+        self.since_best += 1
+        return False
+
+    @property
+    def plateaued(self) -> bool:
+        return self.since_best >= self.patience
+
+    def reason(self, check_every: int) -> str:
+        return (
+            f"the held-back frames' PSNR has not risen by {self.min_improvement:g} dB in {self.patience} checks "
+            f"({self.patience * check_every} steps); best {self.best:.2f} dB at step {self.best_step}"
+        )
+
+
+def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
+    """`count` image indices spread evenly over the interior of `num_images` training images in
+    capture order (never the first or the last: their state is interpolated between neighbours).
+    Empty when too few images would be left to train on (fewer than four per held-back frame)."""
+    if count <= 0 or num_images < 5 * count:
+        return ()
+    return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
+
+
+def held_back_score(pipeline, images: Sequence[int]) -> float:
+    """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
+    the held-back images rendered at the photometric state interpolated from the trained frames
+    around them, embedding and LUT alike: the `time` protocol, on training frames."""
+    from thermal_wild_ns.model.losses import psnr
+    from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
+    from thermal_wild_ns.preprocessing.photometric import blend_luts, time_weights
+
+    model, dataset = pipeline.model, pipeline.datamanager.train_dataset
+    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    held = set(images)
+    trained = [dataset.frame_index(k) for k in range(len(dataset)) if k not in held]  # capture positions
+    was_training = model.training
+    # a render leaves its rasterization record (`info`, `last_size`) on the model, where the
+    # densification callbacks after this step read the training render's
+    kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
+    fill = getattr(model, "interpolate_embeddings", None)
+    if fill is not None:
+        fill(images)
+    values = []
+    try:
+        for image in images:
+            t = dataset.frame_index(image)
+            lut = None
+            if sequence is not None:
+                i, j, w = time_weights(trained, t)
+                lut = blend_luts(sequence.lut(trained[i]), sequence.lut(trained[j]), w)
+            embedding = model.frame_embed.weight[image].detach() if fill is not None else None
+            camera = dataset.cameras[image : image + 1].to(model.device)
+            _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
+            truth = torch.from_numpy(dataset.original_image(image))  # [H, W]
+            finite = torch.isfinite(truth)
+            values.append(float(psnr(torch.from_numpy(pred)[finite], truth[finite])))
+    finally:
+        model.train(was_training)
+        for name, value in kept.items():
+            setattr(model, name, value)
+    return float(np.mean(values))
