@@ -79,6 +79,9 @@ class BenchArgs:
     """Resolution warm-up of every method, splatfacto included: train at 1/2^n resolution first,
     halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
     128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
+    loss_space: Optional[str] = None
+    """Where this plugin's methods compute the photometric loss, 'training' or 'original' (default:
+    their config's; `WildThermalModelConfig.loss_space`)."""
     auto_stop: bool = True
     """The automatic stop of this plugin's methods (`training/auto_stop.py`, its check interval scaled
     with the schedule like the densification's); off: every run trains `--steps` steps."""
@@ -144,6 +147,8 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
             config.pipeline.model.max_gaussians = args.max_gaussians
+        if args.loss_space is not None:
+            config.pipeline.model.loss_space = args.loss_space
         if args.equalization_strength is not None:
             preprocessing = config.pipeline.datamanager.preprocessing
             config.pipeline.datamanager.preprocessing = dataclasses.replace(
@@ -183,6 +188,8 @@ def run_label(method: str, args: BenchArgs) -> str:
         and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes
     ):
         changed.append(f"equalization-strength {args.equalization_strength:g}")
+    if args.loss_space is not None and method in METHODS:
+        changed.append(f"loss-space {args.loss_space}")
     return f"{method} ({', '.join(changed)})" if changed else method
 
 

@@ -5,7 +5,7 @@
 # plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
 # image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed}
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 
@@ -77,6 +77,20 @@ case "$plan" in
     done
     bench --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods splatfacto wild-thermal --steps 10000 \
       --schedule 30000 --eval-at 1000 2000 5000 10000 --no-auto-stop --fit-steps 20
+    ;;
+  loss-space)  # the photometric loss in the training space and in the original space, 3 seeds each, 3 runs at a time
+    bundle
+    for space in training original; do
+      timeout 230 python3 -m experiments.bench --output-dir /tmp/bench-$space --scenes "$PWD/.data/dunr" \
+        --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 5000 --schedule 30000 \
+        --eval-at 1000 2000 5000 --fit-steps 20 --fps-frames 300 --no-auto-stop --loss-space $space --runs-per-gpu 3 \
+        > "$OUT/loss-space-$space.log" 2>&1
+      for f in bench.json bench.md; do cp /tmp/bench-$space/$f "$OUT/loss-space-$space-$f" 2>/dev/null; done
+      grep -E "^\| wild" "$OUT/loss-space-$space-bench.md" | head -5
+    done
+    # where a baked frame's time goes now (a training-space run)
+    timeout 60 python3 -m experiments.render_fps --frames 300 --profile-frames 50 --output-dir "$OUT/render" \
+      --load-config /tmp/bench-training/gpu0/00_dunr_wild-thermal_seed0/runs/dunr/*/wild-thermal/run/config.yml | tail -8
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 import torch
+from demo_trainers import demo_trainer
 
-from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.training import auto_stop
 from thermal_wild_ns.training.auto_stop import PlateauRule, held_back_images
 
@@ -39,13 +39,7 @@ def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():
 
 
 def _trainer(tmp_path, demo_scene_dir, steps, **auto):
-    config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
-    config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    for key, value in auto.items():
-        setattr(config.auto_stop, key, value)
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
-    return trainer
+    return demo_trainer(tmp_path, demo_scene_dir, steps, "auto_stop", **auto)
 
 
 def _scores(monkeypatch, values):

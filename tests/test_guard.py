@@ -3,19 +3,13 @@ a broken model stops training with a clear error."""
 
 import pytest
 import torch
+from demo_trainers import demo_trainer
 
-from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.training.guard import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
 
 
 def _trainer(tmp_path, demo_scene_dir, steps, **guard):
-    config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
-    config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    for key, value in guard.items():
-        setattr(config.guard, key, value)
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
-    return trainer
+    return demo_trainer(tmp_path, demo_scene_dir, steps, "guard", **guard)
 
 
 def _poison_loss(model, from_step):

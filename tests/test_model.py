@@ -160,9 +160,11 @@ def test_every_attribute_nerfstudio_tools_read_is_available():
 
 def test_baked_emission_matches_and_is_invalidated():
     """Outside training the emission MLP runs once per embedding and parameter state; the baked
-    render equals the unbaked one and follows any change of either."""
-    model, camera = make_model(), make_camera()
-    perturb_output_layers(model)  # a zero output layer would make every embedding render alike
+    render equals the unbaked one and follows any change of either. (No background MLP: its own
+    baked map has its own test.)"""
+    model, camera = make_model(use_background_mlp=False), make_camera()
+    with torch.no_grad():  # a zero output layer would make every embedding render alike
+        model.emission_mlp.net[-1].weight.normal_(0, 0.1)
     model.eval()
     with torch.enable_grad():  # autograd on: no baking, the MLP runs on every render
         unbaked = model.get_outputs(camera)["thermal"].detach()
@@ -374,3 +376,47 @@ def test_world_to_camera_is_splatfactos_view_matrix():
     pose = torch.cat([c2w, torch.tensor([[[0.0, 0, 0, 1]]]).expand(3, 1, 4)], dim=1)
     flip = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0]))
     assert torch.allclose(viewmat @ pose @ flip, torch.eye(4).expand(3, 4, 4), atol=1e-5)
+
+
+def test_baked_background_map_matches_the_mlp_and_is_invalidated():
+    """Renders outside training sample the background from a latitude-longitude map of the MLP:
+    within 1 % of the background's spread of the MLP itself, at every direction (poles, the
+    longitude seam), and rebuilt when the MLP or the embedding changes."""
+    model = make_model()
+    perturb_output_layers(model)
+    embed = model.frame_embed.weight[1].detach()
+    g = torch.Generator().manual_seed(4)
+    dirs = torch.randn(2000, 3, generator=g)
+    dirs = torch.cat([dirs, torch.tensor([[0.0, 0, 1], [0, 0, -1], [-1, 1e-7, 0], [-1, -1e-7, 0]])])
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True)  # [P, 3], the seam at longitude +-180 included
+    with torch.no_grad():
+        exact = model.background_mlp(dirs, embed)[:, 0]  # [P]
+        background_map = model.baked_background_map(embed)
+        longitude = torch.atan2(dirs[:, 1], dirs[:, 0]) / torch.pi
+        latitude = torch.asin(dirs[:, 2]) / (torch.pi / 2)
+        grid = torch.stack([longitude, latitude], dim=-1)[None, None]  # [1, 1, P, 2]
+        baked = torch.nn.functional.grid_sample(background_map, grid, align_corners=True)[0, 0, 0]  # [P]
+    spread = float(exact.max() - exact.min())
+    assert spread > 0 and float((baked - exact).abs().max()) < 0.01 * spread
+    assert model.baked_background_map(embed) is background_map  # cached
+    with torch.no_grad():
+        model.background_mlp.offset += 0.5  # an in-place edit (a load, an optimizer step) ...
+    assert model.baked_background_map(embed) is not background_map  # ... rebuilds it
+    assert model.baked_background_map(model.frame_embed.weight[2].detach()) is not model.baked_background_map(embed)
+
+
+def test_renders_outside_training_use_the_baked_background():
+    model = make_model()
+    perturb_output_layers(model)
+    camera = make_camera(1, width=160, height=128)
+    camera.fx[:] = camera.fy[:] = 200.0
+    K, c2w = camera.get_intrinsics_matrices()[0], camera.camera_to_worlds[0]
+    embed = model.frame_embed.weight[1].detach()
+    model.eval()
+    with torch.no_grad():
+        baked = model.background(K, c2w, embed, 160, 128)
+    with torch.enable_grad():
+        exact = model.background(K, c2w, embed, 160, 128)  # under autograd: the MLP itself
+    spread = float(exact.max() - exact.min())
+    assert getattr(model, "_baked_background", None) is not None
+    assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread

@@ -1,6 +1,7 @@
 """Resuming from a checkpoint continues the same run: the same step, optimizer state, embeddings,
 densification statistics and training order, so the parameters match the uninterrupted run."""
 
+import json
 import subprocess
 import sys
 
@@ -12,8 +13,10 @@ from thermal_wild_ns.demo import demo_trainer_config
 pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 
-def _run(out, demo_scene_dir, steps, save_every, load_dir=None):
+def _run(out, demo_scene_dir, steps, save_every, load_dir=None, auto_stop=False):
     config = demo_trainer_config(out, steps=60, max_gaussians=3000)  # the same schedule for every run
+    config.auto_stop.enabled = auto_stop  # the automatic stop has its own test below
+    config.auto_stop.check_every, config.auto_stop.patience = 10, 2
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.densify_grad_thresh = (
         1e-9  # every Gaussian grows at step 10: the budget picks by the statistics
@@ -46,6 +49,36 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, demo_scene_dir):
     a, b = straight.pipeline.model, resumed.pipeline.model
     assert a.num_points == b.num_points != 2340  # the refinement at step 50 grew and pruned alike
     for (name, pa), (_, pb) in zip(a.named_parameters(), b.named_parameters()):
+        torch.testing.assert_close(pa, pb, msg=name)
+
+
+def test_resume_continues_the_automatic_stop(tmp_path, demo_scene_dir, monkeypatch):
+    """A run with the automatic stop, cut at step 29 (where it keeps its best model, of step 19) and
+    resumed, trains on from the state it had trained, remembers its checks and its best model, and
+    ends as the uninterrupted run does: stopped at step 39, the model of step 19 kept."""
+    scores = {9: 20.0, 19: 25.0, 29: 24.0, 39: 24.5}  # best at 19; 29 and 39 bring no rise: stop at 39
+    monkeypatch.setattr(
+        "thermal_wild_ns.training.guard.held_back_score", lambda pipeline, images: scores[pipeline.model.step]
+    )
+
+    def run(out, steps, load_dir=None):
+        trainer = _run(out, demo_scene_dir, steps=steps, save_every=1000, load_dir=load_dir, auto_stop=True)
+        record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
+        return trainer, record
+
+    torch.manual_seed(0)
+    straight, straight_record = run(tmp_path / "a", 60)
+    torch.manual_seed(0)
+    first, first_record = run(tmp_path / "b", 30)
+    assert first_record["kept_step"] == 19 and first_record["last_step"] == 29
+    torch.manual_seed(123)
+    resumed, resumed_record = run(tmp_path / "c", 60, load_dir=first.checkpoint_dir)
+    assert straight_record["stopped_early"] and straight_record["last_step"] == 39
+    for key in ("stopped_early", "last_step", "kept_step", "checks", "reason"):
+        assert resumed_record[key] == straight_record[key], key
+    assert resumed_record["kept_step"] == 19
+    models = straight.pipeline.model, resumed.pipeline.model
+    for (name, pa), (_, pb) in zip(models[0].named_parameters(), models[1].named_parameters()):
         torch.testing.assert_close(pa, pb, msg=name)
 
 

@@ -14,6 +14,7 @@ Outside training the frame embedding is fixed (`inference_embedding`), so render
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
@@ -66,6 +67,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     colormap: Literal["iron", "inferno", "grey"] = "iron"
     """Thermal colormap of the `rgb` output outside training (ns-viewer, ns-render videos); the
     viewer has a control for it. `thermal` stays the scalar image."""
+    loss_space: Literal["training", "original"] = "training"
+    """Where the photometric loss compares render and frame: 'training' (the preprocessed frames the
+    model renders) or 'original' (both taken back through the frame's inverse LUT, so that
+    equalization shapes the gradients' reach but cannot amplify errors where it stretched the
+    levels). The same for frames that were not preprocessed."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8
@@ -159,7 +165,10 @@ class WildThermalModel(SplatfactoModel):
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
         self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
-        self._frame_checks: Dict[tuple, Tuple[bool, Tensor]] = {}  # training image -> (all finite, thermal contrast)
+        self._frame_checks: Dict[tuple, tuple] = {}  # training image -> (all finite, contrast, original frame)
+        self.inverse_luts: Optional[Tensor] = None
+        """[training images, S] each training frame's inverse LUT sampled at S evenly spaced training-space
+        values (set by the pipeline for `loss_space` 'original' when the frames are preprocessed)."""
         self.strategy = BudgetedDefaultStrategy(
             max_gaussians=cfg.max_gaussians,
             prune_opa=cfg.cull_alpha_thresh,
@@ -411,6 +420,38 @@ class WildThermalModel(SplatfactoModel):
         self._baked = (tensors, versions, emission)
         return emission
 
+    BAKED_BACKGROUND_TEXELS = (129, 256)
+    """Latitude x longitude samples of the baked background map (about 1.4 degrees apart; the
+    background's direction encoding has spherical harmonics up to degree 3 only)."""
+
+    def baked_background_map(self, frame_embed: Tensor) -> Tensor:
+        """The background MLP over every direction under `frame_embed`, as a latitude-longitude map
+        [1, 1, rows, cols + 1] for `grid_sample` (align_corners: row 0 is latitude -90 degrees, the
+        last +90; column 0 is longitude -180 degrees and the last column repeats it at +180, so
+        sampling wraps around). Cached like `baked_emission`: until the embedding or a parameter
+        of the MLP changes, a render samples this map instead of running the MLP per pixel."""
+        tensors = (*self.background_mlp.parameters(), frame_embed)
+        versions = (self.step, *(t._version for t in tensors))
+        cached = getattr(self, "_baked_background", None)
+        if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
+            return cached[2]
+        rows, cols = self.BAKED_BACKGROUND_TEXELS
+        latitude = torch.linspace(-math.pi / 2, math.pi / 2, rows, device=frame_embed.device)  # [rows]
+        longitude = torch.arange(cols, device=frame_embed.device) * (2 * math.pi / cols) - math.pi  # [cols]
+        dirs = torch.stack(
+            [
+                torch.cos(latitude)[:, None] * torch.cos(longitude)[None, :],
+                torch.cos(latitude)[:, None] * torch.sin(longitude)[None, :],
+                torch.sin(latitude)[:, None].expand(-1, cols),
+            ],
+            dim=-1,
+        )  # [rows, cols, 3]
+        with torch.no_grad():
+            values = self.background_mlp(dirs, frame_embed)[..., 0]  # [rows, cols]
+        background_map = torch.cat([values, values[:, :1]], dim=1)[None, None]  # [1, 1, rows, cols + 1]
+        self._baked_background = (tensors, versions, background_map)
+        return background_map
+
     @staticmethod
     def intrinsics(camera: Cameras) -> Tensor:
         """Pinhole intrinsics [C, 3, 3], built on the camera's device (nerfstudio's
@@ -445,11 +486,22 @@ class WildThermalModel(SplatfactoModel):
         cam_idx: Optional[int] = None,
     ) -> Tensor:
         """Background radiance per pixel [H, W, 1], evaluated on the `background_stride` grid and
-        upsampled. `cam_idx` names a training camera whose pose is fixed (no pose optimisation):
-        its encoded directions are computed once and reused."""
+        upsampled. In training (and under autograd) the MLP runs on every grid point; `cam_idx`
+        names a training camera whose pose is fixed (no pose optimisation), whose encoded
+        directions are computed once and reused. Every other render samples the baked map
+        (`baked_background_map`)."""
         if self.background_mlp is None:
             return torch.full((height, width, 1), self.config.background_value, device=self.device)
         stride = self.config.background_stride
+        if not self.training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
+            dirs = self.ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            longitude = torch.atan2(dirs[..., 1], dirs[..., 0]) / math.pi  # [h, w] in [-1, 1]
+            latitude = torch.asin(dirs[..., 2].clamp(-1.0, 1.0)) / (math.pi / 2)  # [h, w] in [-1, 1]
+            grid = torch.stack([longitude, latitude], dim=-1)  # [h, w, 2]
+            coarse = torch.nn.functional.grid_sample(
+                self.baked_background_map(frame_embed), grid[None], mode="bilinear", align_corners=True
+            )[0].permute(1, 2, 0)  # [h, w, 1]
+            return self._upsampled(coarse, width, height)
         key = (cam_idx, width, height)
         encoded = self._encoded_directions.get(key) if cam_idx is not None else None
         if encoded is None:
@@ -457,7 +509,11 @@ class WildThermalModel(SplatfactoModel):
             encoded = self.background_mlp.encode(dirs)  # [h, w, E]
             if cam_idx is not None:
                 self._encoded_directions[key] = encoded
-        coarse = self.background_mlp.from_encoded(encoded, frame_embed)  # [h, w, 1]
+        return self._upsampled(self.background_mlp.from_encoded(encoded, frame_embed), width, height)
+
+    @staticmethod
+    def _upsampled(coarse: Tensor, width: int, height: int) -> Tensor:
+        """The background on the `background_stride` grid [h, w, 1] at full resolution [H, W, 1]."""
         if coarse.shape[:2] == (height, width):
             return coarse
         # align_corners=False: coarse samples sit at the centres of stride x stride pixel blocks
@@ -589,10 +645,12 @@ class WildThermalModel(SplatfactoModel):
         checked = self._frame_checks.get(key) if key is not None else None
         if checked is None:
             all_finite = bool(torch.isfinite(gt).all())
-            checked = (all_finite, thermal_contrast(gt) if all_finite else None)
+            original = self.to_original_space(gt, key[0]) if key is not None and all_finite else None
+            reference = gt if original is None else original
+            checked = (all_finite, thermal_contrast(reference) if all_finite else None, original)
             if key is not None:
                 self._frame_checks[key] = checked
-        all_finite, contrast = checked
+        all_finite, contrast, _ = checked
         if not all_finite:
             finite = torch.isfinite(gt)
             if not self._warned_nonfinite:
@@ -612,14 +670,36 @@ class WildThermalModel(SplatfactoModel):
         with record_function("thermal/loss"):
             return self._loss_dict(outputs, batch)
 
+    def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
+        """Training-space values of training image `image` taken back to the original space through
+        its inverse LUT (piecewise linear, differentiable); None without inverse LUTs."""
+        if self.inverse_luts is None or self.config.loss_space != "original":
+            return None
+        table = self.inverse_luts[image]  # [S]
+        position = values.clamp(0.0, 1.0) * (table.shape[0] - 1)
+        lower = position.detach().floor().clamp(max=table.shape[0] - 2)
+        weight = position - lower
+        lower = lower.long()
+        return table[lower] * (1.0 - weight) + table[lower + 1] * weight
+
     def _loss_dict(self, outputs, batch) -> Dict[str, Tensor]:
         gt, contrast = self._ground_truth(outputs, batch)
         pred = outputs["thermal"]
         cfg = self.config
+        compared_pred, compared_gt, l1_scale = pred, gt, 1.0
+        if self.training and "image_idx" in batch and cfg.loss_space == "original":
+            key = (int(batch["image_idx"]), tuple(gt.shape))
+            original = self._frame_checks.get(key, (None, None, None))[2]
+            if original is not None:
+                # L1 in units of the frame's own contrast, so that its weight against the
+                # (contrast-relative) SSIM and the alpha term stays what it is in training space
+                compared_pred, compared_gt = self.to_original_space(pred, key[0]), original
+                l1_scale = 1.0 / contrast
+        plain_ssim = lambda: ssim(compared_pred, compared_gt, data_range=1.0)
         losses = {
-            "l1_loss": cfg.l1_lambda * (gt - pred).abs().mean(),
+            "l1_loss": cfg.l1_lambda * l1_scale * (compared_gt - compared_pred).abs().mean(),
             "ssim_loss": cfg.ssim_lambda
-            * (1.0 - (heat_aware_ssim(pred, gt, contrast) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0))),
+            * (1.0 - (heat_aware_ssim(compared_pred, compared_gt, contrast) if cfg.heat_aware_ssim else plain_ssim())),
         }
         if cfg.alpha_lambda > 0:
             losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(

@@ -54,9 +54,25 @@ class ThermalPipeline(VanillaPipeline):
         if loads_a_run and config.checkpoint_dir is not None and not checkpoints_in(config.checkpoint_dir):
             raise MissingInput(f"{config.checkpoint_dir}: no checkpoint of this run to load (did it save one?)")
         super().__init__(config, *args, **kwargs)
+        if not loads_a_run:
+            self._give_inverse_luts()
         if getattr(self.model, "viewer_colour_bar", None) is not None:
             self.model.on_photometric_state_change = self.update_colour_bar
             self.update_colour_bar()
+
+    INVERSE_LUT_SAMPLES = 4096
+    """Training-space values at which each training frame's inverse LUT is tabulated for a loss in
+    the original space (linear in between: far finer than any step of the equalization)."""
+
+    def _give_inverse_luts(self) -> None:
+        """The model's inverse LUT per training image, for a photometric loss in the original space."""
+        sequence = getattr(self.datamanager, "preprocessed", None)
+        if sequence is None or getattr(self.model.config, "loss_space", "training") != "original":
+            return
+        values = np.linspace(0.0, 1.0, self.INVERSE_LUT_SAMPLES)
+        frames = self.datamanager.train_dataset.metadata["frame_indices"]
+        tables = np.stack([sequence.to_original_normalised(values, sequence.lut(int(t))) for t in frames])
+        self.model.inverse_luts = torch.from_numpy(tables.astype(np.float32)).to(self.device)  # [images, S]
 
     def viewer_state(self) -> PhotometricState:
         """The state the viewer renders at: canonical, or its capture-time slider's."""

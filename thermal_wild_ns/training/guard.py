@@ -200,6 +200,44 @@ class GuardedTrainer(trainer_after_load_class()):
         self._best: Optional[dict] = None
         frames = [datamanager.train_dataset.frame_index(k) for k in images]
         CONSOLE.log(f"automatic stop: capture frames {frames} are held back from training to score it")
+        if self.config.load_dir is not None:
+            self._resume_auto_stop(Path(self.config.load_dir).parent)
+
+    def _best_path(self, step: int, run: Optional[Path] = None) -> Path:
+        """Where the best-scoring model of check `step` is kept (beside the run's config), so that a
+        resumed run can still go back to it."""
+        return (run or self.config.get_base_dir()) / "auto_stop" / f"best-{step:09d}.pt"
+
+    def _trained_path(self, step: int, run: Optional[Path] = None) -> Path:
+        """Where the state trained last is kept when the run's final checkpoint holds its best model."""
+        return (run or self.config.get_base_dir()) / "auto_stop" / f"trained-{step:09d}.pt"
+
+    def _resume_auto_stop(self, run: Path) -> None:
+        """Continue the automatic stop of the run being resumed: its checks before the checkpoint,
+        replayed, and its best model so far. Where that run ended by keeping its best model, the
+        training goes on from the state it had trained, not from the kept one."""
+        record_path = run / "auto_stop.json"
+        if not record_path.is_file():
+            return
+        record = json.loads(record_path.read_text())
+        ended_on_kept = record.get("kept_step") not in (None, record["last_step"])
+        if ended_on_kept and record["last_step"] == self._start_step - 1:
+            trained = self._trained_path(record["last_step"], run)
+            if trained.is_file():
+                self._restore(torch.load(trained, map_location=self.pipeline.device, weights_only=True))
+                self.pipeline.model.step = self._start_step
+            else:
+                CONSOLE.log(f"[yellow]automatic stop: {trained} is gone: training goes on from the kept model")
+        for check in record["checks"]:
+            if check["step"] < self._start_step:
+                self.progress.update(check["step"], check["psnr"])
+        best = self.progress.best_step
+        if best is not None and self.config.auto_stop.keep_best:
+            path = self._best_path(best, run)
+            if path.is_file():
+                self._best = torch.load(path, map_location=self.pipeline.device, weights_only=True)
+            else:
+                CONSOLE.log(f"[yellow]automatic stop: {path} is gone: the model of step {best} can no longer be kept")
 
     def _accept_step(self, param_groups) -> bool:
         """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
@@ -250,21 +288,37 @@ class GuardedTrainer(trainer_after_load_class()):
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.auto_stop.keep_best:
             self._best = self._snapshot(step)
+            path = self._best_path(step)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            torch.save(self._best, path)
         if self.progress.plateaued and self.stop_reason is None:
             self.stop_reason = self.progress.reason(self.config.auto_stop.check_every)
             self.stop_training = True  # nerfstudio's loop ends before the next step
             CONSOLE.log(f"[bold]step {step}: training stops: {self.stop_reason}")
+        self._write_auto_stop_record(kept=None)
+
+    def save_checkpoint(self, step: int) -> None:
+        super().save_checkpoint(step)
+        # a resume from this checkpoint (or a later one) needs no best model older than the best so far
+        best = self.progress.best_step if self.progress is not None else None
+        if best is not None:
+            for path in self._best_path(best).parent.glob("best-*.pt"):
+                if int(path.stem.split("-")[1]) < best:
+                    path.unlink()
 
     def before_final_checkpoint(self) -> None:
         if self.progress is None:
             return
         self.step = self._step  # the last step trained (nerfstudio's loop counted one past it at a stop)
-        if not self.progress.history or self.progress.history[-1][0] != self._step:
-            score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
-            self.progress.history.append((self._step, score))
-        final = self.progress.history[-1][1]
+        history = self.progress.history
+        checked = bool(history) and history[-1][0] == self._step
+        final = history[-1][1] if checked else held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         kept = self._step
         if self._best is not None and self.progress.best > final + self.progress.min_improvement:
+            # the state trained last, for a resume that goes on training (the final checkpoint holds the kept one)
+            path = self._trained_path(self._step)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            torch.save(self._snapshot(self._step), path)
             self._restore(self._best)
             self.pipeline.model.step = self._step  # splatfacto's load_state_dict sets it to 30000
             kept = self._best["step"]
@@ -272,6 +326,11 @@ class GuardedTrainer(trainer_after_load_class()):
                 f"[bold]kept the model of step {kept} ({self.progress.best:.2f} dB on the held-back frames, "
                 f"{final:.2f} at the end)"
             )
+        self._write_auto_stop_record(kept, final)
+
+    def _write_auto_stop_record(self, kept: Optional[int], final: Optional[float] = None) -> None:
+        """auto_stop.json beside the run's config: the checks so far (a resumed run replays them)
+        and, at the end, the model kept and why the run ended."""
         datamanager = self.pipeline.datamanager
         record = {
             "held_back_frames": [datamanager.train_dataset.frame_index(k) for k in datamanager.held_back],
@@ -280,7 +339,8 @@ class GuardedTrainer(trainer_after_load_class()):
             "stopped_early": self.stop_reason is not None,
             "reason": self.stop_reason,
             "kept_step": kept,
-            "checks": [{"step": s, "psnr": round(v, 3)} for s, v in self.progress.history],
+            "final_psnr": final,
+            "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
         }
         path = self.config.get_base_dir() / "auto_stop.json"
         path.parent.mkdir(parents=True, exist_ok=True)
