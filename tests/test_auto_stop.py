@@ -32,10 +32,10 @@ def test_a_non_finite_score_is_never_a_best():
 
 def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():
     assert held_back_images(45, 2) == (15, 29)
-    for n, k in [(10, 2), (40, 3), (200, 5)]:
+    for n, k in [(20, 2), (40, 3), (200, 5)]:
         images = held_back_images(n, k)
         assert len(set(images)) == k and 0 < min(images) and max(images) < n - 1
-    assert held_back_images(9, 2) == () and held_back_images(30, 0) == ()
+    assert held_back_images(19, 2) == () and held_back_images(30, 0) == ()
 
 
 def _trainer(tmp_path, demo_scene_dir, steps, **auto):

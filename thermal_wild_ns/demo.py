@@ -25,7 +25,7 @@ class DemoArgs:
     output_dir: Path = Path("outputs/demo")
     """Where the scene, the run and the results go."""
     steps: Optional[int] = None
-    """Training steps (default: 800 on CPU, 10000 on GPU)."""
+    """Training steps at most (default: 800 on CPU, 10000 on GPU); the automatic stop may end the run sooner."""
     max_gaussians: int = 10_000
     """Gaussian budget; the 128x96 demo scene needs few."""
 
@@ -76,13 +76,18 @@ def main(args: DemoArgs) -> dict:
     start = time.time()
     trainer.train()
     train_seconds = time.time() - start
+    trained = trainer.step + 1
+    record = config.get_base_dir() / "auto_stop.json"
+    auto_stop = json.loads(record.read_text()) if record.is_file() else None
     # evaluate from the saved checkpoint, the way ns-eval / ns-render load it
     _, pipeline, _, _ = eval_setup(config.get_base_dir() / "config.yml", test_mode="test")
     results = evaluate(pipeline, args.output_dir / "renders")
     results.update(
         {
             "device": device,
-            "steps": steps,
+            "steps": trained,
+            "steps_asked": steps,
+            "auto_stop": auto_stop,
             "train_seconds": round(train_seconds, 1),
             "untrained_psnr_novel": untrained["psnr_novel"],
             "config": str(config.get_base_dir() / "config.yml"),
@@ -92,8 +97,9 @@ def main(args: DemoArgs) -> dict:
     with open(args.output_dir / "metrics.json", "w") as f:
         json.dump(results, f, indent=1)
     print(
-        f"\nwild-thermal demo ({device}, {steps} steps, {train_seconds:.0f} s), held-out views against the clean "
-        f"frames:\n"
+        f"\nwild-thermal demo ({device}, {trained} of {steps} steps, {train_seconds:.0f} s"
+        + (f", model of step {auto_stop['kept_step']} kept" if auto_stop else "")
+        + "), held-out views against the clean frames:\n"
         f"  novel (canonical state)        PSNR {results['psnr_novel']:.2f} dB, SSIM {results['ssim_novel']:.3f}"
         f" (untrained {untrained['psnr_novel']:.2f} dB)\n"
         f"  time (state from neighbours)   PSNR {results['psnr_time']:.2f} dB, SSIM {results['ssim_time']:.3f}\n"

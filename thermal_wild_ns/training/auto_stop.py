@@ -74,8 +74,8 @@ class PlateauRule:
 def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     """`count` image indices spread evenly over the interior of `num_images` training images in
     capture order (never the first or the last: their state is interpolated between neighbours).
-    Empty when too few images would be left to train on (fewer than four per held-back frame)."""
-    if count <= 0 or num_images < 5 * count:
+    Empty for fewer than 10 images per held-back frame: a small capture cannot spare them."""
+    if count <= 0 or num_images < 10 * count:
         return ()
     return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
 
