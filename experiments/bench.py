@@ -79,9 +79,10 @@ class BenchArgs:
     """Resolution warm-up of every method, splatfacto included: train at 1/2^n resolution first,
     halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
     128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
-    loss_space: Optional[str] = None
-    """Where this plugin's methods compute the photometric loss, 'training' or 'original' (default:
-    their config's; `WildThermalModelConfig.loss_space`)."""
+    set: Tuple[str, ...] = ()
+    """Settings of this plugin's methods as dotted config paths, e.g. `pipeline.model.heat_aware_ssim=False`
+    or `pipeline.datamanager.preprocessing.variant=none` (values read as Python literals, else as text);
+    named in the run's label."""
     auto_stop: bool = True
     """The automatic stop of this plugin's methods (`training/auto_stop.py`, its check interval scaled
     with the schedule like the densification's); off: every run trains `--steps` steps."""
@@ -147,8 +148,8 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
             config.pipeline.model.max_gaussians = args.max_gaussians
-        if args.loss_space is not None:
-            config.pipeline.model.loss_space = args.loss_space
+        for setting in args.set:
+            apply_setting(config, setting)
         if args.equalization_strength is not None:
             preprocessing = config.pipeline.datamanager.preprocessing
             config.pipeline.datamanager.preprocessing = dataclasses.replace(
@@ -176,6 +177,30 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     return config
 
 
+def apply_setting(config, setting: str) -> None:
+    """Set `path.to.field=value` on a config (frozen dataclasses along the path are replaced)."""
+    import ast
+
+    path, _, text = setting.partition("=")
+    if not text:
+        raise ValueError(f"--set {setting!r}: expected path.to.field=value")
+    try:
+        value = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        value = text
+    *parents, name = path.split(".")
+    chain = [config]
+    for part in parents:
+        chain.append(getattr(chain[-1], part))
+    if not hasattr(chain[-1], name):
+        raise ValueError(f"--set {setting!r}: {type(chain[-1]).__name__} has no field {name!r}")
+    for owner, attribute in zip(reversed(chain), [name, *reversed(parents)]):
+        if not getattr(type(owner), "__dataclass_params__", None) or not owner.__dataclass_params__.frozen:
+            setattr(owner, attribute, value)
+            return
+        value = dataclasses.replace(owner, **{attribute: value})  # frozen: a new owner, set one level up
+
+
 def run_label(method: str, args: BenchArgs) -> str:
     """The method's name in records, tables and charts, with the settings this bench changed in it
     (warm-up; equalization strength, where the method equalizes), so that e.g. stock splatfacto and
@@ -188,8 +213,8 @@ def run_label(method: str, args: BenchArgs) -> str:
         and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes
     ):
         changed.append(f"equalization-strength {args.equalization_strength:g}")
-    if args.loss_space is not None and method in METHODS:
-        changed.append(f"loss-space {args.loss_space}")
+    if method in METHODS:
+        changed += [setting.rsplit(".", 1)[-1] for setting in args.set]
     return f"{method} ({', '.join(changed)})" if changed else method
 
 

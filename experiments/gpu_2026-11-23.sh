@@ -83,7 +83,7 @@ case "$plan" in
     for space in training original; do
       timeout 230 python3 -m experiments.bench --output-dir /tmp/bench-$space --scenes "$PWD/.data/dunr" \
         --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 5000 --schedule 30000 \
-        --eval-at 1000 2000 5000 --fit-steps 20 --fps-frames 300 --no-auto-stop --loss-space $space --runs-per-gpu 3 \
+        --eval-at 1000 2000 5000 --fit-steps 20 --fps-frames 300 --no-auto-stop --set pipeline.model.loss_space=$space --runs-per-gpu 3 \
         > "$OUT/loss-space-$space.log" 2>&1
       for f in bench.json bench.md; do cp /tmp/bench-$space/$f "$OUT/loss-space-$space-$f" 2>/dev/null; done
       grep -E "^\| wild" "$OUT/loss-space-$space-bench.md" | head -5

@@ -304,3 +304,23 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
     assert len(predictions) == len(clean) == 5
     assert all(np.array_equal(a, b) for a, b in zip(clean, predictions))
     assert second["psnr_half"] < first["psnr_half"] - 3.0
+
+
+def test_settings_reach_nested_and_frozen_config_fields():
+    from experiments.bench import BenchArgs, apply_setting, run_label
+    from thermal_wild_ns.method_configs import method_trainer
+
+    config = method_trainer("wild-thermal")
+    apply_setting(config, "pipeline.datamanager.preprocessing.variant=none")  # a frozen dataclass
+    apply_setting(config, "pipeline.model.heat_aware_ssim=False")
+    apply_setting(config, "pipeline.model.loss_space=original")
+    assert config.pipeline.datamanager.preprocessing.variant == "none"
+    assert config.pipeline.model.heat_aware_ssim is False and config.pipeline.model.loss_space == "original"
+    assert method_trainer("wild-thermal").pipeline.datamanager.preprocessing.variant == "stab+bbhe"  # a copy
+    with pytest.raises(ValueError, match="has no field 'nope'"):
+        apply_setting(config, "pipeline.model.nope=1")
+    with pytest.raises(ValueError, match="expected path.to.field=value"):
+        apply_setting(config, "pipeline.model.alpha_lambda")
+    args = BenchArgs(set=("pipeline.model.heat_aware_ssim=False",))
+    assert run_label("wild-thermal", args) == "wild-thermal (heat_aware_ssim=False)"
+    assert run_label("splatfacto", args) == "splatfacto"  # the settings are this plugin's methods'
