@@ -8,6 +8,7 @@ import pytest
 import torch
 from demo_trainers import demo_trainer
 
+from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.training import auto_stop
 from thermal_wild_ns.training.auto_stop import PlateauRule, held_back_images
 
@@ -43,9 +44,29 @@ def _trainer(tmp_path, demo_scene_dir, steps, **auto):
 
 
 def _scores(monkeypatch, values):
-    """Make the held-back score follow `values`, one per call (the rule's input, decided here)."""
+    """Make the held-back score follow `values`, one per call (the rule's input, decided here), from
+    step 0 on (the schedule's own start-up has a test of its own)."""
     calls = iter(values)
     monkeypatch.setattr("thermal_wild_ns.training.guard.held_back_score", lambda pipeline, images: next(calls))
+    monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))
+
+
+def test_no_check_before_the_schedules_start_up_is_over(tmp_path, demo_scene_dir, monkeypatch):
+    calls = []
+    monkeypatch.setattr(
+        "thermal_wild_ns.training.guard.held_back_score",
+        lambda pipeline, images: calls.append(pipeline.model.step) or 20.0,
+    )
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=1)
+    model = trainer.pipeline.model
+    model.config.num_downscales, model.config.resolution_schedule = 1, 12  # full resolution from step 12
+    model.strategy.reset_every = 20  # the first opacity reset at step 20
+    assert model.settled_step == 20
+    trainer.train()
+    # checks at 23, 27, ...: a flat score from the first of them, so the run stops after patience 1
+    assert calls[:2] == [23, 27]
+    record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
+    assert record["checks"][0]["step"] == 23 and record["stopped_early"] and record["last_step"] == 27
 
 
 def test_a_plateaued_run_stops_says_why_and_keeps_its_best_model(tmp_path, demo_scene_dir, monkeypatch):

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.model.wild_thermal import WildThermalModel
 
 pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
@@ -60,6 +61,7 @@ def test_resume_continues_the_automatic_stop(tmp_path, demo_scene_dir, monkeypat
     monkeypatch.setattr(
         "thermal_wild_ns.training.guard.held_back_score", lambda pipeline, images: scores[pipeline.model.step]
     )
+    monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))  # checks from step 0
 
     def run(out, steps, load_dir=None):
         trainer = _run(out, demo_scene_dir, steps=steps, save_every=1000, load_dir=load_dir, auto_stop=True)

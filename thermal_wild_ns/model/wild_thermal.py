@@ -758,10 +758,12 @@ class WildThermalModel(SplatfactoModel):
             super().step_post_backward(step)
 
     @property
-    def full_resolution_step(self) -> int:
-        """The first step trained at full resolution (splatfacto's warm-up halves the downscale
-        factor every `resolution_schedule` steps, from 2^num_downscales)."""
-        return self.config.num_downscales * self.config.resolution_schedule
+    def settled_step(self) -> int:
+        """The first step past the schedule's start-up: training at full resolution (splatfacto's
+        warm-up halves the downscale factor every `resolution_schedule` steps, from
+        2^num_downscales) and past the first opacity reset. Before it, each of these moves every
+        score by itself (the automatic stop does not score before it)."""
+        return max(self.config.num_downscales * self.config.resolution_schedule, self.strategy.reset_every)
 
     def schedule_moves_loss(self, step: int) -> bool:
         """Whether the training schedule itself moves the loss at `step`: the first step after an

@@ -2,13 +2,12 @@
 
 A few training frames are held back from the gradient (evenly spread, never the first or last, so
 their photometric state can be interpolated from their neighbours). Every `check_every` steps, once
-the model trains at full resolution, it renders them at that interpolated state and is scored
-against them as captured (PSNR, original space): the question the `time` protocol asks of a
-held-out view, asked of frames that are not the test views. When the score has not risen by
-`min_improvement` dB in `patience` checks in a row, training stops, and the best-scoring model is
-kept. Quality on new views can fall after an early
-peak (frame-specific content leaking into the Gaussians); the held-back frames see that fall
-where the training loss, which keeps dropping, cannot.
+the schedule's start-up is over (full resolution, past the first opacity reset), the model renders
+them at that interpolated state and is scored against them as captured (PSNR, original space): the
+question the `time` protocol asks of a held-out view, asked of frames that are not the test views.
+When the score has not risen by `min_improvement` dB in `patience` checks in a row, training stops,
+and the best-scoring model is kept. Quality on new views can fall after an early peak; the
+held-back frames see that fall, which no measure of the frames being fitted can.
 
 `PlateauRule` is the decision alone; `held_back_images` picks the frames; `held_back_score` scores.
 """

@@ -281,9 +281,9 @@ class GuardedTrainer(trainer_after_load_class()):
         return result
 
     def _check_progress(self, step: int) -> None:
-        """Score the held-back frames; stop training at a plateau. No score before the model trains
-        at full resolution: each step of the resolution warm-up moves the scores by itself."""
-        if step < getattr(self.pipeline.model, "full_resolution_step", 0):
+        """Score the held-back frames; stop training at a plateau. No score before the schedule's
+        start-up is over (the model's `settled_step`: full resolution, first opacity reset)."""
+        if step < getattr(self.pipeline.model, "settled_step", 0):
             return
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.auto_stop.keep_best:
