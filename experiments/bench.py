@@ -172,8 +172,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     scale_schedule(config.pipeline.model, args.schedule or args.steps)
     if hasattr(config, "auto_stop"):
         config.auto_stop.enabled = args.auto_stop
-        schedule = min(args.schedule or args.steps, FULL_SCHEDULE)
-        config.auto_stop.check_every = max(config.auto_stop.check_every * schedule // FULL_SCHEDULE, 10)
+        config.auto_stop.scale_to(args.schedule or args.steps, FULL_SCHEDULE)
     return config
 
 
@@ -375,8 +374,9 @@ def _cell(stats: Optional[Dict], key: str, digits: int = 2) -> str:
         return "—" if stats is None or not stats.get("failed") else "failed"
     s = stats[key]
     text = f"{s['mean']:.{digits}f}"
-    if s["n"] > 1:
-        text += f" ({s['min']:.{digits}f}–{s['max']:.{digits}f})"
+    low, high = f"{s['min']:.{digits}f}", f"{s['max']:.{digits}f}"
+    if s["n"] > 1 and low != high:
+        text += f" ({low}–{high})"
     return text + (f", {stats['failed']} failed" if stats.get("failed") else "")
 
 

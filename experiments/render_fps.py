@@ -49,6 +49,11 @@ def _fps(render: Callable[[int], torch.Tensor], frames: int) -> float:
     return frames / (time.perf_counter() - start)
 
 
+def test_cameras(pipeline) -> list:
+    """The pipeline's held-out cameras, one per view, on the model's device."""
+    return [camera.to(pipeline.model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
+
+
 def measure_fps(pipeline, frames: int) -> Dict:
     """Frames per second over the pipeline's test cameras: `baked`, `unbaked` and `splat_only` for
     this plugin's models (the first only for others), and the largest baked/unbaked difference."""
@@ -57,7 +62,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
 
     model = pipeline.model
     pipeline.eval()
-    cameras = [camera.to(model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
+    cameras = test_cameras(pipeline)
     width, height = int(cameras[0].width), int(cameras[0].height)
     ours = hasattr(model, "gaussian_emission")
     has_mlp = ours and model.emission_mlp is not None
@@ -115,7 +120,7 @@ def profile_baked(pipeline, frames: int) -> str:
     from torch.profiler import ProfilerActivity, profile
 
     model = pipeline.model
-    cameras = [camera.to(model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
+    cameras = test_cameras(pipeline)
     render = lambda i: model.get_outputs_for_camera(cameras[i % len(cameras)])
     syncs: Dict[str, int] = collections.Counter()
     with torch.no_grad():

@@ -54,8 +54,7 @@ def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method
     model.reset_alpha_every = 30
     model.stop_split_at = int(steps * 0.6)
     model.stop_screen_size_at = int(steps * 0.3)
-    # the automatic stop's checks scaled like the schedule (500 steps of a 30k run)
-    config.auto_stop.check_every = max(steps // 60, 10)
+    config.auto_stop.scale_to(steps)
     return config
 
 

@@ -143,6 +143,13 @@ class ThermalDatamanager(single_channel_datamanager_class()):
     def hold_back(self, images: Tuple[int, ...]) -> None:
         self.held_back = tuple(sorted(images))
         self._order = (None, [])
+        self._held_back_truth: Dict[int, np.ndarray] = {}
+
+    def held_back_truth(self, image: int) -> np.ndarray:
+        """A held-back training image as captured [H, W] (read once: it is scored again and again)."""
+        if image not in self._held_back_truth:
+            self._held_back_truth[image] = self.train_dataset.original_image(image)
+        return self._held_back_truth[image]
 
     def train_order(self, epoch: int) -> List[int]:
         """The permutation of the trained images (all but `held_back`) for pass `epoch` (a function

@@ -328,32 +328,26 @@ class WildThermalModel(SplatfactoModel):
         """Whether renders depend on the frame embedding (through either MLP)."""
         return self.emission_mlp is not None or self.background_mlp is not None
 
-    def embedding_at(self, t: float) -> Tensor:
+    def embedding_at(self, t: float, without: Sequence[int] = ()) -> Tensor:
         """The frame embedding [Df] at capture position `t`: linear between the neighbouring
-        training frames' embeddings, exactly a training frame's own at its position."""
+        training frames' embeddings, exactly a training frame's own at its position. `without`:
+        rows of `frame_embed` not to interpolate from."""
         from thermal_wild_ns.preprocessing.photometric import time_weights
 
-        i, j, w = time_weights(self.frame_times, t)
+        left_out = set(without)
+        rows = [k for k in range(len(self.frame_times)) if k not in left_out]
+        i, j, w = time_weights([self.frame_times[k] for k in rows], t)
         weight = self.frame_embed.weight  # [F, Df]
-        return weight[i] if w == 0.0 else (1.0 - w) * weight[i] + w * weight[j]
+        return weight[rows[i]] if w == 0.0 else (1.0 - w) * weight[rows[i]] + w * weight[rows[j]]
 
     def interpolate_embeddings(self, rows: Sequence[int]) -> None:
         """Set the embeddings of training images that take no gradient (held back to score the
         run, `training/auto_stop.py`) to the state interpolated from the other training frames
         around them, so that every use of the embeddings (their mean, `embedding_at`) sees
         states the data shaped."""
-        from thermal_wild_ns.preprocessing.photometric import time_weights
-
-        held = set(int(r) for r in rows)
-        trained = [k for k in range(len(self.frame_times)) if k not in held]
-        if not held or not trained:
-            return
-        times = [self.frame_times[k] for k in trained]
-        weight = self.frame_embed.weight  # [F, Df]
         with torch.no_grad():
-            for row in held:
-                i, j, w = time_weights(times, self.frame_times[row])
-                weight[row] = (1.0 - w) * weight[trained[i]] + w * weight[trained[j]]
+            for row in rows:
+                self.frame_embed.weight[row] = self.embedding_at(self.frame_times[row], without=rows)
 
     def inference_embedding(self) -> Tensor:
         """The frame embedding [Df] used outside training: `embedding_override` when set (evaluation

@@ -91,12 +91,16 @@ class PreprocessedSequence:
         pixels, never part of a leak-free score."""
         return np.asarray(self.luts[index])
 
-    def lut_at(self, t: float) -> np.ndarray:
+    def lut_at(self, t: float, without: Sequence[int] = ()) -> np.ndarray:
         """The LUT at capture position `t`: level by level between the neighbouring training
-        frames' LUTs (exactly a training frame's own at its index), strictly increasing."""
-        i, j, w = time_weights(self.train_indices, t)
+        frames' LUTs (exactly a training frame's own at its index), strictly increasing.
+        `without`: training frames (capture indices) not to interpolate from (held back from
+        training: their own LUT is made from their pixels)."""
+        left_out = set(without)
+        frames = [index for index in self.train_indices if index not in left_out]
+        i, j, w = time_weights(frames, t)
         luts = self.luts
-        return blend_luts(np.asarray(luts[self.train_indices[i]]), np.asarray(luts[self.train_indices[j]]), w)
+        return blend_luts(np.asarray(luts[frames[i]]), np.asarray(luts[frames[j]]), w)
 
     def median_lut(self) -> np.ndarray:
         """Level-wise median of the training frames' LUTs: a canonical scale for a view no frame was

@@ -38,6 +38,11 @@ class AutoStopConfig:
     """At a stop, and at the end of a run, go back to the model of the best-scoring check when the
     last check scored lower."""
 
+    def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
+        """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
+        long instead of `full_schedule` (the one `check_every` is given for)."""
+        self.check_every = max(self.check_every * min(schedule, full_schedule) // full_schedule, 10)
+
 
 @dataclass
 class PlateauRule:
@@ -85,12 +90,10 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     around them, embedding and LUT alike: the `time` protocol, on training frames."""
     from thermal_wild_ns.model.losses import psnr
     from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
-    from thermal_wild_ns.preprocessing.photometric import blend_luts, time_weights
 
-    model, dataset = pipeline.model, pipeline.datamanager.train_dataset
-    sequence = getattr(pipeline.datamanager, "preprocessed", None)
-    held = set(images)
-    trained = [dataset.frame_index(k) for k in range(len(dataset)) if k not in held]  # capture positions
+    datamanager, model = pipeline.datamanager, pipeline.model
+    dataset, sequence = datamanager.train_dataset, getattr(datamanager, "preprocessed", None)
+    held_frames = [dataset.frame_index(image) for image in images]  # capture positions
     was_training = model.training
     # a render leaves its rasterization record (`info`, `last_size`) on the model, where the
     # densification callbacks after this step read the training render's
@@ -102,14 +105,11 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     try:
         for image in images:
             t = dataset.frame_index(image)
-            lut = None
-            if sequence is not None:
-                i, j, w = time_weights(trained, t)
-                lut = blend_luts(sequence.lut(trained[i]), sequence.lut(trained[j]), w)
+            lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
             embedding = model.frame_embed.weight[image].detach() if fill is not None else None
             camera = dataset.cameras[image : image + 1].to(model.device)
             _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
-            truth = torch.from_numpy(dataset.original_image(image))  # [H, W]
+            truth = torch.from_numpy(datamanager.held_back_truth(image))  # [H, W]
             finite = torch.isfinite(truth)
             values.append(float(psnr(torch.from_numpy(pred)[finite], truth[finite])))
     finally:

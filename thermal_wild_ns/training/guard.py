@@ -203,14 +203,11 @@ class GuardedTrainer(trainer_after_load_class()):
         if self.config.load_dir is not None:
             self._resume_auto_stop(Path(self.config.load_dir).parent)
 
-    def _best_path(self, step: int, run: Optional[Path] = None) -> Path:
-        """Where the best-scoring model of check `step` is kept (beside the run's config), so that a
-        resumed run can still go back to it."""
-        return (run or self.config.get_base_dir()) / "auto_stop" / f"best-{step:09d}.pt"
-
-    def _trained_path(self, step: int, run: Optional[Path] = None) -> Path:
-        """Where the state trained last is kept when the run's final checkpoint holds its best model."""
-        return (run or self.config.get_base_dir()) / "auto_stop" / f"trained-{step:09d}.pt"
+    def _state_path(self, kind: str, step: int, run: Optional[Path] = None) -> Path:
+        """Where a state of step `step` is kept beside the run's config (this run's, or `run`'s):
+        'best', the best-scoring model so far, which a resumed run can still go back to; 'trained',
+        the state trained last when the final checkpoint holds the best one instead."""
+        return (run or self.config.get_base_dir()) / "auto_stop" / f"{kind}-{step:09d}.pt"
 
     def _resume_auto_stop(self, run: Path) -> None:
         """Continue the automatic stop of the run being resumed: its checks before the checkpoint,
@@ -222,7 +219,7 @@ class GuardedTrainer(trainer_after_load_class()):
         record = json.loads(record_path.read_text())
         ended_on_kept = record.get("kept_step") not in (None, record["last_step"])
         if ended_on_kept and record["last_step"] == self._start_step - 1:
-            trained = self._trained_path(record["last_step"], run)
+            trained = self._state_path("trained", record["last_step"], run)
             if trained.is_file():
                 self._restore(torch.load(trained, map_location=self.pipeline.device, weights_only=True))
                 self.pipeline.model.step = self._start_step
@@ -233,7 +230,7 @@ class GuardedTrainer(trainer_after_load_class()):
                 self.progress.update(check["step"], check["psnr"])
         best = self.progress.best_step
         if best is not None and self.config.auto_stop.keep_best:
-            path = self._best_path(best, run)
+            path = self._state_path("best", best, run)
             if path.is_file():
                 self._best = torch.load(path, map_location=self.pipeline.device, weights_only=True)
             else:
@@ -288,7 +285,7 @@ class GuardedTrainer(trainer_after_load_class()):
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.auto_stop.keep_best:
             self._best = self._snapshot(step)
-            path = self._best_path(step)
+            path = self._state_path("best", step)
             path.parent.mkdir(parents=True, exist_ok=True)
             torch.save(self._best, path)
         if self.progress.plateaued and self.stop_reason is None:
@@ -302,7 +299,7 @@ class GuardedTrainer(trainer_after_load_class()):
         # a resume from this checkpoint (or a later one) needs no best model older than the best so far
         best = self.progress.best_step if self.progress is not None else None
         if best is not None:
-            for path in self._best_path(best).parent.glob("best-*.pt"):
+            for path in self._state_path("best", best).parent.glob("best-*.pt"):
                 if int(path.stem.split("-")[1]) < best:
                     path.unlink()
 
@@ -316,7 +313,7 @@ class GuardedTrainer(trainer_after_load_class()):
         kept = self._step
         if self._best is not None and self.progress.best > final + self.progress.min_improvement:
             # the state trained last, for a resume that goes on training (the final checkpoint holds the kept one)
-            path = self._trained_path(self._step)
+            path = self._state_path("trained", self._step)
             path.parent.mkdir(parents=True, exist_ok=True)
             torch.save(self._snapshot(self._step), path)
             self._restore(self._best)
