@@ -324,6 +324,8 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
         "path": path,
         "steps": steps,
         "auto_stop": json.loads(record.read_text()) if record.exists() else None,
+        # what the training frames went through (the full method decides from the capture)
+        "preprocessing": getattr(pipeline.datamanager, "preprocessing_used", "") or None,
         "train_seconds": round(seconds, 2),
         "ms_per_step": round(1000 * seconds / steps, 3),
         "peak_gpu_memory_mb": round(torch.cuda.max_memory_allocated() / 2**20, 1) if cuda else None,
@@ -451,6 +453,15 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
                 f"- {r['method']} on {r['scene']} (seed {r.get('seed', 0)}): {a['last_step'] + 1} of "
                 f"{a['steps_asked']} steps, model of step {a['kept_step']} kept; {why}"
             )
+    first_seed = min(r.get("seed", 0) for r in runs)
+    decided = [
+        r
+        for r in runs
+        if r.get("seed", 0) == first_seed and (r.get("preprocessing") or "none (variant)") != "none (variant)"
+    ]
+    if decided:
+        lines += ["", "Preprocessing of the training frames (first seed's runs):", ""]
+        lines += [f"- {r['method']} on {r['scene']}: {r['preprocessing']}" for r in decided]
     stress = [r for r in runs if r["scene"].startswith("stress-") and "failed" not in r and r.get("path")]
     if stress:
         faults = list(dict.fromkeys(r["scene"] for r in runs if r["scene"].startswith("stress-")))

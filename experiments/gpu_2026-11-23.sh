@@ -5,7 +5,7 @@
 # plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
 # image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space}
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, dunr-stab-bbhe}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 
@@ -17,6 +17,20 @@ bench() {  # bench ARGS...: one bench command, its files copied to $OUT even whe
   local dir=/tmp/bench-$plan
   timeout 540 python3 -m experiments.bench --output-dir "$dir" "$@" 2>&1 | tee "$OUT/$plan.log" | grep -E "step [0-9]+,|FAILED|Error" | tail -40
   for f in bench.json bench.md speed_accuracy.png; do [ -f "$dir/$f" ] && cp "$dir/$f" "$OUT/$plan-$f"; done
+}
+
+bench_parts() {  # bench_parts ARGS... --output-dir DIR (last): a bench over GPU queues; every finished run's files to $OUT
+  local dir=${*: -1} name
+  name=$(basename "$dir")
+  timeout 540 python3 -m experiments.bench "$@" > "$OUT/$name.log" 2>&1
+  tail -3 "$OUT/$name.log"
+  for f in bench.json bench.md speed_accuracy.png; do [ -f "$dir/$f" ] && cp "$dir/$f" "$OUT/$name-$f"; done
+  (cd "$dir" && find gpu* -name bench.json -o -path "*/strips/*" -name "*.npy" | tar czf "$OUT/$name-parts.tgz" -T -)
+}
+
+stress() {  # stress --methods ...: the five stress scenes of issue 16
+  bench_parts --scenes stress:clean stress:drift stress:ffc stress:outlier stress:vignetting "$@" --seeds 3 --steps 5000 \
+    --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 4 --output-dir "/tmp/$plan"
 }
 
 # DUNR: the first 10,000 steps of the 30k schedule, 3 seeds per method, one method per command
@@ -91,6 +105,30 @@ case "$plan" in
     # where a baked frame's time goes now (a training-space run)
     timeout 60 python3 -m experiments.render_fps --frames 300 --profile-frames 50 --output-dir "$OUT/render" \
       --load-config /tmp/bench-training/gpu0/00_dunr_wild-thermal_seed0/runs/dunr/*/wild-thermal/run/config.yml | tail -8
+    ;;
+  # the stress scenes (one fault each), 5,000 steps like the demo, 3 seeds, 4 runs side by side on the GPU;
+  # each run's own bench.json and strips come back too (parts.tgz), so runs that finished before a
+  # cut-off still count (python -m experiments.bench --merge)
+  stress-a)
+    bundle
+    stress --methods splatfacto
+    ;;
+  stress-b)  # the ablations without an emission MLP, and the full method with its preprocessing forced on
+    bundle
+    stress --methods wild-thermal-3dgs wild-thermal-3dgs-stab-bbhe
+    bench_parts --scenes stress:clean --methods wild-thermal --set pipeline.datamanager.preprocessing.skip_when_stable=False \
+      --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/forced-on
+    ;;
+  stress-c)
+    bundle
+    stress --methods wild-thermal-emission-mlp wild-thermal
+    ;;
+  dunr-stab-bbhe)  # the preprocessing ablation on DUNR and the demo (the rows the 3-seed tables lack)
+    bundle
+    bench_parts --scenes demo --methods wild-thermal-3dgs-stab-bbhe --seeds 3 --steps 5000 --num-downscales 1 \
+      --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/demo-stab-bbhe
+    bench_parts --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs-stab-bbhe --seeds 3 \
+      --steps 10000 --schedule 30000 --eval-at 1000 2000 5000 10000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/dunr-stab-bbhe
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -215,6 +215,38 @@ def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_di
     assert float(images["stab+bbhe"].std()) > 1.3 * float(images["none"].std())
 
 
+def test_the_full_method_preprocesses_a_drifting_capture_and_trains_a_stable_one_raw(demo_scene_dir, tmp_path):
+    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+    from thermal_wild_ns.data.demo_scene import generate_demo_scene, stress_scene_config
+    from thermal_wild_ns.preprocessing.stage import frame_mean_spread, preprocessing_pays
+
+    assert frame_mean_spread([0.2, 0.4]) == pytest.approx(0.1)
+    assert preprocessing_pays(0.02, 0.01) and not preprocessing_pays(0.01, 0.01) and not preprocessing_pays(0.01, 0.02)
+    stable = generate_demo_scene(tmp_path / "clean", stress_scene_config("clean", path_views=0))
+
+    def datamanager(scene, skip_when_stable):
+        return ThermalDatamanagerConfig(
+            dataparser=ThermalDataParserConfig(data=scene, layout="nerfstudio"),
+            preprocessing=PhotometricConfig(skip_when_stable=skip_when_stable),
+            preprocessing_cache=tmp_path / "cache",
+        ).setup(device="cpu")
+
+    drifting = datamanager(demo_scene_dir, True)  # the demo's injected drift: preprocessing steadies it
+    raw, processed = drifting.preprocessed.frame_mean_spreads()
+    assert processed < raw and drifting.preprocessing_used.startswith("stab+bbhe")
+    kept = datamanager(stable, False)  # the fixed preprocessing of the ablations
+    raw, processed = kept.preprocessed.frame_mean_spreads()
+    assert processed >= raw  # equalization moves the clean frames' levels apart
+    skipped = datamanager(stable, True)
+    assert skipped.preprocessed is None and skipped.preprocessing_used.startswith("none: the capture is stable")
+    np.testing.assert_array_equal(  # trains on the frames as captured
+        skipped.train_dataset.get_data(0)["image"][..., 0].numpy(), skipped.train_dataset.original_image(0)
+    )
+    # the decision does not change what is processed: one cache per capture
+    assert len([p for p in (tmp_path / "cache").iterdir() if p.name.startswith("preprocessed-")]) == 2
+
+
 def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_cannot_move(tmp_path):
     """The canonical LUT for views no frame was captured at (paths, viewer, exports). On the outlier
     stress scene (the clean scene plus one frame at +30 % gain), mapping the clean scene's processed

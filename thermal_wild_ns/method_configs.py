@@ -51,7 +51,8 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
         mixed_precision=False,
         machine=MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu"),
         pipeline=ThermalPipelineConfig(
-            datamanager=ThermalDatamanagerConfig(),
+            # the full method preprocesses only captures it steadies (the rule: preprocessing/stage.py)
+            datamanager=ThermalDatamanagerConfig(preprocessing=PhotometricConfig(skip_when_stable=True)),
             model=WildThermalModelConfig(),
         ),
         optimizers=wild_thermal_optimizers(),

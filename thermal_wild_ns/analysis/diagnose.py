@@ -36,7 +36,7 @@ from thermal_wild_ns.analysis.diagnostics import (
 from thermal_wild_ns.data.dataparsers import LayoutName, ThermalDataParserConfig
 from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
-from thermal_wild_ns.preprocessing.stage import preprocess
+from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess, preprocessing_pays
 
 
 @dataclass
@@ -85,21 +85,16 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
     )
 
 
-def preprocessing_advice(before: Dict, after: Dict) -> str:
-    """Which method the measurements point to. Stabilization exists to make consecutive frames
-    consistent; where it makes them less so, the capture was already stable and preprocessing
-    costs accuracy (the measurements behind this rule: docs/results.md)."""
-    b, a = before["std_delta_i"], after["std_delta_i"]
-    if a < b:
-        return (
-            f"preprocessing makes the frames more consistent (std dI_t {b:.4f} -> {a:.4f}): `wild-thermal` (the "
-            f"full method) fits this capture"
-        )
+def preprocessing_advice(sequence: PreprocessedSequence) -> str:
+    """Which method the measurements point to, by the rule the full method trains with
+    (`preprocessing_pays`, `PhotometricConfig.skip_when_stable`)."""
+    raw, processed = sequence.frame_mean_spreads()
+    spreads = f"frame-mean spread {raw:.4f} -> {processed:.4f}"
+    if preprocessing_pays(raw, processed):
+        return f"preprocessing makes the frames steadier ({spreads}): `wild-thermal` preprocesses this capture"
     return (
-        f"preprocessing makes the frames less consistent (std dI_t {b:.4f} -> {a:.4f}): the capture looks "
-        f"photometrically stable; "
-        "consider `wild-thermal-emission-mlp` (no preprocessing), or a weaker equalization "
-        "(--preprocessing.equalization-strength)"
+        f"preprocessing leaves the frames no steadier ({spreads}): the capture looks photometrically stable, "
+        "and `wild-thermal` trains on its raw frames"
     )
 
 
@@ -210,7 +205,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
         f"x{result['error_amplification']['rms']:.2f} RMS"
         f" (hottest 5 %: x{result['error_amplification']['rms_hottest']:.2f})"
     )
-    result["advice"] = preprocessing_advice(result["before"], result["after"])
+    result["advice"] = preprocessing_advice(sequence)
     (args.output_dir / "diagnostics.json").write_text(json.dumps(result, indent=1))
     _plot(
         result,

@@ -13,13 +13,14 @@ from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanagerConfig
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns._upstream import set_training_order, single_channel_datamanager_class
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
-from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
+from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess, preprocessing_pays
 
 
 class ThermalDataset(InputDataset):
@@ -117,19 +118,33 @@ class ThermalDatamanager(single_channel_datamanager_class()):
 
     @cached_property
     def preprocessed(self) -> Optional[PreprocessedSequence]:
-        """LUTs and processed training frames (None for variant 'none'). Only training frames shape
-        the stabilization reference; held-out frames are never preprocessed for training or scoring."""
-        if self.config.preprocessing.variant == "none":
+        """LUTs and processed training frames (None for variant 'none', or where `skip_when_stable`
+        finds the capture stable). Only training frames shape the stabilization reference; held-out
+        frames are never preprocessed for training or scoring."""
+        config = self.config.preprocessing
+        if config.variant == "none":
+            self.preprocessing_used = "none (variant)"
             return None
         capture = self.dataparser.capture()
         train = set(self.train_dataparser_outputs.metadata["frame_indices"])
-        return preprocess(
+        sequence = preprocess(
             capture.frames,
             self.dataparser.radiometric_range(),
-            self.config.preprocessing,
+            config,
             self.config.preprocessing_cache,
             train=[t in train for t in range(len(capture.frames))],
         )
+        raw, processed = sequence.frame_mean_spreads()
+        if config.skip_when_stable and not preprocessing_pays(raw, processed):
+            reason = f"the capture is stable (frame-mean spread {raw:.4f} -> {processed:.4f} preprocessed)"
+            self.preprocessing_used = f"none: {reason}"
+            CONSOLE.log(f"Preprocessing skipped, {reason}: training on the raw frames")
+            return None
+        self.preprocessing_used = f"{config.variant} (frame-mean spread {raw:.4f} -> {processed:.4f})"
+        return sequence
+
+    preprocessing_used: str = ""
+    """What the training frames went through, and why (set with `preprocessed`)."""
 
     def _with_metadata(self, outputs: DataparserOutputs, preprocessed: bool) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed if preprocessed else None

@@ -145,6 +145,12 @@ class PhotometricConfig:
     bimodal scene), so a rendering error there grows when mapped back: `wild-thermal-diagnose`
     reports by how much (`error_amplification`). Lower k trades contrast for that. The default
     0.5 is chosen by a measurement (docs/results.md)."""
+    skip_when_stable: bool = False
+    """Train on the raw frames when preprocessing does not make the training frames' mean levels
+    steadier (`frame_mean_spread` not lower after than before, `preprocessing_pays`): the capture
+    is photometrically stable, and equalization would only amplify rendering errors. Decided from
+    the training frames at setup and logged; the full method turns it on, the ablations keep their
+    fixed preprocessing."""
 
     @property
     def equalizes(self) -> bool:

@@ -21,7 +21,7 @@ import shutil
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 from tqdm import tqdm
@@ -45,7 +45,20 @@ from thermal_wild_ns.preprocessing.photometric import (
     time_weights,
 )
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
+
+
+def frame_mean_spread(means: Sequence[float]) -> float:
+    """How much a sequence's mean level wanders: the std over frames of each frame's mean (the
+    dataset-normalised scale, so raw and processed frames compare, whatever the units)."""
+    return float(np.std(np.asarray(means, dtype=np.float64)))
+
+
+def preprocessing_pays(raw_spread: float, processed_spread: float) -> bool:
+    """The rule of `PhotometricConfig.skip_when_stable`: preprocessing exists to make consecutive
+    frames consistent; where it leaves their mean levels no steadier, the capture was already
+    stable and preprocessing only costs accuracy (the measurement behind it: docs/results.md)."""
+    return processed_spread < raw_spread
 
 
 @dataclass
@@ -67,6 +80,12 @@ class PreprocessedSequence:
     def luts(self) -> np.ndarray:
         """[T, levels] float64 native values (memory-mapped); held-out rows are oracle LUTs."""
         return load_npy(self.folder / "luts.npy", mmap_mode="r")
+
+    def frame_mean_spreads(self) -> Tuple[float, float]:
+        """`frame_mean_spread` of the training frames, raw and processed (what `preprocessing_pays`
+        decides from)."""
+        means = json.loads((self.folder / "meta.json").read_text())["training_frame_means"]
+        return frame_mean_spread(means["raw"]), frame_mean_spread(means["processed"])
 
     def frame_path(self, index: int) -> Path:
         return self.folder / "frames" / f"{index:05d}.npy"
@@ -136,13 +155,20 @@ def _key(
 ) -> str:
     h = hashlib.sha256(
         json.dumps(
-            {"v": CACHE_VERSION, "range": asdict(rng), "config": asdict(config), "train": list(train)}, sort_keys=True
+            {"v": CACHE_VERSION, "range": asdict(rng), "config": _processing(config), "train": list(train)},
+            sort_keys=True,
         ).encode()
     )
     for f in frames:
         stat = f.image.stat()
         h.update(f"{f.image.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
     return h.hexdigest()[:16]
+
+
+def _processing(config: PhotometricConfig) -> dict:
+    """The settings that shape the processed frames (the cache key: `skip_when_stable` only decides
+    whether they are used)."""
+    return {k: v for k, v in asdict(config).items() if k != "skip_when_stable"}
 
 
 def _checked(path: Path, palette: Optional[str]) -> np.ndarray:
@@ -185,6 +211,7 @@ def preprocess(
         header = {"descr": "<f8", "fortran_order": False, "shape": (len(frames), grid.num_levels)}
         np.lib.format.write_array_header_1_0(luts, header)
         current: List[np.ndarray] = []  # the frame frame_luts is on: each file is read once
+        means: dict = {"raw": [], "processed": []}  # training frames, normalised
 
         def raw_frames():
             for f in frames:
@@ -195,13 +222,17 @@ def preprocess(
         for t, lut in enumerate(tqdm(stream, total=len(frames), desc=f"Preprocessing ({config.variant})")):
             luts.write(np.ascontiguousarray(lut, dtype="<f8").tobytes())
             if train[t]:
-                np.save(work / "frames" / f"{t:05d}.npy", rng.normalize(apply_lut(lut, current[0], grid)))
+                processed = rng.normalize(apply_lut(lut, current[0], grid))
+                np.save(work / "frames" / f"{t:05d}.npy", processed)
+                means["raw"].append(float(rng.normalize(current[0]).mean()))
+                means["processed"].append(float(processed.mean()))
         luts.close()
         meta = {
-            "config": asdict(config),
+            "config": _processing(config),
             "range": asdict(rng),
             "frames": [str(f.image) for f in frames],
             "train_indices": [t for t, is_train in enumerate(train) if is_train],
+            "training_frame_means": means,
         }
         (work / "meta.json").write_text(json.dumps(meta, indent=1))
         publish_cache_folder(work, folder, "meta.json")
