@@ -5,7 +5,7 @@
 # plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
 # image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, dunr-stab-bbhe}
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, stress-d}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 
@@ -22,7 +22,7 @@ bench() {  # bench ARGS...: one bench command, its files copied to $OUT even whe
 bench_parts() {  # bench_parts ARGS... --output-dir DIR (last): a bench over GPU queues; every finished run's files to $OUT
   local dir=${*: -1} name
   name=$(basename "$dir")
-  timeout 540 python3 -m experiments.bench "$@" > "$OUT/$name.log" 2>&1
+  timeout "${LIMIT:-540}" python3 -m experiments.bench "$@" > "$OUT/$name.log" 2>&1
   tail -3 "$OUT/$name.log"
   for f in bench.json bench.md speed_accuracy.png; do [ -f "$dir/$f" ] && cp "$dir/$f" "$OUT/$name-$f"; done
   (cd "$dir" && find gpu* -name bench.json -o -path "*/strips/*" -name "*.npy" | tar czf "$OUT/$name-parts.tgz" -T -)
@@ -113,22 +113,28 @@ case "$plan" in
     bundle
     stress --methods splatfacto
     ;;
-  stress-b)  # the ablations without an emission MLP, and the full method with its preprocessing forced on
+  stress-b)  # the full method with its preprocessing forced on (stress-clean), then the ablations without an emission MLP
     bundle
-    stress --methods wild-thermal-3dgs wild-thermal-3dgs-stab-bbhe
     bench_parts --scenes stress:clean --methods wild-thermal --set pipeline.datamanager.preprocessing.skip_when_stable=False \
       --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/forced-on
+    LIMIT=450 stress --methods wild-thermal-3dgs wild-thermal-3dgs-stab-bbhe
     ;;
   stress-c)
     bundle
     stress --methods wild-thermal-emission-mlp wild-thermal
     ;;
-  dunr-stab-bbhe)  # the preprocessing ablation on DUNR and the demo (the rows the 3-seed tables lack)
+  # the full method on stress-outlier with the robust frame-mean spread (MAD; stress-c ran with the std,
+  # which the one bright frame inflated), then the preprocessing ablation on the demo and DUNR with the
+  # conditions of the 3-seed tables it joins (no automatic stop, 5,000 / the first 10,000 of 30,000 steps)
+  stress-d)
     bundle
-    bench_parts --scenes demo --methods wild-thermal-3dgs-stab-bbhe --seeds 3 --steps 5000 --num-downscales 1 \
-      --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/demo-stab-bbhe
-    bench_parts --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs-stab-bbhe --seeds 3 \
-      --steps 10000 --schedule 30000 --eval-at 1000 2000 5000 10000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/dunr-stab-bbhe
+    bench_parts --scenes stress:outlier --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 \
+      --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/outlier-mad
+    LIMIT=120 bench_parts --scenes demo --methods wild-thermal-3dgs-stab-bbhe --seeds 3 --steps 5000 --num-downscales 1 \
+      --eval-at 500 1000 2000 5000 --fps-frames 0 --no-auto-stop --runs-per-gpu 3 --output-dir /tmp/demo-stab-bbhe
+    LIMIT=300 bench_parts --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs-stab-bbhe \
+      --seeds 3 --steps 10000 --schedule 30000 --eval-at 1000 2000 5000 10000 --fps-frames 0 --no-auto-stop --runs-per-gpu 3 \
+      --output-dir /tmp/dunr-stab-bbhe
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -221,7 +221,8 @@ def test_the_full_method_preprocesses_a_drifting_capture_and_trains_a_stable_one
     from thermal_wild_ns.data.demo_scene import generate_demo_scene, stress_scene_config
     from thermal_wild_ns.preprocessing.stage import frame_mean_spread, preprocessing_pays
 
-    assert frame_mean_spread([0.2, 0.4]) == pytest.approx(0.1)
+    assert frame_mean_spread([0.2, 0.4]) == pytest.approx(0.14826)  # the MAD, scaled to a std
+    assert frame_mean_spread([0.3] * 9 + [0.9]) == 0.0  # one outlier frame does not make a capture unsteady
     assert preprocessing_pays(0.02, 0.01) and not preprocessing_pays(0.01, 0.01) and not preprocessing_pays(0.01, 0.02)
     stable = generate_demo_scene(tmp_path / "clean", stress_scene_config("clean", path_views=0))
 
@@ -240,11 +241,14 @@ def test_the_full_method_preprocesses_a_drifting_capture_and_trains_a_stable_one
     assert processed >= raw  # equalization moves the clean frames' levels apart
     skipped = datamanager(stable, True)
     assert skipped.preprocessed is None and skipped.preprocessing_used.startswith("none: the capture is stable")
+    # one frame 30 % brighter does not make the clean capture unsteady
+    outlier = generate_demo_scene(tmp_path / "outlier", stress_scene_config("outlier", path_views=0))
+    assert datamanager(outlier, True).preprocessed is None
     np.testing.assert_array_equal(  # trains on the frames as captured
         skipped.train_dataset.get_data(0)["image"][..., 0].numpy(), skipped.train_dataset.original_image(0)
     )
     # the decision does not change what is processed: one cache per capture
-    assert len([p for p in (tmp_path / "cache").iterdir() if p.name.startswith("preprocessed-")]) == 2
+    assert len([p for p in (tmp_path / "cache").iterdir() if p.name.startswith("preprocessed-")]) == 3
 
 
 def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_cannot_move(tmp_path):

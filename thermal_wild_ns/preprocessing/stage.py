@@ -49,9 +49,12 @@ CACHE_VERSION = 3
 
 
 def frame_mean_spread(means: Sequence[float]) -> float:
-    """How much a sequence's mean level wanders: the std over frames of each frame's mean (the
-    dataset-normalised scale, so raw and processed frames compare, whatever the units)."""
-    return float(np.std(np.asarray(means, dtype=np.float64)))
+    """How much a sequence's mean level wanders: the median absolute deviation of the frames' means
+    (scaled to a standard deviation), in the dataset-normalised scale so raw and processed frames
+    compare whatever the units. Robust: one outlier frame does not make a stable capture look
+    unsteady (on such a capture, preprocessing costs accuracy: docs/results.md)."""
+    means = np.asarray(means, dtype=np.float64)
+    return float(1.4826 * np.median(np.abs(means - np.median(means))))
 
 
 def preprocessing_pays(raw_spread: float, processed_spread: float) -> bool:
