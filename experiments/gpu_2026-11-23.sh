@@ -5,7 +5,7 @@
 # plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
 # image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, stress-d}
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, stress-d, stress-e}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 
@@ -135,6 +135,11 @@ case "$plan" in
     LIMIT=300 bench_parts --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs-stab-bbhe \
       --seeds 3 --steps 10000 --schedule 30000 --eval-at 1000 2000 5000 10000 --fps-frames 0 --no-auto-stop --runs-per-gpu 3 \
       --output-dir /tmp/dunr-stab-bbhe
+    ;;
+  stress-e)  # the full method again, the automatic stop's window a whole opacity-reset cycle while resets come (patience_at)
+    bundle
+    bench_parts --scenes stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal --seeds 3 \
+      --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 5 --output-dir /tmp/reset-cycle
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
