@@ -136,7 +136,8 @@ case "$plan" in
       --seeds 3 --steps 10000 --schedule 30000 --eval-at 1000 2000 5000 10000 --fps-frames 0 --no-auto-stop --runs-per-gpu 3 \
       --output-dir /tmp/dunr-stab-bbhe
     ;;
-  stress-e)  # the full method again, the automatic stop's window a whole opacity-reset cycle while resets come (patience_at)
+  stress-e)  # run on commit c1ac6fc: the full method, the automatic stop's window a whole opacity-reset cycle while
+    # resets come (patience_at, reverted after this run: no gain, more steps; docs/results/stress_protocols_3seeds)
     bundle
     bench_parts --scenes stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal --seeds 3 \
       --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 5 --output-dir /tmp/reset-cycle

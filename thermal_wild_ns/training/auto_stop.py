@@ -5,10 +5,9 @@ their photometric state can be interpolated from their neighbours). Every `check
 the schedule's start-up is over (full resolution, past the first opacity reset), the model renders
 them at that interpolated state and is scored against them as captured (PSNR, original space): the
 question the `time` protocol asks of a held-out view, asked of frames that are not the test views.
-When the score has not risen by `min_improvement` dB in `patience` checks in a row (while opacity
-resets still come, a whole reset cycle: `patience_at`), training stops, and the best-scoring model
-is kept. Quality on new views can fall after an early peak; the held-back frames see that fall,
-which no measure of the frames being fitted can.
+When the score has not risen by `min_improvement` dB in `patience` checks in a row, training stops,
+and the best-scoring model is kept. Quality on new views can fall after an early peak; the
+held-back frames see that fall, which no measure of the frames being fitted can.
 
 `PlateauRule` is the decision alone; `held_back_images` picks the frames; `held_back_score` scores.
 """
@@ -74,17 +73,6 @@ class PlateauRule:
             f"the held-back frames' PSNR has not risen by {self.min_improvement:g} dB in {self.patience} checks "
             f"({self.patience * check_every} steps); best {self.best:.2f} dB at step {self.best_step}"
         )
-
-
-def patience_at(step: int, config: AutoStopConfig, reset_every: int, refine_stop: int) -> int:
-    """Checks without improvement that end a run at `step`. Each opacity reset (every
-    `reset_every` steps before `refine_stop`, gsplat's schedule) drops the score, which climbs back
-    over the next `reset_every` steps: until a cycle after the last reset, the window spans a whole
-    cycle and the check after it, so a run is never ended on a reset's dip. Else `config.patience`."""
-    last_reset = (refine_stop - 1) // reset_every * reset_every if reset_every > 0 else 0
-    if last_reset <= 0 or step >= last_reset + reset_every:
-        return config.patience
-    return max(config.patience, math.ceil(reset_every / config.check_every) + 1)
 
 
 def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:

@@ -31,13 +31,7 @@ from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
 from thermal_wild_ns.pipeline.run_check import checkpoints_in
-from thermal_wild_ns.training.auto_stop import (
-    AutoStopConfig,
-    PlateauRule,
-    held_back_images,
-    held_back_score,
-    patience_at,
-)
+from thermal_wild_ns.training.auto_stop import AutoStopConfig, PlateauRule, held_back_images, held_back_score
 
 
 class TrainingDiverged(RuntimeError):
@@ -294,13 +288,6 @@ class GuardedTrainer(trainer_after_load_class()):
             path = self._state_path("best", step)
             path.parent.mkdir(parents=True, exist_ok=True)
             torch.save(self._best, path)
-        strategy = getattr(self.pipeline.model, "strategy", None)
-        self.progress.patience = patience_at(
-            step,
-            self.config.auto_stop,
-            getattr(strategy, "reset_every", 0),
-            getattr(strategy, "refine_stop_iter", 0),
-        )
         if self.progress.plateaued and self.stop_reason is None:
             self.stop_reason = self.progress.reason(self.config.auto_stop.check_every)
             self.stop_training = True  # nerfstudio's loop ends before the next step
