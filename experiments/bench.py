@@ -80,9 +80,9 @@ class BenchArgs:
     halving the factor every `resolution_schedule` steps (default: the configs' 2, i.e. 1/4; a
     128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
     set: Tuple[str, ...] = ()
-    """Settings of this plugin's methods as dotted config paths, e.g. `pipeline.model.heat_aware_ssim=False`
-    or `pipeline.datamanager.preprocessing.variant=none` (values read as Python literals, else as text);
-    named in the run's label."""
+    """Settings of every method's config as dotted paths, e.g. `pipeline.model.heat_aware_ssim=False`,
+    `pipeline.datamanager.preprocessing.variant=none` or splatfacto's `pipeline.model.sh_degree=0`
+    (values read as Python literals, else as text); named in the run's label."""
     auto_stop: bool = True
     """The automatic stop of this plugin's methods (`training/auto_stop.py`, its check interval scaled
     with the schedule like the densification's); off: every run trains `--steps` steps."""
@@ -148,8 +148,6 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
             config.pipeline.model.max_gaussians = args.max_gaussians
-        for setting in args.set:
-            apply_setting(config, setting)
         if args.equalization_strength is not None:
             preprocessing = config.pipeline.datamanager.preprocessing
             config.pipeline.datamanager.preprocessing = dataclasses.replace(
@@ -157,6 +155,8 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
             )
     if args.num_downscales is not None:
         config.pipeline.model.num_downscales = args.num_downscales
+    for setting in args.set:
+        apply_setting(config, setting)
     config.pipeline.datamanager.preprocessing_cache = args.cache_dir or args.output_dir / "cache"
     config.pipeline.datamanager.train_order_seed = seed
     config.output_dir = run_dir
@@ -212,8 +212,7 @@ def run_label(method: str, args: BenchArgs) -> str:
         and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes
     ):
         changed.append(f"equalization-strength {args.equalization_strength:g}")
-    if method in METHODS:
-        changed += [setting.rsplit(".", 1)[-1] for setting in args.set]
+    changed += [setting.rsplit(".", 1)[-1] for setting in args.set]
     return f"{method} ({', '.join(changed)})" if changed else method
 
 

@@ -5,7 +5,7 @@
 # plyfile) carried, and `.data` (DUNR and its triangulation cache, made on a CPU machine: the GPU
 # image has no pycolmap) for the DUNR plans. Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, stress-d, stress-e}
+plan=${1:?plan: setup, dunr-splatfacto, dunr-3dgs, dunr-emission-mlp, dunr-wild-thermal, demo-a, demo-b, dunr-auto, demo-auto, speed, loss-space, stress-a, stress-b, stress-c, stress-d, stress-e, splatfacto-parts}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 
@@ -141,6 +141,15 @@ case "$plan" in
     bundle
     bench_parts --scenes stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal --seeds 3 \
       --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 5 --output-dir /tmp/reset-cycle
+    ;;
+  splatfacto-parts)  # what splatfacto's lead on stress-clean comes from: no view-dependent colour (SH degree 0), or a
+    # black training background in place of its random one; 3 seeds each, the six runs at once
+    bundle
+    LIMIT=230 bench_parts --scenes stress:clean --methods splatfacto --set pipeline.model.sh_degree=0 --seeds 3 --steps 5000 \
+      --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/sf-sh0 &
+    LIMIT=230 bench_parts --scenes stress:clean --methods splatfacto --set pipeline.model.background_color=black --seeds 3 \
+      --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3 --output-dir /tmp/sf-black
+    wait
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -309,8 +309,8 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
     assert second["psnr_half"] < first["psnr_half"] - 3.0
 
 
-def test_settings_reach_nested_and_frozen_config_fields():
-    from experiments.bench import BenchArgs, apply_setting, run_label
+def test_settings_reach_nested_and_frozen_config_fields(tmp_path):
+    from experiments.bench import BenchArgs, apply_setting, run_label, trainer_config
     from thermal_wild_ns.method_configs import method_trainer
 
     config = method_trainer("wild-thermal")
@@ -326,4 +326,48 @@ def test_settings_reach_nested_and_frozen_config_fields():
         apply_setting(config, "pipeline.model.alpha_lambda")
     args = BenchArgs(set=("pipeline.model.heat_aware_ssim=False",))
     assert run_label("wild-thermal", args) == "wild-thermal (heat_aware_ssim=False)"
-    assert run_label("splatfacto", args) == "splatfacto"  # the settings are this plugin's methods'
+    # stock splatfacto's settings too (what its lead on the stress scenes comes from)
+    args = BenchArgs(set=("pipeline.model.sh_degree=0",), output_dir=tmp_path)
+    assert trainer_config("splatfacto", "demo", args, tmp_path).pipeline.model.sh_degree == 0
+    assert run_label("splatfacto", args) == "splatfacto (sh_degree=0)"
+
+
+def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scene(tmp_path):
+    from experiments.full_vs_ablations import Args, main
+
+    def run(method, scene, aligned, time, steps=100, stop=None):
+        return {
+            "method": method,
+            "scene": scene,
+            "psnr_aligned": aligned,
+            "psnr_time": time,
+            "steps": steps,
+            "ms_per_step": 10.0,
+            "auto_stop": stop,
+        }
+
+    def bench(name, *runs):
+        path = tmp_path / name
+        path.write_text(json.dumps({"runs": list(runs)}))
+        return path
+
+    stop = {"steps_asked": 500}
+    first = bench("first.json", run("wild-thermal", "a", 10.0, 10.0), run("wild-thermal", "b", 30.0, 30.0, 200, stop))
+    later = bench("later.json", run("wild-thermal (x=1)", "a", 20.0, 19.0), run("wild-thermal (x=1)", "a", 22.0, 19.0))
+    others = bench(
+        "others.json",
+        run("splatfacto", "a", 21.2, 18.0),
+        run("wild-thermal-3dgs", "a", 19.0, 19.5),
+        run("wild-thermal", "a", 99.0, 99.0),  # the full method's runs among the others are not rivals
+        run("wild-thermal-3dgs", "b", 31.0, 29.0),
+    )
+    rows = main(Args(full=(first, later), others=(others,), output=tmp_path / "out.md"))
+    got = {(r["scene"], r["protocol"]): r for r in rows}
+    # scene a: the later file's runs (mean 21.0 aligned, 19.0 time) replace the first file's
+    assert got[("a", "aligned")]["best"] == "splatfacto" and got[("a", "aligned")]["margin"] == pytest.approx(-0.2)
+    assert got[("a", "aligned")]["met"] and got[("a", "aligned")]["seeds"] == 2
+    assert got[("a", "time")]["best"] == "wild-thermal-3dgs" and got[("a", "time")]["margin"] == pytest.approx(-0.5)
+    assert not got[("a", "time")]["met"]  # 0.5 dB short: past the 0.3 dB tolerance
+    assert not got[("b", "aligned")]["met"] and got[("b", "time")]["met"]
+    text = (tmp_path / "out.md").read_text()
+    assert "**no**, 1.00 dB short" in text and "| b | 1 | 200 (200–200) | 500 | 300 | 3.00 (3.00–3.00) |" in text

@@ -47,11 +47,14 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
         steps_per_eval_batch=0,
         steps_per_save=2000,
         steps_per_eval_all_images=1_000_000,
+        # an upper bound: the automatic stop ends a run once its held-back frames stop improving, well
+        # before this on every measured scene (docs/results/auto_stop_dunr, stress_protocols_3seeds)
         max_num_iterations=30000,
         mixed_precision=False,
         machine=MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu"),
         pipeline=ThermalPipelineConfig(
-            # the full method preprocesses only captures it steadies (the rule: preprocessing/stage.py)
+            # the full method preprocesses only captures it steadies (the rule: preprocessing/stage.py;
+            # chosen by docs/results/stress_protocols_3seeds)
             datamanager=ThermalDatamanagerConfig(preprocessing=PhotometricConfig(skip_when_stable=True)),
             model=WildThermalModelConfig(),
         ),

@@ -149,8 +149,8 @@ class PhotometricConfig:
     """Train on the raw frames when preprocessing does not make the training frames' mean levels
     steadier (`frame_mean_spread` not lower after than before, `preprocessing_pays`): the capture
     is photometrically stable, and equalization would only amplify rendering errors. Decided from
-    the training frames at setup and logged; the full method turns it on, the ablations keep their
-    fixed preprocessing."""
+    the training frames at setup and logged; the full method turns it on (the runs that chose it:
+    docs/results/stress_protocols_3seeds), the ablations keep their fixed preprocessing."""
 
     @property
     def equalizes(self) -> bool:

@@ -52,7 +52,7 @@ def frame_mean_spread(means: Sequence[float]) -> float:
     """How much a sequence's mean level wanders: the median absolute deviation of the frames' means
     (scaled to a standard deviation), in the dataset-normalised scale so raw and processed frames
     compare whatever the units. Robust: one outlier frame does not make a stable capture look
-    unsteady (on such a capture, preprocessing costs accuracy: docs/results.md)."""
+    unsteady (on such a capture, preprocessing costs accuracy: docs/results/stress_protocols_3seeds)."""
     means = np.asarray(means, dtype=np.float64)
     return float(1.4826 * np.median(np.abs(means - np.median(means))))
 
@@ -60,7 +60,7 @@ def frame_mean_spread(means: Sequence[float]) -> float:
 def preprocessing_pays(raw_spread: float, processed_spread: float) -> bool:
     """The rule of `PhotometricConfig.skip_when_stable`: preprocessing exists to make consecutive
     frames consistent; where it leaves their mean levels no steadier, the capture was already
-    stable and preprocessing only costs accuracy (the measurement behind it: docs/results.md)."""
+    stable and preprocessing only costs accuracy (docs/results/stress_protocols_3seeds)."""
     return processed_spread < raw_spread
 
 

@@ -1,0 +1,144 @@
+"""Is the full method within reach of the best of its ablations and splatfacto, scene by scene?
+
+    python -m experiments.full_vs_ablations --full A/bench.json ... --others B/bench.json ... \
+        --output docs/results/full_vs_ablations.md
+
+Reads bench.json files (`python -m experiments.bench`). `--full`: the runs of `wild-thermal` (its
+label before any " (...)"), one configuration per scene: where several files hold a scene, the last
+file's runs replace the earlier ones. `--others`: every other method's runs (the full method's runs
+in them are left out). For each scene and protocol (`aligned`, `time`), the full method's mean over
+seeds against the best other method's mean: the margin, and whether it is within `--tolerance` dB.
+Also the steps the automatic stop saved: steps asked minus steps trained, and those steps at the
+run's own ms/step.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Tuple
+
+import numpy as np
+import tyro
+
+FULL = "wild-thermal"
+PROTOCOLS = ("aligned", "time")
+
+
+@dataclass
+class Args:
+    full: Tuple[Path, ...]
+    """bench.json files with the full method's runs (later files replace a scene's earlier runs)."""
+    others: Tuple[Path, ...]
+    """bench.json files with the ablations' and splatfacto's runs."""
+    output: Path = Path("outputs/full_vs_ablations.md")
+    tolerance: float = 0.3
+    """How far (dB) under the best other method the full method may be."""
+
+
+def base_method(label: str) -> str:
+    """'wild-thermal (num-downscales 1)' -> 'wild-thermal'."""
+    return label.split(" (")[0]
+
+
+def _runs(path: Path) -> List[dict]:
+    return [r for r in json.loads(Path(path).read_text())["runs"] if "failed" not in r]
+
+
+def collect(args: Args) -> Tuple[Dict[str, List[dict]], Dict[Tuple[str, str], List[dict]]]:
+    """The full method's runs by scene, and the other methods' runs by (scene, method label)."""
+    full: Dict[str, List[dict]] = {}
+    for path in args.full:
+        by_scene: Dict[str, List[dict]] = defaultdict(list)
+        for run in _runs(path):
+            if base_method(run["method"]) == FULL:
+                by_scene[run["scene"]].append(run)
+        full.update(by_scene)  # a later file's scene replaces the earlier one
+    others: Dict[Tuple[str, str], List[dict]] = defaultdict(list)
+    for path in args.others:
+        for run in _runs(path):
+            if base_method(run["method"]) != FULL:
+                others[(run["scene"], run["method"])].append(run)
+    return full, others
+
+
+def _mean_range(values: List[float]) -> str:
+    return f"{np.mean(values):.2f} ({min(values):.2f}–{max(values):.2f})"
+
+
+def margins(args: Args) -> Tuple[str, List[dict]]:
+    full, others = collect(args)
+    rows, lines = [], []
+    lines += [
+        f"Full `{FULL}` against the best of the other methods on each scene (mean over seeds, min–max), "
+        f"within {args.tolerance} dB or not:",
+        "",
+        "| scene | protocol | full | best other | its mean | margin | met |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for scene, runs in full.items():
+        rivals = {method: rs for (s, method), rs in others.items() if s == scene}
+        for protocol in PROTOCOLS:
+            key = f"psnr_{protocol}"
+            mine = [r[key] for r in runs]
+            best_method, best = max(
+                ((m, float(np.mean([r[key] for r in rs]))) for m, rs in rivals.items()), key=lambda mb: mb[1]
+            )
+            margin = float(np.mean(mine)) - best
+            met = margin >= -args.tolerance
+            rows.append(
+                {
+                    "scene": scene,
+                    "protocol": protocol,
+                    "full": float(np.mean(mine)),
+                    "best": best_method,
+                    "best_mean": best,
+                    "margin": margin,
+                    "met": met,
+                    "seeds": len(mine),
+                    "rivals": sorted(rivals),
+                }
+            )
+            lines.append(
+                f"| {scene} | `{protocol}` | {_mean_range(mine)} | {best_method} | {best:.2f} | {margin:+.2f} | "
+                f"{'yes' if met else f'**no**, {-margin:.2f} dB short'} |"
+            )
+    lines += ["", "Methods compared on each scene:", ""]
+    for scene in full:
+        lines.append(f"- {scene}: " + ", ".join(sorted({m for (s, m) in others if s == scene})))
+    lines += [
+        "",
+        "The automatic stop (full method): steps trained of those asked, and the steps saved at each run's ms/step:",
+        "",
+    ]
+    lines += [
+        "| scene | seeds | steps trained | of | steps saved | seconds saved |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for scene, runs in full.items():
+        stops = [r for r in runs if r.get("auto_stop")]
+        if not stops:
+            continue
+        trained = [r["steps"] for r in stops]
+        asked = stops[0]["auto_stop"]["steps_asked"]
+        saved = [asked - r["steps"] for r in stops]
+        seconds = [(asked - r["steps"]) * r["ms_per_step"] / 1000 for r in stops]
+        lines.append(
+            f"| {scene} | {len(stops)} | {np.mean(trained):.0f} ({min(trained)}–{max(trained)}) | {asked} | "
+            f"{np.mean(saved):.0f} | {_mean_range(seconds)} |"
+        )
+    return "\n".join(lines) + "\n", rows
+
+
+def main(args: Args) -> List[dict]:
+    text, rows = margins(args)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(text)
+    print(text)
+    return rows
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
