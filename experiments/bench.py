@@ -452,7 +452,7 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
                 f"- {r['method']} on {r['scene']} (seed {r.get('seed', 0)}): {a['last_step'] + 1} of "
                 f"{a['steps_asked']} steps, model of step {a['kept_step']} kept; {why}"
             )
-    first_seed = min(r.get("seed", 0) for r in runs)
+    first_seed = min((r.get("seed", 0) for r in runs), default=0)
     decided = [
         r
         for r in runs
