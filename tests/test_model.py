@@ -420,3 +420,21 @@ def test_renders_outside_training_use_the_baked_background():
     spread = float(exact.max() - exact.min())
     assert getattr(model, "_baked_background", None) is not None
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
+
+
+def test_a_random_training_background_is_redrawn_each_step_and_only_in_training():
+    from thermal_wild_ns.errors import InputError
+
+    model = make_model(use_background_mlp=False, use_emission_mlp=False, random_background=True, background_value=0.25)
+    camera = make_camera(1)
+    K, c2w = camera.get_intrinsics_matrices()[0], camera.camera_to_worlds[0]
+    model.train()
+    first, second = (model.background(K, c2w, None, 48, 32) for _ in range(2))
+    assert first.shape == (32, 48, 1) and float(first.std()) == 0.0  # one value over the frame ...
+    assert float(first[0, 0]) != float(second[0, 0]) and 0.0 <= float(first[0, 0]) <= 1.0  # ... drawn per step
+    outputs = model.get_outputs(camera)  # and what training composites over
+    assert torch.isfinite(outputs["rgb"]).all()
+    model.eval()
+    assert torch.all(model.background(K, c2w, None, 48, 32) == 0.25)  # a render a user sees: the fixed value
+    with pytest.raises(InputError, match="random_background needs use_background_mlp False"):
+        make_model(random_background=True)

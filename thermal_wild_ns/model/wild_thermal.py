@@ -28,6 +28,7 @@ from torch.nn import Parameter
 from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import viewer_control_class
+from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
@@ -58,6 +59,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     background_value: float = 0.0
     """Constant background (normalised intensity) when the background MLP is off; the background
     MLP's initial value when it is on."""
+    random_background: bool = False
+    """Without the background MLP: composite each training render over a background drawn afresh
+    at every step (uniform in [0, 1]), as splatfacto does. No Gaussian can then leave a pixel to
+    the background, so the frames must be covered by opaque Gaussians, the sky included. Renders
+    outside training use `background_value`."""
     background_stride: int = 4
     """The background MLP is evaluated every this many pixels and upsampled bilinearly: its
     direction encoding (spherical harmonics up to degree 3) varies far more slowly than that."""
@@ -156,6 +162,8 @@ class WildThermalModel(SplatfactoModel):
         self.background_mlp = (
             BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
         )
+        if cfg.random_background and cfg.use_background_mlp:
+            raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -485,6 +493,8 @@ class WildThermalModel(SplatfactoModel):
         directions are computed once and reused. Every other render samples the baked map
         (`baked_background_map`)."""
         if self.background_mlp is None:
+            if self.training and self.config.random_background:
+                return torch.rand(1, 1, 1, device=self.device).expand(height, width, 1)
             return torch.full((height, width, 1), self.config.background_value, device=self.device)
         stride = self.config.background_stride
         if not self.training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
