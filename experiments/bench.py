@@ -38,6 +38,7 @@ from experiments import device_name, synchronize, train_with_hooks
 from experiments.render_fps import measure_fps
 from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
 from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, evaluate, evaluate_path
+from thermal_wild_ns.data.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
 
@@ -456,7 +457,7 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
     decided = [
         r
         for r in runs
-        if r.get("seed", 0) == first_seed and (r.get("preprocessing") or "none (variant)") != "none (variant)"
+        if r.get("seed", 0) == first_seed and (r.get("preprocessing") or NOT_PREPROCESSED) != NOT_PREPROCESSED
     ]
     if decided:
         lines += ["", "Preprocessing of the training frames (first seed's runs):", ""]

@@ -23,6 +23,8 @@ from typing import Dict, List, Tuple
 import numpy as np
 import tyro
 
+from experiments.bench import _cell, spread
+
 FULL = "wild-thermal"
 PROTOCOLS = ("aligned", "time")
 
@@ -64,8 +66,9 @@ def collect(args: Args) -> Tuple[Dict[str, List[dict]], Dict[Tuple[str, str], Li
     return full, others
 
 
-def _mean_range(values: List[float]) -> str:
-    return f"{np.mean(values):.2f} ({min(values):.2f}–{max(values):.2f})"
+def _mean_range(values: List[float], digits: int = 2) -> str:
+    """Mean (min–max) as the bench's tables write it (the range only where the runs differ)."""
+    return _cell({"values": spread(values)}, "values", digits)
 
 
 def margins(args: Args) -> Tuple[str, List[dict]]:
@@ -98,7 +101,6 @@ def margins(args: Args) -> Tuple[str, List[dict]]:
                     "margin": margin,
                     "met": met,
                     "seeds": len(mine),
-                    "rivals": sorted(rivals),
                 }
             )
             lines.append(
@@ -126,7 +128,7 @@ def margins(args: Args) -> Tuple[str, List[dict]]:
         saved = [asked - r["steps"] for r in stops]
         seconds = [(asked - r["steps"]) * r["ms_per_step"] / 1000 for r in stops]
         lines.append(
-            f"| {scene} | {len(stops)} | {np.mean(trained):.0f} ({min(trained)}–{max(trained)}) | {asked} | "
+            f"| {scene} | {len(stops)} | {_mean_range(trained, 0)} | {asked} | "
             f"{np.mean(saved):.0f} | {_mean_range(seconds)} |"
         )
     return "\n".join(lines) + "\n", rows

@@ -22,6 +22,9 @@ from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess, preprocessing_pays
 
+NOT_PREPROCESSED = "none (variant)"
+"""`ThermalDatamanager.preprocessing_used` of a method that never preprocesses (variant 'none')."""
+
 
 class ThermalDataset(InputDataset):
     """Frames as float32 [H, W, 1] in the dataset's normalised radiometric scale (no 8-bit rounding)."""
@@ -123,7 +126,7 @@ class ThermalDatamanager(single_channel_datamanager_class()):
         frames are never preprocessed for training or scoring."""
         config = self.config.preprocessing
         if config.variant == "none":
-            self.preprocessing_used = "none (variant)"
+            self.preprocessing_used = NOT_PREPROCESSED
             return None
         capture = self.dataparser.capture()
         train = set(self.train_dataparser_outputs.metadata["frame_indices"])

@@ -159,11 +159,11 @@ class WildThermalModel(SplatfactoModel):
             if cfg.use_emission_mlp
             else None
         )
+        if cfg.random_background and cfg.use_background_mlp:
+            raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self.background_mlp = (
             BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
         )
-        if cfg.random_background and cfg.use_background_mlp:
-            raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
