@@ -6,13 +6,16 @@ the model as in a real run by then), then
 - counts the host syncs of a few steps (`torch.cuda.set_sync_debug_mode`) by the line that made them;
 - profiles `--profile-steps` steps with torch.profiler: GPU kernel time per step against wall time per
   step (a step much longer than its kernels is bound by Python and launches, not by the GPU), the
-  top operators by GPU and by CPU time, and the model's own sections (`thermal/...` ranges).
+  top operators by GPU and by CPU time, and the model's own sections (`thermal/...` ranges);
+- profiles `--python-steps` steps with cProfile: the host's time by Python function (trainer,
+  callbacks, model, optimizers), the part of a host-bound step that operator tables do not name.
 Writes `profile.json` and `profile.md` to `--output-dir`.
 """
 
 from __future__ import annotations
 
 import collections
+import cProfile
 import json
 import time
 import warnings
@@ -23,7 +26,7 @@ from typing import Dict, Optional
 import torch
 import tyro
 
-from experiments import device_name, synchronize, train_with_hooks
+from experiments import device_name, python_profile_markdown, synchronize, train_with_hooks
 from experiments.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, trainer_config
 
 
@@ -39,6 +42,8 @@ class ProfileArgs:
     """Steps timed without the profiler."""
     profile_steps: int = 20
     """Steps recorded by torch.profiler."""
+    python_steps: int = 100
+    """Steps recorded by cProfile (0: none)."""
     max_gaussians: Optional[int] = None
     output_dir: Path = Path("outputs/profile")
     cache_dir: Optional[Path] = None
@@ -70,7 +75,7 @@ def _kernel_microseconds(prof) -> float:
 class _Phases:
     """After-step hook of one `Trainer.train` run: after `warmup` steps it times `steps` steps,
     then (CUDA) counts host syncs over `SYNC_STEPS` steps, then records `profile_steps` steps
-    with torch.profiler."""
+    with torch.profiler, then `python_steps` steps with cProfile."""
 
     SYNC_STEPS = 5
 
@@ -82,14 +87,18 @@ class _Phases:
         self.timed = (args.warmup, args.warmup + args.steps)
         self.synced = (self.timed[1], self.timed[1] + (self.SYNC_STEPS if cuda else 0))
         self.profiled = (self.synced[1], self.synced[1] + args.profile_steps)
-        self.total = self.profiled[1]
+        self.python = (self.profiled[1], self.profiled[1] + args.python_steps)
+        self.total = self.python[1]
         self.prof = torch_profile(activities=[ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else []))
+        self.python_prof = cProfile.Profile()
         self.ms_per_step = self.profiled_ms = 0.0
+        self.measuring = False  # no checkpoint is written while True (a short run saves every tenth of its steps)
         self.syncs: Dict[str, int] = collections.Counter()
 
     def __call__(self, step: int) -> None:
         done = step + 1
         if done == self.timed[0]:
+            self.measuring = True
             synchronize()
             self.clock = time.perf_counter()
         if done == self.timed[1]:
@@ -114,6 +123,13 @@ class _Phases:
             synchronize()
             self.prof.stop()
             self.profiled_ms = 1000 * (time.perf_counter() - self.clock) / (self.profiled[1] - self.profiled[0])
+            if self.python[1] > self.python[0]:
+                self.python_prof.enable()
+        if done == self.python[1] and self.python[1] > self.python[0]:
+            synchronize()
+            self.python_prof.disable()
+        if done == self.total:
+            self.measuring = False
 
 
 def profile(args: ProfileArgs) -> Dict:
@@ -128,9 +144,13 @@ def profile(args: ProfileArgs) -> Dict:
         cache_dir=args.cache_dir,
         auto_stop=False,  # every profiled step is a training step
     )
-    trainer = setup_trainer(trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs"))
+    config = trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs")
+    config.save_config()  # python -m experiments.render_fps can then load the run
+    trainer = setup_trainer(config)
     cuda = torch.cuda.is_available()
     phases = _Phases(args, cuda)
+    save = trainer.save_checkpoint  # the run's own checkpoints, but none inside the measured steps
+    trainer.save_checkpoint = lambda step: None if phases.measuring else save(step)
     train_with_hooks(trainer, phases.total, phases)
     prof, ms_per_step, profiled_ms = phases.prof, phases.ms_per_step, phases.profiled_ms
     syncs = dict(sorted(phases.syncs.items(), key=lambda kv: -kv[1]))
@@ -166,6 +186,7 @@ def profile(args: ProfileArgs) -> Dict:
         ],
         "top_gpu": [row(e) for e in by_gpu],
         "top_cpu": [row(e) for e in by_cpu],
+        "python_profile": python_profile_markdown(phases.python_prof, args.python_steps) if args.python_steps else "",
     }
     (args.output_dir / "profile.json").write_text(json.dumps(result, indent=1))
     (args.output_dir / "profile.md").write_text(_markdown(result))
@@ -198,6 +219,8 @@ def _markdown(r: Dict) -> str:
             f"| {x['name'][:70]} | {x['calls_per_step']:.1f} | {x['self_gpu_ms']:.3f} | {x['self_cpu_ms']:.3f} |"
             for x in rows
         ]
+    if r.get("python_profile"):
+        lines += ["", f"Host time by Python function (cProfile, per step, {r['method']}):", "", r["python_profile"]]
     return "\n".join(lines) + "\n"
 
 

@@ -10,11 +10,13 @@ cameras, in three ways:
 Writes `fps.json` (frames per second per way, at the cameras' resolution, and the largest
 difference between baked and unbaked renders) to `--output-dir` and prints it. With
 `--profile-frames N` it also profiles N baked frames (host syncs by line, top operators by CPU
-time: where a frame's time goes beyond the splatting) into `render_profile.md`.
+time, and cProfile's Python functions: where a frame's time goes beyond the splatting) into
+`render_profile.md`.
 """
 
 from __future__ import annotations
 
+import cProfile
 import json
 import time
 from dataclasses import dataclass
@@ -24,7 +26,7 @@ from typing import Callable, Dict
 import torch
 import tyro
 
-from experiments import device_name, synchronize
+from experiments import device_name, python_profile_markdown, synchronize
 
 
 @dataclass
@@ -145,6 +147,15 @@ def profile_baked(pipeline, frames: int) -> str:
     lines += ["", "| operator | calls/frame | self CPU ms/frame |", "| --- | --- | --- |"]
     events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)[:30]
     lines += [f"| {e.key[:70]} | {e.count / frames:.1f} | {e.self_cpu_time_total / 1e3 / frames:.3f} |" for e in events]
+    python = cProfile.Profile()
+    with torch.no_grad():
+        python.enable()
+        for i in range(frames):
+            render(i)
+        synchronize()
+        python.disable()
+    lines += ["", "Host time by Python function (cProfile, per baked frame):", ""]
+    lines.append(python_profile_markdown(python, frames))
     return "\n".join(lines) + "\n"
 
 

@@ -132,3 +132,19 @@ def test_scheduled_loss_jumps_rebaseline_instead_of_skipping(tmp_path, demo_scen
     }
     assert moves == {s for s in expected if s < 3 * max(reset, r) + 2}
     assert not model.schedule_moves_loss(1) and not model.schedule_moves_loss(2)
+
+
+def test_the_lean_step_gives_way_to_nerfstudios_where_it_cannot_stand_in(tmp_path, demo_scene_dir):
+    """Gradient clipping is one of nerfstudio's step's options the lean step leaves out: with it
+    set, training runs nerfstudio's step and says which optimizer made it so."""
+    from thermal_wild_ns.demo import demo_trainer_config
+
+    config = demo_trainer_config(tmp_path, steps=4, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.optimizers["opacities"]["optimizer"].max_norm = 1.0
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    assert not trainer.lean and "'opacities'" in trainer._lean_step_unsupported()
+    before = trainer.pipeline.model.opacities.detach().clone()
+    trainer.train()
+    assert not torch.equal(trainer.pipeline.model.opacities, before)  # it trained, through nerfstudio's step

@@ -378,6 +378,32 @@ def test_world_to_camera_is_splatfactos_view_matrix():
     assert torch.allclose(viewmat @ pose @ flip, torch.eye(4).expand(3, 4, 4), atol=1e-5)
 
 
+def test_a_training_view_is_nerfstudios_rescaled_camera_and_leaves_the_camera_alone():
+    """At a coarse training resolution the render's intrinsics and size are those of nerfstudio's
+    `rescale_output_resolution` (sizes floored: 93 -> 23 at 1/4), the camera object is not
+    changed (the datamanager hands the same one again), and a fixed-pose training camera's view
+    is computed once per resolution."""
+    from thermal_wild_ns.rendering import world_to_camera
+
+    model = make_model()
+    model.train()
+    camera = make_camera(3, width=93, height=61)
+    before = {name: getattr(camera, name).clone() for name in ("fx", "fy", "cx", "cy", "width", "height")}
+    c2w, viewmat, K, W, H, pinhole = model._view(camera, 4, cam_idx=3)
+    reference = make_camera(3, width=93, height=61)
+    reference.rescale_output_resolution(1 / 4)
+    assert (W, H) == (int(reference.width), int(reference.height)) == (23, 15)
+    assert torch.equal(K[0], reference.get_intrinsics_matrices()[0])
+    assert torch.equal(
+        torch.tensor(pinhole), torch.cat([reference.fx, reference.fy, reference.cx, reference.cy]).flatten()
+    )
+    assert torch.equal(viewmat, world_to_camera(camera.camera_to_worlds))
+    assert all(torch.equal(getattr(camera, name), value) for name, value in before.items())
+    assert model._view(camera, 4, cam_idx=3)[1] is viewmat  # kept for this training camera ...
+    assert model._view(camera, 1, cam_idx=3)[3:5] == (93, 61)  # ... per resolution
+    assert model._view(camera, 4, cam_idx=None)[1] is not viewmat  # a camera without a fixed pose: computed
+
+
 def test_baked_background_map_matches_the_mlp_and_is_invalidated():
     """Renders outside training sample the background from a latitude-longitude map of the MLP:
     within 1 % of the background's spread of the MLP itself, at every direction (poles, the
@@ -420,6 +446,15 @@ def test_renders_outside_training_use_the_baked_background():
     spread = float(exact.max() - exact.min())
     assert getattr(model, "_baked_background", None) is not None
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
+    # a render's fast path: the camera-frame directions of its intrinsics, kept, then rotated
+    with torch.no_grad():
+        fast = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
+        assert len(model._frame_directions) == 1
+        again = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
+    assert len(model._frame_directions) == 1 and torch.equal(fast, again)
+    assert float((fast - baked).abs().max()) < 1e-5 * spread
+    outputs = model.get_outputs_for_camera(camera)  # the same object, already on the model's device
+    assert torch.equal(outputs["background"], fast)
 
 
 def test_a_random_training_background_is_redrawn_each_step_and_only_in_training():

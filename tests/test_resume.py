@@ -14,8 +14,9 @@ from thermal_wild_ns.model.wild_thermal import WildThermalModel
 pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 
-def _run(out, demo_scene_dir, steps, save_every, load_dir=None, auto_stop=False):
+def _run(out, demo_scene_dir, steps, save_every, load_dir=None, auto_stop=False, lean_step=True):
     config = demo_trainer_config(out, steps=60, max_gaussians=3000)  # the same schedule for every run
+    config.lean_step = lean_step
     config.auto_stop.enabled = auto_stop  # the automatic stop has its own test below
     config.auto_stop.check_every, config.auto_stop.patience = 10, 2
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
@@ -51,6 +52,26 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, demo_scene_dir):
     assert a.num_points == b.num_points != 2340  # the refinement at step 50 grew and pruned alike
     for (name, pa), (_, pb) in zip(a.named_parameters(), b.named_parameters()):
         torch.testing.assert_close(pa, pb, msg=name)
+
+
+def test_the_lean_step_trains_exactly_as_nerfstudios_step(tmp_path, demo_scene_dir):
+    """The same 60 steps (densification, pruning and an opacity reset among them) through the
+    trainer's lean step and through nerfstudio's `Trainer.train_iteration`: the same parameters
+    and optimizer states, bit for bit."""
+    runs = {}
+    for lean in (True, False):
+        torch.manual_seed(0)
+        runs[lean] = _run(tmp_path / str(lean), demo_scene_dir, steps=60, save_every=1000, lean_step=lean)
+    assert runs[True].lean and not runs[False].lean
+    a, b = runs[True].pipeline.model, runs[False].pipeline.model
+    assert a.num_points == b.num_points != 2340
+    for (name, pa), (_, pb) in zip(a.named_parameters(), b.named_parameters()):
+        assert torch.equal(pa, pb), name
+    for name, optimizer in runs[True].optimizers.optimizers.items():
+        reference = runs[False].optimizers.optimizers[name]
+        for p, q in zip(optimizer.param_groups[0]["params"], reference.param_groups[0]["params"]):
+            for key, value in optimizer.state[p].items():
+                assert torch.equal(value, reference.state[q][key]), (name, key)
 
 
 def test_resume_continues_the_automatic_stop(tmp_path, demo_scene_dir, monkeypatch):

@@ -67,3 +67,40 @@ def test_importing_the_package_patches_nothing():
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.stdout.strip().endswith("clean"), result.stderr[-2000:]
+
+
+def test_fused_adam_step_is_adams_step():
+    """`fused_adam_step` over several optimizers (with and without weight decay, parameters without
+    gradients, a state created mid-way as densification creates one) against each optimizer's own
+    `step()`, bit for bit over a few steps."""
+    import torch
+
+    from thermal_wild_ns._upstream import fused_adam_ready, fused_adam_step
+
+    def build():
+        torch.manual_seed(0)
+        params = [torch.nn.Parameter(torch.randn(n, 3)) for n in (5, 7, 2)]
+        return params, [
+            torch.optim.Adam([params[0]], lr=1e-2, eps=1e-15, fused=True),
+            torch.optim.Adam([params[1]], lr=3e-3, weight_decay=1e-2, fused=True),
+            torch.optim.AdamW([params[2]], lr=1e-3, weight_decay=1e-1, fused=True),
+        ]
+
+    mine, theirs = build(), build()
+    assert all(fused_adam_ready(o) for o in mine[1][:2]) and not fused_adam_ready(mine[1][2])  # AdamW: no
+    assert not fused_adam_ready(torch.optim.Adam([torch.nn.Parameter(torch.ones(1))]))  # not fused
+    for step in range(4):
+        for (params, optimizers), stepper in ((mine, "ours"), (theirs, "torch")):
+            torch.manual_seed(step)
+            for k, p in enumerate(params):
+                p.grad = None if (step == 0 and k == 1) else torch.randn_like(p)  # the second starts at step 1
+            if stepper == "ours":
+                fused_adam_step(optimizers[:2])
+                optimizers[2].step()
+            else:
+                for optimizer in optimizers:
+                    optimizer.step()
+    for p, q, o, r in zip(mine[0], theirs[0], mine[1], theirs[1]):
+        assert torch.equal(p, q)
+        assert o.state[p].keys() == r.state[q].keys()
+        assert all(torch.equal(o.state[p][key], r.state[q][key]) for key in o.state[p])

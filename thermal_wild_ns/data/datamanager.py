@@ -9,13 +9,14 @@ from typing import Dict, List, Optional, Tuple, Type
 
 import numpy as np
 import torch
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanagerConfig
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from thermal_wild_ns._upstream import set_training_order, single_channel_datamanager_class
+from thermal_wild_ns._upstream import single_channel_datamanager_class
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError
@@ -118,6 +119,7 @@ class ThermalDatamanager(single_channel_datamanager_class()):
                 "resumed run sees what the uninterrupted one would"
             )
         super().__init__(config, *args, **kwargs)
+        self._training_cameras: Dict[int, Cameras] = {}  # with host_cameras: built once per training image
 
     @cached_property
     def preprocessed(self) -> Optional[PreprocessedSequence]:
@@ -179,17 +181,29 @@ class ThermalDatamanager(single_channel_datamanager_class()):
         return self._order[1]
 
     def next_train(self, step: int):
-        # nerfstudio's next_train takes the head of its list of unseen cameras: make that the rest of this
-        # pass from `step` on, so the image is a function of the step and a resumed run sees what the
-        # uninterrupted one would (no per-step reshuffle: the list only refills at a pass's end)
+        """The training image of `step` (a function of the step alone, so a resumed run sees what
+        the uninterrupted one would) and its camera, as nerfstudio's `next_train` gives them."""
         epoch, position = divmod(step, len(self.train_dataset) - len(self.held_back))
-        set_training_order(self, self.train_order(epoch)[position:])
-        camera, data = super().next_train(step)
+        image_idx = self.train_order(epoch)[position]
+        data = dict(self.cached_train[image_idx])  # a copy: the cached dictionary is never changed
+        data["image"] = data["image"].to(self.device)
+        return self.training_camera(image_idx), data
+
+    def training_camera(self, image_idx: int) -> Cameras:
+        """Training image `image_idx`'s camera with `metadata['cam_idx']`: on the host (undistorted)
+        with `host_cameras`, else on the device. The plugin's model never changes a camera, so each
+        is built once; other models (stock splatfacto rescales its camera in place and back, which
+        floors odd image sizes) get a fresh one per step."""
         if self.config.host_cameras:
-            image_idx = camera.metadata["cam_idx"]
-            camera = self.train_dataset.cameras[image_idx : image_idx + 1]  # undistorted, on the host
-            camera.metadata = {**(camera.metadata or {}), "cam_idx": image_idx}
-        return camera, data
+            cached = self._training_cameras.get(image_idx)
+            if cached is None:
+                cached = self.train_dataset.cameras[image_idx : image_idx + 1]
+                cached.metadata = {**(cached.metadata or {}), "cam_idx": image_idx}
+                self._training_cameras[image_idx] = cached
+            return cached
+        camera = self.train_cameras[image_idx : image_idx + 1].to(self.device)
+        camera.metadata = {**(camera.metadata or {}), "cam_idx": image_idx}
+        return camera
 
     def create_train_dataset(self) -> ThermalDataset:
         return ThermalDataset(

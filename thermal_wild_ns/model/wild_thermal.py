@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
+from typing import Dict, List, Literal, NamedTuple, Optional, Sequence, Tuple, Type, Union
 
 import torch
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
@@ -33,6 +33,17 @@ from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
+
+
+class View(NamedTuple):
+    """A render's camera, on the model's device, at the resolution it renders."""
+
+    camera_to_world: Tensor  # [1, 3, 4]
+    viewmat: Tensor  # [1, 4, 4], gsplat's world-to-camera
+    K: Tensor  # [1, 3, 3]
+    width: int
+    height: int
+    pinhole: Tuple[float, float, float, float]  # K's fx, fy, cx, cy, on the host
 
 
 @dataclass
@@ -173,6 +184,9 @@ class WildThermalModel(SplatfactoModel):
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
         self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
+        self._training_views: Dict[tuple, View] = {}  # (training camera, downscale) -> its `_view`
+        self._frame_directions: Dict[tuple, Tensor] = {}  # see `_camera_frame_directions`
+        self._parameter_lists: Dict[int, tuple] = {}  # see `_parameters_of`
         self._frame_checks: Dict[tuple, tuple] = {}  # training image -> (all finite, contrast, original frame)
         self.inverse_luts: Optional[Tensor] = None
         """[training images, S] each training frame's inverse LUT sampled at S evenly spaced training-space
@@ -402,25 +416,34 @@ class WildThermalModel(SplatfactoModel):
         return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
 
     def baked_emission(self, frame_embed: Tensor) -> Tensor:
-        """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], cached until
-        the embedding or any parameter it depends on changes: a training step (`self.step`; fused
-        Adam updates in place without bumping tensor versions), an in-place edit or load (versions)
-        or densification (identities). The check runs on the host: no GPU round trip per frame.
-        The cache holds the tensors themselves, so their identities cannot be recycled."""
-        tensors = (
-            self.gauss_params["emission"],
-            self.gauss_params["gauss_embed"],
-            *self.emission_mlp.parameters(),
-            frame_embed,
-        )
+        """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], kept until the
+        embedding or any parameter it depends on changes (`_baked_value`)."""
+        embed = self.gauss_params["gauss_embed"]
+        tensors = (self.emission, embed, *self._parameters_of(self.emission_mlp), frame_embed)
+        return self._baked_value("_baked", tensors, lambda: self.emission_mlp(self.emission, embed, frame_embed))
+
+    def _parameters_of(self, module: nn.Module) -> Tuple[Tensor, ...]:
+        """A module's parameters, listed once: they stay the same objects for the model's life
+        (loads copy into them, `.to()` moves their data), and a render checks them every frame."""
+        cached = self._parameter_lists.get(id(module))
+        if cached is None or cached[0] is not module:
+            cached = self._parameter_lists[id(module)] = (module, tuple(module.parameters()))
+        return cached[1]
+
+    def _baked_value(self, slot: str, tensors: Tuple[Tensor, ...], compute) -> Tensor:
+        """`compute()` (without autograd), kept in attribute `slot` until one of `tensors` changes: a
+        training step (`self.step`; fused Adam updates in place without bumping tensor versions),
+        an in-place edit or load (versions) or densification (identities). The check runs on the
+        host: no GPU round trip per frame. The cache holds the tensors themselves, so their
+        identities cannot be recycled."""
         versions = (self.step, *(t._version for t in tensors))
-        cached = getattr(self, "_baked", None)
+        cached = getattr(self, slot, None)
         if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
             return cached[2]
         with torch.no_grad():
-            emission = self.emission_mlp(self.emission, self.gauss_params["gauss_embed"], frame_embed)
-        self._baked = (tensors, versions, emission)
-        return emission
+            value = compute()
+        setattr(self, slot, (tensors, versions, value))
+        return value
 
     BAKED_BACKGROUND_TEXELS = (129, 256)
     """Latitude x longitude samples of the baked background map (about 1.4 degrees apart; the
@@ -430,13 +453,12 @@ class WildThermalModel(SplatfactoModel):
         """The background MLP over every direction under `frame_embed`, as a latitude-longitude map
         [1, 1, rows, cols + 1] for `grid_sample` (align_corners: row 0 is latitude -90 degrees, the
         last +90; column 0 is longitude -180 degrees and the last column repeats it at +180, so
-        sampling wraps around). Cached like `baked_emission`: until the embedding or a parameter
-        of the MLP changes, a render samples this map instead of running the MLP per pixel."""
-        tensors = (*self.background_mlp.parameters(), frame_embed)
-        versions = (self.step, *(t._version for t in tensors))
-        cached = getattr(self, "_baked_background", None)
-        if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
-            return cached[2]
+        sampling wraps around). Kept like `baked_emission` (`_baked_value`): until the embedding or
+        a parameter of the MLP changes, a render samples this map instead of running the MLP per pixel."""
+        tensors = (*self._parameters_of(self.background_mlp), frame_embed)
+        return self._baked_value("_baked_background", tensors, lambda: self._background_map(frame_embed))
+
+    def _background_map(self, frame_embed: Tensor) -> Tensor:
         rows, cols = self.BAKED_BACKGROUND_TEXELS
         latitude = torch.linspace(-math.pi / 2, math.pi / 2, rows, device=frame_embed.device)  # [rows]
         longitude = torch.arange(cols, device=frame_embed.device) * (2 * math.pi / cols) - math.pi  # [cols]
@@ -448,17 +470,41 @@ class WildThermalModel(SplatfactoModel):
             ],
             dim=-1,
         )  # [rows, cols, 3]
-        with torch.no_grad():
-            values = self.background_mlp(dirs, frame_embed)[..., 0]  # [rows, cols]
-        background_map = torch.cat([values, values[:, :1]], dim=1)[None, None]  # [1, 1, rows, cols + 1]
-        self._baked_background = (tensors, versions, background_map)
-        return background_map
+        values = self.background_mlp(dirs, frame_embed)[..., 0]  # [rows, cols]
+        return torch.cat([values, values[:, :1]], dim=1)[None, None]  # [1, 1, rows, cols + 1]
+
+    def _view(self, camera: Cameras, scale: int, cam_idx: Optional[int]) -> "View":
+        """Where and how a render looks, at 1/`scale` of the camera's resolution (`View`). The camera
+        object is left as it is (a datamanager may hand the same one again). `cam_idx` names a
+        training camera whose pose is fixed: its view is computed once per scale."""
+        key = (cam_idx, scale)
+        if cam_idx is not None and key in self._training_views:
+            return self._training_views[key]
+        camera_to_world = self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
+        camera_to_world = camera_to_world.to(self.device)
+        factor = 1.0 / scale  # as nerfstudio's Cameras.rescale_output_resolution: intrinsics times it, sizes floored
+        names = ("width", "height", "fx", "fy", "cx", "cy")
+        width, height, *pinhole = torch.cat([getattr(camera, n).reshape(-1) for n in names]).tolist()  # one read
+        view = View(
+            camera_to_world,
+            world_to_camera(camera_to_world),
+            self.intrinsics(camera, factor).to(self.device),
+            int(width * factor),
+            int(height * factor),
+            tuple(value * factor for value in pinhole),
+        )
+        if cam_idx is not None:
+            self._training_views[key] = view
+        return view
 
     @staticmethod
-    def intrinsics(camera: Cameras) -> Tensor:
-        """Pinhole intrinsics [C, 3, 3], built on the camera's device (nerfstudio's
-        `get_intrinsics_matrices` builds them on the host: one GPU round trip per entry)."""
+    def intrinsics(camera: Cameras, factor: float = 1.0) -> Tensor:
+        """Pinhole intrinsics [C, 3, 3] of the camera's images resized by `factor`, built on the
+        camera's device (nerfstudio's `get_intrinsics_matrices` builds them on the host: one GPU
+        round trip per entry)."""
         fx, fy, cx, cy = (getattr(camera, name).reshape(-1) for name in ("fx", "fy", "cx", "cy"))  # [C] each
+        if factor != 1.0:
+            fx, fy, cx, cy = fx * factor, fy * factor, cx * factor, cy * factor
         zero, one = torch.zeros_like(fx), torch.ones_like(fx)
         return torch.stack([fx, zero, cx, zero, fy, cy, zero, zero, one], dim=-1).reshape(-1, 3, 3)
 
@@ -486,19 +532,25 @@ class WildThermalModel(SplatfactoModel):
         width: int,
         height: int,
         cam_idx: Optional[int] = None,
+        pinhole: Optional[Tuple[float, float, float, float]] = None,
     ) -> Tensor:
         """Background radiance per pixel [H, W, 1], evaluated on the `background_stride` grid and
         upsampled. In training (and under autograd) the MLP runs on every grid point; `cam_idx`
         names a training camera whose pose is fixed (no pose optimisation), whose encoded
         directions are computed once and reused. Every other render samples the baked map
-        (`baked_background_map`)."""
+        (`baked_background_map`); given `K`'s fx, fy, cx, cy on the host (`pinhole`), its view
+        directions are the camera-frame directions of those intrinsics (computed once) rotated,
+        one matrix product instead of `ray_directions`' grid."""
         if self.background_mlp is None:
             if self.training and self.config.random_background:
                 return torch.rand(1, 1, 1, device=self.device).expand(height, width, 1)
             return torch.full((height, width, 1), self.config.background_value, device=self.device)
         stride = self.config.background_stride
         if not self.training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
-            dirs = self.ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            if pinhole is None:
+                dirs = self.ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            else:
+                dirs = self._camera_frame_directions(pinhole, width, height) @ camera_to_world[:3, :3].T  # [h, w, 3]
             longitude = torch.atan2(dirs[..., 1], dirs[..., 0]) / math.pi  # [h, w] in [-1, 1]
             latitude = torch.asin(dirs[..., 2].clamp(-1.0, 1.0)) / (math.pi / 2)  # [h, w] in [-1, 1]
             grid = torch.stack([longitude, latitude], dim=-1)  # [h, w, 2]
@@ -515,6 +567,20 @@ class WildThermalModel(SplatfactoModel):
                 self._encoded_directions[key] = encoded
         return self._upsampled(self.background_mlp.from_encoded(encoded, frame_embed), width, height)
 
+    def _camera_frame_directions(self, pinhole: Tuple[float, float, float, float], width: int, height: int) -> Tensor:
+        """`ray_directions` of a camera at the origin, unrotated [h, w, 3], for intrinsics given on the
+        host; the last few (intrinsics, size) are kept, as a viewer renders the same ones again."""
+        key = (pinhole, width, height, self.config.background_stride)
+        cached = self._frame_directions.pop(key, None)
+        if cached is None:
+            fx, fy, cx, cy = pinhole
+            K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], device=self.device)
+            cached = self.ray_directions(K, torch.eye(3, 4, device=self.device), width, height, key[-1])
+        self._frame_directions[key] = cached  # the most recent last
+        while len(self._frame_directions) > 8:
+            self._frame_directions.pop(next(iter(self._frame_directions)))
+        return cached
+
     @staticmethod
     def _upsampled(coarse: Tensor, width: int, height: int) -> Tensor:
         """The background on the `background_stride` grid [h, w, 1] at full resolution [H, W, 1]."""
@@ -530,30 +596,20 @@ class WildThermalModel(SplatfactoModel):
             raise TypeError(f"WildThermalModel.get_outputs needs a Cameras object, got {type(camera).__name__}")
         if self.training:
             assert camera.shape[0] == 1, "Only one camera at a time"
-            camera_to_world = self.camera_optimizer.apply_to_camera(camera)
-        else:
-            camera_to_world = camera.camera_to_worlds
-        camera_to_world = camera_to_world.to(self.device)
-
-        scale = self._get_downscale_factor()
-        if scale != 1:
-            camera.rescale_output_resolution(1 / scale)
-        viewmat = world_to_camera(camera_to_world)  # [1, 4, 4]
-        K = self.intrinsics(camera).to(self.device)  # [1, 3, 3]
-        W, H = torch.cat([camera.width.reshape(-1), camera.height.reshape(-1)]).tolist()  # one read
-        if scale != 1:
-            camera.rescale_output_resolution(scale)
-        self.last_size = (H, W)
-        frame_embed = self.frame_embedding(camera)
         fixed_pose = (
             self.training
             and self.config.camera_optimizer.mode == "off"
             and camera.metadata
             and "cam_idx" in camera.metadata
         )
+        cam_idx = int(camera.metadata["cam_idx"]) if fixed_pose else None
+        view = self._view(camera, self._get_downscale_factor(), cam_idx)
+        viewmat, K, W, H = view.viewmat, view.K, view.width, view.height
+        self.last_size = (H, W)
+        frame_embed = self.frame_embedding(camera)
         with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
             background = self.background(
-                K[0], camera_to_world[0], frame_embed, W, H, int(camera.metadata["cam_idx"]) if fixed_pose else None
+                K[0], view.camera_to_world[0], frame_embed, W, H, cam_idx, pinhole=view.pinhole
             )  # [H, W, 1]
 
         ids = None
@@ -606,6 +662,13 @@ class WildThermalModel(SplatfactoModel):
             depth = render[0, ..., 1:2]
             depth = torch.where(alpha > 0, depth, depth.detach().max())
         return self._outputs(thermal, alpha, background, depth)
+
+    @torch.no_grad()
+    def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:
+        """Splatfacto's, without its copy of a camera already on the model's device (a new Cameras
+        object per frame, whose construction costs more host time than the splatting)."""
+        self.set_crop(obb_box)
+        return self.get_outputs(camera if camera.device == self.device else camera.to(self.device))
 
     def _outputs(self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
         clipped = thermal.clamp(0.0, 1.0)

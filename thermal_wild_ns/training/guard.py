@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -29,7 +30,13 @@ from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch.profiler import record_function
 
-from thermal_wild_ns._upstream import guard_optimizer_steps, repoint_optimizers, trainer_after_load_class
+from thermal_wild_ns._upstream import (
+    fused_adam_ready,
+    fused_adam_step,
+    guard_optimizer_steps,
+    repoint_optimizers,
+    trainer_after_load_class,
+)
 from thermal_wild_ns.pipeline.run_check import checkpoints_in
 from thermal_wild_ns.training.auto_stop import AutoStopConfig, PlateauRule, held_back_images, held_back_score
 
@@ -67,6 +74,13 @@ class GuardedTrainerConfig(TrainerConfig):
     """Divergence and collapse detection."""
     auto_stop: AutoStopConfig = field(default_factory=AutoStopConfig)
     """Stop when the scene stops improving, scored on a few training frames held back from the gradient."""
+    lean_step: bool = True
+    """Run each training step's body in this plugin's trainer rather than through nerfstudio's
+    `Trainer.train_iteration`: the same forward, loss, backward, checks and Adam update, without the
+    per-step Python around them (gradient-accumulation and grad-scaler bookkeeping, one wrapped
+    `step()` per optimizer). It needs fused Adam optimizers without gradient clipping, no mixed
+    precision and no gradient accumulation, and falls back to nerfstudio's step (and says why)
+    otherwise. False: always nerfstudio's step, the reference the lean one is tested against."""
 
     def save_config(self) -> None:
         # the loading commands check for checkpoints before reading data (ThermalPipeline)
@@ -179,7 +193,42 @@ class GuardedTrainer(trainer_after_load_class()):
         self._step = 0
         if self.config.guard.enabled:
             guard_optimizer_steps(self.optimizers, self._accept_step)
+        self.lean = self.config.lean_step and self._lean_step_unsupported() is None
+        if self.config.lean_step and not self.lean:
+            CONSOLE.log(f"nerfstudio's training step (not the lean one): {self._lean_step_unsupported()}")
         self._setup_auto_stop()
+
+    def _lean_step_unsupported(self) -> Optional[str]:
+        """Why `_lean_iteration` cannot stand in for nerfstudio's step with this config, or None."""
+        config = self.config
+        if config.mixed_precision:
+            return "mixed precision"
+        if any(n != 1 for n in config.gradient_accumulation_steps.values()) or config.log_gradients:
+            return "gradient accumulation or gradient logging"
+        for name, optimizer in self.optimizers.optimizers.items():
+            if not fused_adam_ready(optimizer) or self.optimizers.config[name]["optimizer"].max_norm is not None:
+                return f"optimizer '{name}' is not a fused Adam without gradient clipping"
+        return None
+
+    def _lean_iteration(self, step: int):
+        """nerfstudio's `Trainer.train_iteration` where `_lean_step_unsupported` is None, with its
+        result: gradients cleared, loss (the loss dict summed in the same order), backward, the
+        divergence guard, every optimizer stepped (`fused_adam_step`), the schedulers stepped."""
+        optimizers = list(self.optimizers.optimizers.values())
+        for optimizer in optimizers:
+            for group in optimizer.param_groups:
+                for param in group["params"]:
+                    param.grad = None
+        _, loss_dict, metrics_dict = self.pipeline.get_train_loss_dict(step=step)
+        loss = functools.reduce(torch.add, loss_dict.values())
+        loss.backward()
+        if not self.config.guard.enabled or self._accept_step(list(self.optimizers.parameters)):
+            fused_adam_step(optimizers)
+        self.optimizers.scheduler_step_all(step)
+        return loss, loss_dict, metrics_dict
+
+    def _iteration(self, step: int):
+        return self._lean_iteration(step) if self.lean else super().train_iteration(step)
 
     def _setup_auto_stop(self) -> None:
         """Hold the scoring frames back from the datamanager's training order (before any step)."""
@@ -345,12 +394,12 @@ class GuardedTrainer(trainer_after_load_class()):
 
     def _guarded_iteration(self, step: int):
         if not self.config.guard.enabled:
-            return super().train_iteration(step)
+            return self._iteration(step)
         moves_loss = getattr(self.pipeline.model, "schedule_moves_loss", None)
         if moves_loss is not None and moves_loss(step):
             self.guard.rebaseline()
         try:
-            result = super().train_iteration(step)
+            result = self._iteration(step)
             if step % self.config.guard.check_every == 0:
                 self.guard.check_model(self.pipeline.model, step)
                 self._healthy = self._snapshot(step)
