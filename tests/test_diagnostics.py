@@ -102,7 +102,8 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
     assert (
         written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 0.5
     )  # the default
-    assert written["advice"].startswith("preprocessing makes the frames steadier")  # the demo drifts
+    # the demo's frames drift by level offsets, with gains within a few percent: the full method trains raw
+    assert written["advice"].startswith("the frames differ by level offsets") and "raw frames" in written["advice"]
 
 
 def test_diagnose_finds_a_stable_capture_that_the_full_method_trains_raw(tmp_path):
@@ -117,7 +118,7 @@ def test_diagnose_finds_a_stable_capture_that_the_full_method_trains_raw(tmp_pat
         DiagnoseArgs(data=scene, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4)
     )
     assert result["after"]["std_delta_i"] > result["before"]["std_delta_i"]
-    assert "no steadier" in result["advice"] and "trains on its raw frames" in result["advice"]
+    assert result["advice"].startswith("the capture is stable") and "trains on its raw frames" in result["advice"]
     assert result["degenerate_frames"] == [Path(frame).name] and result["frames"] == 39  # listed, left out
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))

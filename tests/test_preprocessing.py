@@ -215,16 +215,32 @@ def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_di
     assert float(images["stab+bbhe"].std()) > 1.3 * float(images["none"].std())
 
 
-def test_the_full_method_preprocesses_a_drifting_capture_and_trains_a_stable_one_raw(demo_scene_dir, tmp_path):
+def test_the_full_method_preprocesses_a_capture_whose_contrast_varies_and_trains_the_others_raw(
+    demo_scene_dir, tmp_path
+):
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
-    from thermal_wild_ns.data.demo_scene import generate_demo_scene, stress_scene_config
-    from thermal_wild_ns.preprocessing.stage import frame_mean_spread, preprocessing_pays
+    from thermal_wild_ns.data.demo_scene import DemoSceneConfig, generate_demo_scene, stress_scene_config
+    from thermal_wild_ns.preprocessing.stage import (
+        CONTRAST_QUANTILES,
+        frame_contrast_spread,
+        frame_mean_spread,
+        preprocessing_pays,
+    )
 
     assert frame_mean_spread([0.2, 0.4]) == pytest.approx(0.14826)  # the MAD, scaled to a std
     assert frame_mean_spread([0.3] * 9 + [0.9]) == 0.0  # one outlier frame does not make a capture unsteady
-    assert preprocessing_pays(0.02, 0.01) and not preprocessing_pays(0.01, 0.01) and not preprocessing_pays(0.01, 0.02)
+    q = CONTRAST_QUANTILES
+    assert frame_contrast_spread([q, q + 0.2, q - 0.1]) == pytest.approx(0.0)  # offsets: no contrast change
+    gains = [1.0, 1.2, 0.8, 1.1, 5.0]
+    assert frame_contrast_spread([g * q + 0.1 for g in gains]) == pytest.approx(  # log gains' MAD, one outlier
+        1.4826 * np.median(np.abs(np.log(gains) - np.median(np.log(gains)))), rel=1e-6
+    )
+    assert preprocessing_pays(0.02, 0.01, 0.2) and not preprocessing_pays(0.02, 0.01, 0.1)
+    assert not preprocessing_pays(0.01, 0.01, 0.2) and not preprocessing_pays(0.01, 0.02, 0.2)
     stable = generate_demo_scene(tmp_path / "clean", stress_scene_config("clean", path_views=0))
+    # the demo's content, each frame at a gain drawn about 1 +- 0.35, as an automatic gain control makes it
+    agc = generate_demo_scene(tmp_path / "agc", DemoSceneConfig(jitter_gain=0.35, jitter_counts=0.0, drift_counts=0.0))
 
     def datamanager(scene, skip_when_stable):
         return ThermalDatamanagerConfig(
@@ -233,9 +249,11 @@ def test_the_full_method_preprocesses_a_drifting_capture_and_trains_a_stable_one
             preprocessing_cache=tmp_path / "cache",
         ).setup(device="cpu")
 
-    drifting = datamanager(demo_scene_dir, True)  # the demo's injected drift: preprocessing steadies it
-    raw, processed = drifting.preprocessed.frame_mean_spreads()
-    assert processed < raw and drifting.preprocessing_used.startswith("stab+bbhe")
+    varying = datamanager(agc, True)
+    assert varying.preprocessed is not None and varying.preprocessing_used.startswith("stab+bbhe: the frames' levels")
+    assert varying.preprocessed.frame_contrast_spread() > 0.15
+    offsets = datamanager(demo_scene_dir, True)  # the demo's drift: offsets, gains within a few percent
+    assert offsets.preprocessed is None and offsets.preprocessing_used.startswith("none: the frames differ by level")
     kept = datamanager(stable, False)  # the fixed preprocessing of the ablations
     raw, processed = kept.preprocessed.frame_mean_spreads()
     assert processed >= raw  # equalization moves the clean frames' levels apart
@@ -248,7 +266,7 @@ def test_the_full_method_preprocesses_a_drifting_capture_and_trains_a_stable_one
         skipped.train_dataset.get_data(0)["image"][..., 0].numpy(), skipped.train_dataset.original_image(0)
     )
     # the decision does not change what is processed: one cache per capture
-    assert len([p for p in (tmp_path / "cache").iterdir() if p.name.startswith("preprocessed-")]) == 3
+    assert len([p for p in (tmp_path / "cache").iterdir() if p.name.startswith("preprocessed-")]) == 4
 
 
 def test_novel_views_map_back_through_the_median_lut_which_one_outlier_frame_cannot_move(tmp_path):
@@ -372,6 +390,7 @@ def test_held_out_frames_never_change_training_or_the_predicted_renders(tmp_path
         config.pipeline.datamanager.dataparser = ThermalDataParserConfig(
             data=root, layout="nerfstudio", seed_points="random", num_random_points=300
         )
+        config.pipeline.datamanager.preprocessing = PhotometricConfig()  # on, whatever the rule decides
         torch.manual_seed(0)
         trainer = config.setup(local_rank=0, world_size=1)
         trainer.setup()

@@ -53,8 +53,8 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
         mixed_precision=False,
         machine=MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu"),
         pipeline=ThermalPipelineConfig(
-            # the full method preprocesses only captures it steadies (the rule: preprocessing/stage.py;
-            # chosen by docs/results/stress_protocols_3seeds)
+            # the full method preprocesses only captures whose contrast varies and which it steadies (the
+            # rule: preprocessing/stage.py; chosen by docs/results/stress_protocols_3seeds and preprocessing_rule)
             datamanager=ThermalDatamanagerConfig(preprocessing=PhotometricConfig(skip_when_stable=True)),
             model=WildThermalModelConfig(),
         ),

@@ -36,7 +36,7 @@ from thermal_wild_ns.analysis.diagnostics import (
 from thermal_wild_ns.data.dataparsers import LayoutName, ThermalDataParserConfig
 from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
-from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess, preprocessing_pays
+from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 
 
 @dataclass
@@ -87,15 +87,11 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
 
 def preprocessing_advice(sequence: PreprocessedSequence) -> str:
     """Which method the measurements point to, by the rule the full method trains with
-    (`preprocessing_pays`, `PhotometricConfig.skip_when_stable`)."""
-    raw, processed = sequence.frame_mean_spreads()
-    spreads = f"frame-mean spread {raw:.4f} -> {processed:.4f}"
-    if preprocessing_pays(raw, processed):
-        return f"preprocessing makes the frames steadier ({spreads}): `wild-thermal` preprocesses this capture"
-    return (
-        f"preprocessing leaves the frames no steadier ({spreads}): the capture looks photometrically stable, "
-        "and `wild-thermal` trains on its raw frames"
-    )
+    (`PreprocessedSequence.decision`, `PhotometricConfig.skip_when_stable`)."""
+    pays, reason = sequence.decision()
+    if pays:
+        return f"{reason}: `wild-thermal` preprocesses this capture"
+    return f"{reason}: `wild-thermal` trains on its raw frames"
 
 
 def _plot(result: Dict, path: Path, title: str) -> None:

@@ -21,7 +21,7 @@ from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
-from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess, preprocessing_pays
+from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 
 NOT_PREPROCESSED = "none (variant)"
 """`ThermalDatamanager.preprocessing_used` of a method that never preprocesses (variant 'none')."""
@@ -139,13 +139,12 @@ class ThermalDatamanager(single_channel_datamanager_class()):
             self.config.preprocessing_cache,
             train=[t in train for t in range(len(capture.frames))],
         )
-        raw, processed = sequence.frame_mean_spreads()
-        if config.skip_when_stable and not preprocessing_pays(raw, processed):
-            reason = f"the capture is stable (frame-mean spread {raw:.4f} -> {processed:.4f} preprocessed)"
+        pays, reason = sequence.decision()
+        if config.skip_when_stable and not pays:
             self.preprocessing_used = f"none: {reason}"
             CONSOLE.log(f"Preprocessing skipped, {reason}: training on the raw frames")
             return None
-        self.preprocessing_used = f"{config.variant} (frame-mean spread {raw:.4f} -> {processed:.4f})"
+        self.preprocessing_used = f"{config.variant}: {reason}"
         return sequence
 
     preprocessing_used: str = ""

@@ -146,11 +146,12 @@ class PhotometricConfig:
     reports by how much (`error_amplification`). Lower k trades contrast for that. The default
     0.5 is chosen by a measurement (docs/results.md)."""
     skip_when_stable: bool = False
-    """Train on the raw frames when preprocessing does not make the training frames' mean levels
-    steadier (`frame_mean_spread` not lower after than before, `preprocessing_pays`): the capture
-    is photometrically stable, and equalization would only amplify rendering errors. Decided from
-    the training frames at setup and logged; the full method turns it on (the runs that chose it:
-    docs/results/stress_protocols_3seeds), the ablations keep their fixed preprocessing."""
+    """Train on the raw frames unless preprocessing pays for this capture (`preprocessing_pays`):
+    it must make the training frames' mean levels steadier, and their contrast must vary (as a
+    sensor's automatic gain control makes it); level offsets alone the frame embeddings follow,
+    and there equalization only costs accuracy. Decided from the training frames at setup and
+    logged; the full method turns it on (the runs that chose it: docs/results/preprocessing_rule),
+    the ablations keep their fixed preprocessing."""
 
     @property
     def equalizes(self) -> bool:

@@ -45,7 +45,7 @@ from thermal_wild_ns.preprocessing.photometric import (
     time_weights,
 )
 
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 
 
 def frame_mean_spread(means: Sequence[float]) -> float:
@@ -57,11 +57,43 @@ def frame_mean_spread(means: Sequence[float]) -> float:
     return float(1.4826 * np.median(np.abs(means - np.median(means))))
 
 
-def preprocessing_pays(raw_spread: float, processed_spread: float) -> bool:
-    """The rule of `PhotometricConfig.skip_when_stable`: preprocessing exists to make consecutive
-    frames consistent; where it leaves their mean levels no steadier, the capture was already
-    stable and preprocessing only costs accuracy (docs/results/stress_protocols_3seeds)."""
-    return processed_spread < raw_spread
+CONTRAST_QUANTILES = np.linspace(0.02, 0.98, 49)
+"""Where each training frame's quantile function is sampled for `frame_contrast_spread`."""
+CONTRAST_SPREAD = 0.15
+"""`frame_contrast_spread` from which preprocessing pays (`preprocessing_pays`): DUNR's (a real
+drone capture) is 0.27; the demo and stress scenes', whose faults are level offsets with gains
+within a few percent, 0.05-0.09 (docs/results/preprocessing_rule)."""
+
+
+def frame_quantiles(frame: np.ndarray, max_samples: int = 65536) -> np.ndarray:
+    """A frame's quantile function at `CONTRAST_QUANTILES` [P] (of a strided subsample on large frames)."""
+    flat = np.asarray(frame, dtype=np.float64).reshape(-1)
+    return np.quantile(flat[:: flat.size // max_samples + 1], CONTRAST_QUANTILES)
+
+
+def frame_contrast_spread(quantiles: Sequence[Sequence[float]]) -> float:
+    """How much the frames' contrast varies: each frame's quantile function [P] fitted, least
+    squares, as gain x the median frame's + offset; the spread of the log gains (median absolute
+    deviation scaled to a standard deviation, robust to an outlier frame). A sensor's automatic
+    gain control moves it; level offsets (warm-up drift, flat-field corrections) do not."""
+    q = np.asarray(quantiles, dtype=np.float64)  # [T, P]
+    reference = np.median(q, axis=0)  # [P]
+    centred = reference - reference.mean()
+    if not np.any(centred):
+        return 0.0
+    gains = (q - q.mean(axis=1, keepdims=True)) @ centred / (centred @ centred)  # [T]
+    log_gains = np.log(np.clip(gains, 1e-6, None))
+    return float(1.4826 * np.median(np.abs(log_gains - np.median(log_gains))))
+
+
+def preprocessing_pays(raw_spread: float, processed_spread: float, contrast_spread: float) -> bool:
+    """The rule of `PhotometricConfig.skip_when_stable`. Preprocessing exists to make consecutive
+    frames consistent: where it leaves their mean levels no steadier, the capture was already
+    stable and preprocessing only costs accuracy (docs/results/stress_protocols_3seeds). Where the
+    frames differ by level offsets alone, the frame embeddings follow them, and preprocessing costs
+    `aligned` accuracy (1-3 dB on the drift, flat-field and demo scenes); where their contrast
+    varies (`frame_contrast_spread` >= `CONTRAST_SPREAD`), it pays (docs/results/preprocessing_rule)."""
+    return processed_spread < raw_spread and contrast_spread >= CONTRAST_SPREAD
 
 
 @dataclass
@@ -89,6 +121,25 @@ class PreprocessedSequence:
         decides from)."""
         means = json.loads((self.folder / "meta.json").read_text())["training_frame_means"]
         return frame_mean_spread(means["raw"]), frame_mean_spread(means["processed"])
+
+    def frame_contrast_spread(self) -> float:
+        """`frame_contrast_spread` of the raw training frames."""
+        return frame_contrast_spread(json.loads((self.folder / "meta.json").read_text())["training_frame_quantiles"])
+
+    def decision(self) -> Tuple[bool, str]:
+        """Whether preprocessing pays for this capture (`preprocessing_pays`), and the measurements
+        that say so, in words (logged at setup, recorded by the bench, advised by wild-thermal-diagnose)."""
+        raw, processed = self.frame_mean_spreads()
+        contrast = self.frame_contrast_spread()
+        measured = f"frame-mean spread {raw:.4f} -> {processed:.4f} preprocessed, contrast spread {contrast:.3f}"
+        if preprocessing_pays(raw, processed, contrast):
+            return True, f"the frames' levels and contrast vary ({measured})"
+        if processed >= raw:
+            return False, f"the capture is stable ({measured})"
+        return False, (
+            f"the frames differ by level offsets, which the frame embeddings follow ({measured}, "
+            f"under {CONTRAST_SPREAD})"
+        )
 
     def frame_path(self, index: int) -> Path:
         return self.folder / "frames" / f"{index:05d}.npy"
@@ -215,6 +266,7 @@ def preprocess(
         np.lib.format.write_array_header_1_0(luts, header)
         current: List[np.ndarray] = []  # the frame frame_luts is on: each file is read once
         means: dict = {"raw": [], "processed": []}  # training frames, normalised
+        quantiles: List[List[float]] = []  # training frames, raw, normalised
 
         def raw_frames():
             for f in frames:
@@ -227,8 +279,10 @@ def preprocess(
             if train[t]:
                 processed = rng.normalize(apply_lut(lut, current[0], grid))
                 np.save(work / "frames" / f"{t:05d}.npy", processed)
-                means["raw"].append(float(rng.normalize(current[0]).mean()))
+                raw = rng.normalize(current[0])
+                means["raw"].append(float(raw.mean()))
                 means["processed"].append(float(processed.mean()))
+                quantiles.append(frame_quantiles(raw).tolist())
         luts.close()
         meta = {
             "config": _processing(config),
@@ -236,6 +290,7 @@ def preprocess(
             "frames": [str(f.image) for f in frames],
             "train_indices": [t for t, is_train in enumerate(train) if is_train],
             "training_frame_means": means,
+            "training_frame_quantiles": quantiles,
         }
         (work / "meta.json").write_text(json.dumps(meta, indent=1))
         publish_cache_folder(work, folder, "meta.json")
