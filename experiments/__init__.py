@@ -21,6 +21,15 @@ def synchronize() -> None:
         torch.cuda.synchronize()
 
 
+def write_report(path, text: str) -> None:
+    """Write a Markdown report (its folder made if missing) and print it."""
+    from pathlib import Path
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(text)
+    print(text)
+
+
 def python_profile_markdown(profiler, per: int, rows: int = 30) -> str:
     """Markdown table of a `cProfile.Profile`'s functions by cumulative time, per step or frame
     (`per`: how many the profile covered): where the host's time goes, by Python function. Times

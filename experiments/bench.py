@@ -256,6 +256,9 @@ class CurveRecorder:
             describe,
         )
         self.seconds, self.started, self.curve = 0.0, None, []
+        self.trained_seconds = 0.0
+        """Training seconds up to the last step trained (a run the automatic stop ends between two
+        checkpoints trains past the last one)."""
 
     def start(self) -> None:
         synchronize()
@@ -271,9 +274,11 @@ class CurveRecorder:
                 f"--time-limit reached at step {done} ({getattr(self.pipeline.model, 'num_points', '?')} Gaussians)"
             )
         if done not in self.checkpoints:
+            self.trained_seconds = self.elapsed()  # host time: the GPU is at most a step or two behind
             return
         synchronize()
         self.seconds, self.started = self.elapsed(), None
+        self.trained_seconds = self.seconds
         result = evaluate(self.pipeline, protocols=CHEAP_PROTOCOLS)
         self.pipeline.train()
         point = {"step": done, "seconds": round(self.seconds, 3), "gaussians": result["gaussians"]}
@@ -314,7 +319,7 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
                     strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16)
                 )
     fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
-    seconds = recorder.seconds
+    seconds = recorder.trained_seconds  # to the last step trained, checkpoint or not
     steps = trainer.step + 1  # fewer than asked where the automatic stop ended the run
     record = config.get_base_dir() / "auto_stop.json"
     return {

@@ -23,6 +23,7 @@ from typing import Dict, List, Tuple
 import numpy as np
 import tyro
 
+from experiments import write_report
 from experiments.bench import _cell, spread
 
 FULL = "wild-thermal"
@@ -136,9 +137,7 @@ def margins(args: Args) -> Tuple[str, List[dict]]:
 
 def main(args: Args) -> List[dict]:
     text, rows = margins(args)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(text)
-    print(text)
+    write_report(args.output, text)
     return rows
 
 

@@ -7,7 +7,7 @@
 # (DUNR and its triangulation cache, made on a CPU machine: the GPU image has no pycolmap).
 # Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, demo, stress-no-preprocessing, no-preprocessing}
+plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
@@ -67,6 +67,10 @@ case "$plan" in
   dunr-wild-thermal)
     bench dunr-wild-thermal --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal --steps 30000 \
       --eval-at 1000 2000 5000 10000 20000 30000 --fit-steps 20
+    ;;
+  dunr-both)  # both methods in one bench run (one command): the first 10,000 steps of the 30k schedule, no stop
+    bench dunr-both --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods splatfacto wild-thermal \
+      --steps 10000 --schedule 30000 --eval-at 1000 2000 5000 10000 --no-auto-stop --fit-steps 20
     ;;
   demo)  # the demo scene's protocol (5,000 steps, 1/2-resolution warm-up for every method), both methods in one run
     bench demo --scenes demo --methods splatfacto wild-thermal --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000

@@ -18,6 +18,7 @@ from typing import List, Optional, Tuple
 
 import tyro
 
+from experiments import write_report
 from thermal_wild_ns.preprocessing.stage import CONTRAST_SPREAD
 
 
@@ -79,10 +80,7 @@ def table(rows: List[dict]) -> str:
 
 def main(args: RuleArgs) -> List[dict]:
     rows = [measure(scene, args.work_dir, args.cache_dir or args.work_dir / "cache") for scene in args.scenes]
-    text = table(rows)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(text)
-    print(text)
+    write_report(args.output, table(rows))
     return rows
 
 

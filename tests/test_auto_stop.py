@@ -39,8 +39,8 @@ def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():
     assert held_back_images(19, 2) == () and held_back_images(30, 0) == ()
 
 
-def _trainer(tmp_path, demo_scene_dir, steps, **auto):
-    return demo_trainer(tmp_path, demo_scene_dir, steps, "auto_stop", **auto)
+def _trainer(tmp_path, demo_scene_dir, steps, preprocessed=False, **auto):
+    return demo_trainer(tmp_path, demo_scene_dir, steps, "auto_stop", preprocessed, **auto)
 
 
 def _scores(monkeypatch, values):
@@ -125,7 +125,7 @@ def test_the_score_is_the_time_protocol_on_the_held_back_frame(tmp_path, demo_sc
     from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
     from thermal_wild_ns.preprocessing.photometric import blend_luts
 
-    trainer = _trainer(tmp_path, demo_scene_dir, steps=1)
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=1, preprocessed=True)  # LUTs to interpolate
     pipeline = trainer.pipeline
     dataset, sequence, model = pipeline.datamanager.train_dataset, pipeline.datamanager.preprocessed, pipeline.model
     image = pipeline.datamanager.held_back[0]

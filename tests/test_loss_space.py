@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
 
 @pytest.fixture(scope="module")
@@ -13,6 +14,7 @@ def original_space_trainer(tmp_path_factory, demo_scene_dir):
     config = demo_trainer_config(tmp_path_factory.mktemp("loss_space"), steps=2, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.loss_space = "original"
+    config.pipeline.datamanager.preprocessing = PhotometricConfig()  # preprocessed (the rule trains the demo raw)
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
     return trainer

@@ -417,3 +417,13 @@ def test_held_out_frames_never_change_training_or_the_predicted_renders(tmp_path
         assert torch.equal(seeds, same[3])
         np.testing.assert_array_equal(novel, same[4])
         np.testing.assert_array_equal(timed, same[5])
+
+
+def test_the_preprocessing_rule_report_names_each_scenes_measurements_and_decision(tmp_path):
+    from experiments.preprocessing_rule import RuleArgs, main
+
+    rows = main(RuleArgs(scenes=("demo",), output=tmp_path / "rule.md", work_dir=tmp_path))
+    (row,) = rows
+    assert not row["pays"] and row["processed"] < row["raw"] and 0 < row["contrast"] < 0.15  # offsets only
+    table = (tmp_path / "rule.md").read_text()
+    assert f"| demo | {row['raw']:.4f} -> {row['processed']:.4f} | {row['contrast']:.3f} | no |" in table
