@@ -169,8 +169,9 @@ def fused_adam_step(optimizers) -> None:
     `torch.optim.adam._fused_adam` gives it), without the Python around it: the profiler range,
     hooks, graph-capture checks and torch.compile guards of each `step()` call, nine of them per
     training step here. The step counts of every parameter go up in one foreach kernel.
-    Checked against torch 2.11 (the GPU machines) and 2.13 (CPU): tests/test_training.py compares
-    the parameters and optimizer states with `Optimizer.step`'s, bit for bit."""
+    Checked against torch 2.11 (the GPU machines) and 2.13 (CPU): tests/test_upstream.py compares
+    the parameters and optimizer states with `Optimizer.step`'s, bit for bit, and
+    tests/test_resume.py a training run with nerfstudio's."""
     import torch
 
     work = []

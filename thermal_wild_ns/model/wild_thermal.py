@@ -473,7 +473,7 @@ class WildThermalModel(SplatfactoModel):
         values = self.background_mlp(dirs, frame_embed)[..., 0]  # [rows, cols]
         return torch.cat([values, values[:, :1]], dim=1)[None, None]  # [1, 1, rows, cols + 1]
 
-    def _view(self, camera: Cameras, scale: int, cam_idx: Optional[int]) -> "View":
+    def _view(self, camera: Cameras, scale: int, cam_idx: Optional[int]) -> View:
         """Where and how a render looks, at 1/`scale` of the camera's resolution (`View`). The camera
         object is left as it is (a datamanager may hand the same one again). `cam_idx` names a
         training camera whose pose is fixed: its view is computed once per scale."""
