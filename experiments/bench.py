@@ -129,16 +129,10 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     from nerfstudio.configs.method_configs import method_configs
 
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
-    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     seed = args.seed if seed is None else seed
-    if scene == "demo":
-        dataparser = ThermalDemoDataParserConfig(data=args.output_dir / "demo-scene")
-    elif scene.startswith("stress:"):
-        dataparser = ThermalDemoDataParserConfig(data=args.output_dir / scene_name(scene), scene=scene.split(":", 1)[1])  # type: ignore[arg-type]
-    else:
-        dataparser = ThermalDataParserConfig(data=Path(scene), cache_dir=args.cache_dir or args.output_dir / "cache")
+    dataparser = scene_dataparser(scene, args.output_dir, args.cache_dir or args.output_dir / "cache")
     if method == "splatfacto":
         config = copy.deepcopy(method_configs["splatfacto"])
         config.pipeline.datamanager = ThermalDatamanagerConfig(
@@ -175,6 +169,18 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
         config.auto_stop.enabled = args.auto_stop
         config.auto_stop.scale_to(args.schedule or args.steps, FULL_SCHEDULE)
     return config
+
+
+def scene_dataparser(scene: str, output_dir: Path, cache_dir: Path):
+    """The dataparser config of a bench scene: 'demo' and 'stress:FAULT' generated under
+    `output_dir`, anything else a dataset folder (triangulation cache in `cache_dir`)."""
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
+
+    if scene == "demo":
+        return ThermalDemoDataParserConfig(data=output_dir / "demo-scene")
+    if scene.startswith("stress:"):
+        return ThermalDemoDataParserConfig(data=output_dir / scene_name(scene), scene=scene.split(":", 1)[1])  # type: ignore[arg-type]
+    return ThermalDataParserConfig(data=Path(scene), cache_dir=cache_dir)
 
 
 def apply_setting(config, setting: str) -> None:

@@ -19,6 +19,7 @@ from typing import List, Optional, Tuple
 import tyro
 
 from experiments import write_report
+from experiments.bench import scene_dataparser, scene_name
 from thermal_wild_ns.preprocessing.stage import CONTRAST_SPREAD
 
 
@@ -30,36 +31,21 @@ class RuleArgs:
     work_dir: Path = Path("outputs/preprocessing_rule")
     """Where generated scenes go."""
     cache_dir: Optional[Path] = None
-    """Triangulation / preprocessing cache (default: `work_dir/cache`), as in python -m experiments.bench."""
+    """Triangulation / preprocessing cache (default: `work_dir/cache`), as in python -m experiments.bench.
+    Preprocessed frames of a 640x512 capture take tens of MB there."""
 
 
 def measure(scene: str, work_dir: Path, cache_dir: Path) -> dict:
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
-    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
-    if scene == "demo":
-        parser = ThermalDemoDataParserConfig(data=work_dir / "demo")
-    elif scene.startswith("stress:"):
-        fault = scene.split(":", 1)[1]
-        parser = ThermalDemoDataParserConfig(data=work_dir / f"stress-{fault}", scene=fault)  # type: ignore[arg-type]
-    else:
-        parser = ThermalDataParserConfig(data=Path(scene), cache_dir=cache_dir)
     datamanager = ThermalDatamanagerConfig(
-        dataparser=parser, preprocessing=PhotometricConfig(), preprocessing_cache=cache_dir
+        dataparser=scene_dataparser(scene, work_dir, cache_dir),
+        preprocessing=PhotometricConfig(),
+        preprocessing_cache=cache_dir,
     ).setup(device="cpu")
-    sequence = datamanager.preprocessed  # skip_when_stable off: always the processed sequence
-    raw, processed = sequence.frame_mean_spreads()
-    pays, reason = sequence.decision()
-    name = scene if not Path(scene).is_dir() else Path(scene).name
-    return {
-        "scene": name,
-        "raw": raw,
-        "processed": processed,
-        "contrast": sequence.frame_contrast_spread(),
-        "pays": pays,
-        "reason": reason,
-    }
+    decision = datamanager.preprocessed.decision()  # skip_when_stable off: always the processed sequence
+    return {"scene": scene_name(scene), **decision._asdict()}
 
 
 def table(rows: List[dict]) -> str:
@@ -71,7 +57,7 @@ def table(rows: List[dict]) -> str:
         "| --- | --- | --- | --- |",
     ]
     lines += [
-        f"| {r['scene']} | {r['raw']:.4f} -> {r['processed']:.4f} | {r['contrast']:.3f} | "
+        f"| {r['scene']} | {r['raw_spread']:.4f} -> {r['processed_spread']:.4f} | {r['contrast_spread']:.3f} | "
         f"{'yes' if r['pays'] else 'no'} |"
         for r in rows
     ]

@@ -188,21 +188,18 @@ def test_resolution_warm_up_and_equalization_strength_are_set(tmp_path):
     assert config.pipeline.datamanager.preprocessing.equalization_strength == 0.5
 
 
-def test_a_run_stopped_between_checkpoints_counts_its_training_time_to_the_last_step():
+def test_a_run_stopped_between_checkpoints_counts_its_training_time_to_the_last_step(monkeypatch):
     """The automatic stop ends runs between the bench's checkpoints: their seconds (and ms/step)
     run to the last step trained, not to the last checkpoint."""
-    import time
+    import experiments.bench as bench
 
-    from experiments.bench import CurveRecorder
-
-    recorder = CurveRecorder(pipeline=None, checkpoints=[1000], time_limit=None, describe="run")
-    recorder.start()
-    seen = []
+    clock = iter(range(100))  # a clock that moves one second per reading
+    monkeypatch.setattr(bench.time, "perf_counter", lambda: float(next(clock)))
+    recorder = bench.CurveRecorder(pipeline=None, checkpoints=[1000], time_limit=None, describe="run")
+    recorder.start()  # t = 0
     for step in range(3):  # no checkpoint among them: nothing to evaluate
-        time.sleep(0.01)
-        recorder(step)
-        seen.append(recorder.trained_seconds)
-    assert 0.03 <= seen[-1] == max(seen) and seen == sorted(seen) and recorder.seconds == 0.0
+        recorder(step)  # t = 1, 2, 3
+    assert recorder.trained_seconds == 3.0 and recorder.seconds == 0.0
 
 
 def test_unknown_method_and_protocol_are_refused(tmp_path):

@@ -447,15 +447,17 @@ def test_renders_outside_training_use_the_baked_background():
     spread = float(exact.max() - exact.min())
     assert getattr(model, "_baked_background", None) is not None
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
-    # a render's fast path: the camera-frame directions of its intrinsics, kept, then rotated
+    # the view directions: the camera-frame directions of the intrinsics, kept once per intrinsics (given
+    # on the host or read from K alike), then rotated: the directions of the full pixel grid
+    assert len(model._frame_directions) == 1
     with torch.no_grad():
-        fast = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
-        assert len(model._frame_directions) == 1
-        again = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
-    assert len(model._frame_directions) == 1 and torch.equal(fast, again)
-    assert float((fast - baked).abs().max()) < 1e-5 * spread
+        given = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
+    assert len(model._frame_directions) == 1 and torch.equal(given, baked)
+    kept = next(iter(model._frame_directions.values())) @ c2w[:3, :3].T
+    reference = model.ray_directions(K, c2w, 160, 128, model.config.background_stride)
+    assert kept.shape == reference.shape and float((kept - reference).abs().max()) < 1e-6
     outputs = model.get_outputs_for_camera(camera)  # the same object, already on the model's device
-    assert torch.equal(outputs["background"], fast)
+    assert torch.equal(outputs["background"], baked)
 
 
 def test_a_random_training_background_is_redrawn_each_step_and_only_in_training():

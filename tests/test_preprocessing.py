@@ -424,6 +424,8 @@ def test_the_preprocessing_rule_report_names_each_scenes_measurements_and_decisi
 
     rows = main(RuleArgs(scenes=("demo",), output=tmp_path / "rule.md", work_dir=tmp_path))
     (row,) = rows
-    assert not row["pays"] and row["processed"] < row["raw"] and 0 < row["contrast"] < 0.15  # offsets only
+    assert not row["pays"] and row["processed_spread"] < row["raw_spread"]
+    assert 0 < row["contrast_spread"] < 0.15  # offsets only
     table = (tmp_path / "rule.md").read_text()
-    assert f"| demo | {row['raw']:.4f} -> {row['processed']:.4f} | {row['contrast']:.3f} | no |" in table
+    cells = f"{row['raw_spread']:.4f} -> {row['processed_spread']:.4f} | {row['contrast_spread']:.3f}"
+    assert f"| demo | {cells} | no |" in table

@@ -88,10 +88,9 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
 def preprocessing_advice(sequence: PreprocessedSequence) -> str:
     """Which method the measurements point to, by the rule the full method trains with
     (`PreprocessedSequence.decision`, `PhotometricConfig.skip_when_stable`)."""
-    pays, reason = sequence.decision()
-    if pays:
-        return f"{reason}: `wild-thermal` preprocesses this capture"
-    return f"{reason}: `wild-thermal` trains on its raw frames"
+    decision = sequence.decision()
+    what = "preprocesses this capture" if decision.pays else "trains on its raw frames"
+    return f"{decision.reason}: `wild-thermal` {what}"
 
 
 def _plot(result: Dict, path: Path, title: str) -> None:

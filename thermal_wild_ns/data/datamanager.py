@@ -139,12 +139,12 @@ class ThermalDatamanager(single_channel_datamanager_class()):
             self.config.preprocessing_cache,
             train=[t in train for t in range(len(capture.frames))],
         )
-        pays, reason = sequence.decision()
-        if config.skip_when_stable and not pays:
-            self.preprocessing_used = f"none: {reason}"
-            CONSOLE.log(f"Preprocessing skipped, {reason}: training on the raw frames")
+        decision = sequence.decision()
+        if config.skip_when_stable and not decision.pays:
+            self.preprocessing_used = f"none: {decision.reason}"
+            CONSOLE.log(f"Preprocessing skipped, {decision.reason}: training on the raw frames")
             return None
-        self.preprocessing_used = f"{config.variant}: {reason}"
+        self.preprocessing_used = f"{config.variant}: {decision.reason}"
         return sequence
 
     preprocessing_used: str = ""

@@ -538,9 +538,9 @@ class WildThermalModel(SplatfactoModel):
         upsampled. In training (and under autograd) the MLP runs on every grid point; `cam_idx`
         names a training camera whose pose is fixed (no pose optimisation), whose encoded
         directions are computed once and reused. Every other render samples the baked map
-        (`baked_background_map`); given `K`'s fx, fy, cx, cy on the host (`pinhole`), its view
-        directions are the camera-frame directions of those intrinsics (computed once) rotated,
-        one matrix product instead of `ray_directions`' grid."""
+        (`baked_background_map`) along the camera-frame directions of `K` (kept per intrinsics:
+        `_camera_frame_directions`), rotated; `pinhole`: `K`'s fx, fy, cx, cy on the host, where the
+        caller has them (else they are read from `K`)."""
         if self.background_mlp is None:
             if self.training and self.config.random_background:
                 return torch.rand(1, 1, 1, device=self.device).expand(height, width, 1)
@@ -548,9 +548,8 @@ class WildThermalModel(SplatfactoModel):
         stride = self.config.background_stride
         if not self.training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
             if pinhole is None:
-                dirs = self.ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
-            else:
-                dirs = self._camera_frame_directions(pinhole, width, height) @ camera_to_world[:3, :3].T  # [h, w, 3]
+                pinhole = tuple(K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())  # fx, fy, cx, cy
+            dirs = self._camera_frame_directions(K, pinhole, width, height) @ camera_to_world[:3, :3].T  # [h, w, 3]
             longitude = torch.atan2(dirs[..., 1], dirs[..., 0]) / math.pi  # [h, w] in [-1, 1]
             latitude = torch.asin(dirs[..., 2].clamp(-1.0, 1.0)) / (math.pi / 2)  # [h, w] in [-1, 1]
             grid = torch.stack([longitude, latitude], dim=-1)  # [h, w, 2]
@@ -567,15 +566,16 @@ class WildThermalModel(SplatfactoModel):
                 self._encoded_directions[key] = encoded
         return self._upsampled(self.background_mlp.from_encoded(encoded, frame_embed), width, height)
 
-    def _camera_frame_directions(self, pinhole: Tuple[float, float, float, float], width: int, height: int) -> Tensor:
-        """`ray_directions` of a camera at the origin, unrotated [h, w, 3], for intrinsics given on the
-        host; the last few (intrinsics, size) are kept, as a viewer renders the same ones again."""
+    def _camera_frame_directions(
+        self, K: Tensor, pinhole: Tuple[float, float, float, float], width: int, height: int
+    ) -> Tensor:
+        """`ray_directions` of intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on the host) for a
+        camera at the origin, unrotated [h, w, 3]; the last few (intrinsics, size) are kept, as a
+        viewer renders the same ones again."""
         key = (pinhole, width, height, self.config.background_stride)
         cached = self._frame_directions.pop(key, None)
         if cached is None:
-            fx, fy, cx, cy = pinhole
-            K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], device=self.device)
-            cached = self.ray_directions(K, torch.eye(3, 4, device=self.device), width, height, key[-1])
+            cached = self.ray_directions(K, torch.eye(3, 4, device=K.device), width, height, key[-1])
         self._frame_directions[key] = cached  # the most recent last
         while len(self._frame_directions) > 8:
             self._frame_directions.pop(next(iter(self._frame_directions)))

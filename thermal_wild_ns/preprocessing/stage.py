@@ -21,7 +21,7 @@ import shutil
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import List, Optional, Sequence, Tuple
+from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 from tqdm import tqdm
@@ -60,9 +60,9 @@ def frame_mean_spread(means: Sequence[float]) -> float:
 CONTRAST_QUANTILES = np.linspace(0.02, 0.98, 49)
 """Where each training frame's quantile function is sampled for `frame_contrast_spread`."""
 CONTRAST_SPREAD = 0.15
-"""`frame_contrast_spread` from which preprocessing pays (`preprocessing_pays`): DUNR's (a real
-drone capture) is 0.27; the demo and stress scenes', whose faults are level offsets with gains
-within a few percent, 0.05-0.09 (docs/results/preprocessing_rule)."""
+"""`frame_contrast_spread` from which preprocessing pays (`preprocessing_pays`): between a real drone
+capture's and those of scenes whose frames differ by level offsets, gains within a few percent
+(chosen by docs/results/preprocessing_rule, which lists each scene's)."""
 
 
 def frame_quantiles(frame: np.ndarray, max_samples: int = 65536) -> np.ndarray:
@@ -91,9 +91,19 @@ def preprocessing_pays(raw_spread: float, processed_spread: float, contrast_spre
     frames consistent: where it leaves their mean levels no steadier, the capture was already
     stable and preprocessing only costs accuracy (docs/results/stress_protocols_3seeds). Where the
     frames differ by level offsets alone, the frame embeddings follow them, and preprocessing costs
-    `aligned` accuracy (1-3 dB on the drift, flat-field and demo scenes); where their contrast
-    varies (`frame_contrast_spread` >= `CONTRAST_SPREAD`), it pays (docs/results/preprocessing_rule)."""
+    `aligned` accuracy; where their contrast varies (`frame_contrast_spread` >= `CONTRAST_SPREAD`),
+    it pays (docs/results/preprocessing_rule)."""
     return processed_spread < raw_spread and contrast_spread >= CONTRAST_SPREAD
+
+
+class PreprocessingDecision(NamedTuple):
+    """`PreprocessedSequence.decision`: whether preprocessing pays, why in words, and the measurements."""
+
+    pays: bool
+    reason: str
+    raw_spread: float  # `frame_mean_spread` of the raw training frames
+    processed_spread: float  # ... of the preprocessed ones
+    contrast_spread: float  # `frame_contrast_spread` of the raw training frames
 
 
 @dataclass
@@ -107,9 +117,14 @@ class PreprocessedSequence:
     _median: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     @cached_property
+    def meta(self) -> dict:
+        """The cache folder's meta.json (read once)."""
+        return json.loads((self.folder / "meta.json").read_text())
+
+    @property
     def train_indices(self) -> List[int]:
         """Capture indices of the training frames (increasing): the frames whose LUTs are a state."""
-        return json.loads((self.folder / "meta.json").read_text())["train_indices"]
+        return self.meta["train_indices"]
 
     @property
     def luts(self) -> np.ndarray:
@@ -119,27 +134,28 @@ class PreprocessedSequence:
     def frame_mean_spreads(self) -> Tuple[float, float]:
         """`frame_mean_spread` of the training frames, raw and processed (what `preprocessing_pays`
         decides from)."""
-        means = json.loads((self.folder / "meta.json").read_text())["training_frame_means"]
+        means = self.meta["training_frame_means"]
         return frame_mean_spread(means["raw"]), frame_mean_spread(means["processed"])
 
     def frame_contrast_spread(self) -> float:
         """`frame_contrast_spread` of the raw training frames."""
-        return frame_contrast_spread(json.loads((self.folder / "meta.json").read_text())["training_frame_quantiles"])
+        return frame_contrast_spread(self.meta["training_frame_quantiles"])
 
-    def decision(self) -> Tuple[bool, str]:
-        """Whether preprocessing pays for this capture (`preprocessing_pays`), and the measurements
-        that say so, in words (logged at setup, recorded by the bench, advised by wild-thermal-diagnose)."""
+    def decision(self) -> PreprocessingDecision:
+        """Whether preprocessing pays for this capture (`preprocessing_pays`), with the measurements
+        that say so, in words too (logged at setup, recorded by the bench, advised by wild-thermal-diagnose)."""
         raw, processed = self.frame_mean_spreads()
         contrast = self.frame_contrast_spread()
         measured = f"frame-mean spread {raw:.4f} -> {processed:.4f} preprocessed, contrast spread {contrast:.3f}"
-        if preprocessing_pays(raw, processed, contrast):
-            return True, f"the frames' levels and contrast vary ({measured})"
-        if processed >= raw:
-            return False, f"the capture is stable ({measured})"
-        return False, (
-            f"the frames differ by level offsets, which the frame embeddings follow ({measured}, "
-            f"under {CONTRAST_SPREAD})"
-        )
+        pays = preprocessing_pays(raw, processed, contrast)
+        if pays:
+            reason = f"the frames' levels and contrast vary ({measured})"
+        elif processed >= raw:
+            reason = f"the capture is stable ({measured})"
+        else:
+            offsets = "the frames differ by level offsets, which the frame embeddings follow"
+            reason = f"{offsets} ({measured}, under {CONTRAST_SPREAD})"
+        return PreprocessingDecision(pays, reason, raw, processed, contrast)
 
     def frame_path(self, index: int) -> Path:
         return self.folder / "frames" / f"{index:05d}.npy"

@@ -191,11 +191,12 @@ class GuardedTrainer(trainer_after_load_class()):
         super().setup(test_mode=test_mode)
         self.guard = DivergenceGuard(self.config.guard)
         self._step = 0
-        if self.config.guard.enabled:
+        unsupported = self._lean_step_unsupported() if self.config.lean_step else None
+        self.lean = self.config.lean_step and unsupported is None
+        if unsupported is not None:
+            CONSOLE.log(f"nerfstudio's training step (not the lean one): {unsupported}")
+        if self.config.guard.enabled and not self.lean:  # the lean step calls the guard itself
             guard_optimizer_steps(self.optimizers, self._accept_step)
-        self.lean = self.config.lean_step and self._lean_step_unsupported() is None
-        if self.config.lean_step and not self.lean:
-            CONSOLE.log(f"nerfstudio's training step (not the lean one): {self._lean_step_unsupported()}")
         self._setup_auto_stop()
 
     def _lean_step_unsupported(self) -> Optional[str]:
