@@ -82,8 +82,9 @@ class BenchArgs:
     128x96 scene then trains at 32x24 pixels, and at full resolution only from 20 % of the schedule)."""
     set: Tuple[str, ...] = ()
     """Settings of every method's config as dotted paths, e.g. `pipeline.model.heat_aware_ssim=False`,
-    `pipeline.datamanager.preprocessing.variant=none` or splatfacto's `pipeline.model.sh_degree=0`
-    (values read as Python literals, else as text); named in the run's label."""
+    `pipeline.datamanager.preprocessing.variant=none`, splatfacto's `pipeline.model.sh_degree=0` or an
+    optimizer's `optimizers.emission.optimizer.lr=7e-4` (values read as Python literals, else as
+    text); named in the run's label."""
     auto_stop: bool = True
     """The automatic stop of this plugin's methods (`training/auto_stop.py`, its check interval scaled
     with the schedule like the densification's); off: every run trains `--steps` steps."""
@@ -196,11 +197,17 @@ def apply_setting(config, setting: str) -> None:
         value = text
     *parents, name = path.split(".")
     chain = [config]
-    for part in parents:
-        chain.append(getattr(chain[-1], part))
-    if not hasattr(chain[-1], name):
+    for part in parents:  # dataclass fields, or keys of a dict (the trainer's `optimizers`)
+        owner = chain[-1]
+        if isinstance(owner, dict) and part not in owner or not isinstance(owner, dict) and not hasattr(owner, part):
+            raise ValueError(f"--set {setting!r}: {type(owner).__name__} has no field {part!r}")
+        chain.append(owner[part] if isinstance(owner, dict) else getattr(owner, part))
+    if isinstance(chain[-1], dict) or not hasattr(chain[-1], name):
         raise ValueError(f"--set {setting!r}: {type(chain[-1]).__name__} has no field {name!r}")
     for owner, attribute in zip(reversed(chain), [name, *reversed(parents)]):
+        if isinstance(owner, dict):
+            owner[attribute] = value
+            return
         if not getattr(type(owner), "__dataclass_params__", None) or not owner.__dataclass_params__.frozen:
             setattr(owner, attribute, value)
             return
@@ -219,7 +226,11 @@ def run_label(method: str, args: BenchArgs) -> str:
         and METHODS[method].config.pipeline.datamanager.preprocessing.equalizes
     ):
         changed.append(f"equalization-strength {args.equalization_strength:g}")
-    changed += [setting.rsplit(".", 1)[-1] for setting in args.set]
+    # a setting is named by its field, an optimizer's by its parameter group too ("emission.optimizer.lr=...")
+    changed += [
+        setting.removeprefix("optimizers.") if setting.startswith("optimizers.") else setting.rsplit(".", 1)[-1]
+        for setting in args.set
+    ]
     return f"{method} ({', '.join(changed)})" if changed else method
 
 

@@ -7,7 +7,7 @@
 # (DUNR and its triangulation cache, made on a CPU machine: the GPU image has no pycolmap).
 # Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing, random-background}
+plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing, random-background, full-setting}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
@@ -98,6 +98,14 @@ case "$plan" in
     bench random-background --scenes stress:clean --methods wild-thermal-3dgs wild-thermal-emission-mlp \
       --set pipeline.model.random_background=True --seeds 3 --steps 5000 --num-downscales 1 \
       --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 3
+    ;;
+  full-setting)  # issue 16: the full method with one setting changed (SETTING, a bench --set, named TAG) on the
+    # scenes where it is short of splatfacto, the protocol of docs/results/full_vs_ablations.md (5,000 steps,
+    # 1/2-resolution warm-up, automatic stop), 3 seeds, 5 runs at a time (timings shared). Needs .devicebundle.
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    bench "full-${TAG:?TAG names the setting}" --scenes ${SCENES:-demo stress:clean stress:drift stress:ffc stress:outlier} \
+      --methods wild-thermal --set "${SETTING:?SETTING: a bench --set}" --seeds 3 --steps 5000 --num-downscales 1 \
+      --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 5
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
