@@ -294,7 +294,6 @@ def test_a_bench_of_only_skipped_runs_still_writes_its_table(tmp_path):
 def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, monkeypatch):
     """The NeRF-W prediction of a view is the same whatever the right halves of the held-out frames
     hold (noise here), while the score, which is of the right half, changes."""
-    import torch
 
     import thermal_wild_ns.analysis.evaluation as evaluation
     from thermal_wild_ns.demo import demo_trainer_config
@@ -316,14 +315,54 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
     first = evaluation.evaluate(pipeline, protocols=("half",), fit_steps=3)
     clean = [p.copy() for p in predictions]
     predictions.clear()
-    for cache in pipeline.datamanager.cached_eval:
-        image = cache["image"]
+    dataset = pipeline.datamanager.eval_dataset
+    recorded = dataset.recorded_image  # the protocol's target: the frame as recorded
+
+    def noisy_right_half(image_idx):
+        image = recorded(image_idx).copy()
         half = image.shape[1] // 2
-        cache["image"] = torch.cat([image[:, :half], torch.rand_like(image[:, half:])], dim=1)
+        image[:, half:] = np.random.default_rng(image_idx).random(image[:, half:].shape, dtype=np.float32)
+        return image
+
+    monkeypatch.setattr(dataset, "recorded_image", noisy_right_half)
     second = evaluation.evaluate(pipeline, protocols=("half",), fit_steps=3)
     assert len(predictions) == len(clean) == 5
     assert all(np.array_equal(a, b) for a, b in zip(clean, predictions))
     assert second["psnr_half"] < first["psnr_half"] - 3.0
+
+
+def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(tmp_path, demo_scene_dir, monkeypatch):
+    """On a generated scene the held-out view's truth is fault-free while the camera recorded it under
+    its drifting sensor state: `novel` and `aligned` are scored against the truth, `time`, `half` and
+    `oracle` (the frame's state) against the recorded frame."""
+    import thermal_wild_ns.analysis.evaluation as evaluation
+    from thermal_wild_ns.demo import demo_trainer_config
+
+    config = demo_trainer_config(tmp_path, steps=4, max_gaussians=2000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+    pipeline = trainer.pipeline
+    targets = []
+    original = evaluation.scores
+
+    def recording(pred, gt):
+        targets.append(gt)
+        return original(pred, gt)
+
+    monkeypatch.setattr(evaluation, "scores", recording)
+    evaluation.evaluate(pipeline, fit_steps=1)
+    dataset = pipeline.datamanager.eval_dataset
+    assert len(targets) == 5 * 5  # views x protocols, each view in the order novel, time, aligned, half, oracle
+    for view, (_, batch) in enumerate(pipeline.datamanager.fixed_indices_eval_dataloader):
+        truth = batch["image"].float().mean(dim=-1).cpu().numpy()
+        recorded = dataset.recorded_image(int(batch["image_idx"]))
+        assert np.abs(truth - recorded).mean() > 1e-3  # the demo's sensor drifts: the two differ
+        novel, time, aligned, half, oracle = targets[5 * view : 5 * view + 5]
+        assert np.array_equal(novel, truth) and np.array_equal(aligned, truth)
+        assert np.array_equal(time, recorded) and np.array_equal(oracle, recorded)
+        assert np.array_equal(half, recorded[:, recorded.shape[1] // 2 :])
 
 
 def test_settings_reach_nested_and_frozen_config_fields(tmp_path):
@@ -343,6 +382,14 @@ def test_settings_reach_nested_and_frozen_config_fields(tmp_path):
         apply_setting(config, "pipeline.model.alpha_lambda")
     args = BenchArgs(set=("pipeline.model.heat_aware_ssim=False",))
     assert run_label("wild-thermal", args) == "wild-thermal (heat_aware_ssim=False)"
+    # an optimizer's settings, through the trainer's dict of parameter groups
+    apply_setting(config, "optimizers.emission.optimizer.lr=7e-4")
+    assert config.optimizers["emission"]["optimizer"].lr == 7e-4
+    assert method_trainer("wild-thermal").optimizers["emission"]["optimizer"].lr == 2.5e-3
+    with pytest.raises(ValueError, match="has no field 'features_dc'"):
+        apply_setting(config, "optimizers.features_dc.optimizer.lr=1e-3")
+    args = BenchArgs(set=("optimizers.emission.optimizer.lr=7e-4",))
+    assert run_label("wild-thermal", args) == "wild-thermal (emission.optimizer.lr=7e-4)"
     # stock splatfacto's settings too (what its lead on the stress scenes comes from)
     args = BenchArgs(set=("pipeline.model.sh_degree=0",), output_dir=tmp_path)
     assert trainer_config("splatfacto", "demo", args, tmp_path).pipeline.model.sh_degree == 0

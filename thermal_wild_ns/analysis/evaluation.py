@@ -2,8 +2,16 @@
 lets a held-out frame's pixels into what it scores, except the one labelled oracle.
 
 Every score is in the ORIGINAL radiometric space, dataset-normalised: renders go back through the
-LUT of the state they were rendered at; the target is the held-out frame as the dataset gives it
-(raw, never preprocessed; the clean ground truth for generated scenes). Per held-out view:
+LUT of the state they were rendered at; targets are never preprocessed. Two questions, two targets:
+
+- what the scene looks like (`novel`, `aligned`): the held-out view as the dataset gives it, which
+  for generated scenes is their clean ground truth (no sensor fault);
+- what the camera recorded at that moment (`time`, `half`, `oracle`, the protocols of the frame's
+  photometric state): the held-out frame as recorded. A state predicted for a drifting sensor's
+  frame carries that drift, so against a fault-free truth it would be scored for the very fault it
+  predicts. On real captures both targets are the same frame.
+
+Per held-out view:
 
 - `novel`: the canonical state (`pipeline/photometric_state.py`): what any rendered novel view is.
 - `time`: state(t) of the view's capture position, from the neighbouring training frames.
@@ -130,7 +138,7 @@ def evaluate(
     pipeline, out_dir: Optional[Path] = None, protocols=PROTOCOLS, fit_steps: int = 100, fit_lr: float = 1e-2
 ) -> Dict:
     """Mean held-out PSNR/SSIM under each protocol (`psnr_novel`, `ssim_time`, ...; per-view rows in
-    `per_view`). With `out_dir`, a PNG per view: target | `time` render | 5x error (inferno)."""
+    `per_view`). With `out_dir`, a PNG per view: the recorded frame | `time` render | 5x error (inferno)."""
     unknown = set(protocols) - set(PROTOCOLS)
     if unknown:
         raise ValueError(f"unknown protocol(s) {sorted(unknown)} (one of {', '.join(PROTOCOLS)})")
@@ -140,7 +148,8 @@ def evaluate(
     rows = []
     for i, (camera, batch) in enumerate(datamanager.fixed_indices_eval_dataloader):
         frame = int(dataset.metadata["frame_indices"][int(batch["image_idx"])])
-        gt = batch["image"].float().mean(dim=-1).cpu().numpy()  # raw held-out frame, original space
+        gt = batch["image"].float().mean(dim=-1).cpu().numpy()  # the held-out view, original space
+        recorded = dataset.recorded_image(int(batch["image_idx"]))  # the frame as the camera recorded it
         row: Dict[str, float] = {"frame": frame}
         novel = None
         if {"novel", "aligned"} & set(protocols):
@@ -150,20 +159,20 @@ def evaluate(
             row.update({f"{k}_novel": v for k, v in scores(novel, gt).items()})
         if "time" in protocols or out_dir is not None:
             _, timed = render(pipeline, camera, time_state)
-            row.update({f"{k}_time": v for k, v in scores(timed, gt).items()})
+            row.update({f"{k}_time": v for k, v in scores(timed, recorded).items()})
             if out_dir is not None:
-                _write_panel(out_dir / f"test_{i:02d}.png", gt, timed)
+                _write_panel(out_dir / f"test_{i:02d}.png", recorded, timed)
         if "aligned" in protocols:
             a, b = fit_gain_offset(novel, gt)
             row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt).items()})
         if "half" in protocols:
-            half = gt.shape[1] // 2
-            pred = half_protocol(pipeline, camera, gt[:, :half].copy(), time_state, fit_steps, fit_lr)
-            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], gt[:, half:]).items()})
+            half = recorded.shape[1] // 2
+            pred = half_protocol(pipeline, camera, recorded[:, :half].copy(), time_state, fit_steps, fit_lr)
+            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], recorded[:, half:]).items()})
         if "oracle" in protocols:
-            state = oracle_state(pipeline, camera, frame, gt, time_state, fit_steps, fit_lr)
+            state = oracle_state(pipeline, camera, frame, recorded, time_state, fit_steps, fit_lr)
             _, pred = render(pipeline, camera, state)
-            row.update({f"{k}_oracle": v for k, v in scores(pred, gt).items()})
+            row.update({f"{k}_oracle": v for k, v in scores(pred, recorded).items()})
         rows.append(row)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}

@@ -57,6 +57,15 @@ class ThermalDataset(InputDataset):
         preprocessed), at the dataset's scale factor."""
         return self._scaled(self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx]))
 
+    def recorded_image(self, image_idx: int) -> np.ndarray:
+        """The frame as the camera recorded it [H, W] (as `original_image`): the same image, except for a
+        held-out view of a capture with clean ground truth (generated scenes), whose image is that truth
+        while the camera recorded the view under its sensor state of the moment (drift, gain, faults)."""
+        recorded = self.metadata.get("recorded_filenames")
+        if recorded is None:
+            return self.original_image(image_idx)
+        return self._scaled(self.thermal_range.read(recorded[image_idx]))
+
     def _scaled(self, image: np.ndarray) -> np.ndarray:
         if self.scale_factor == 1.0:
             return image

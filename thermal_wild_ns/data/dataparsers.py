@@ -273,6 +273,7 @@ class ThermalDataParser(DataParser):
             "thermal_range": rng,
             "frame_indices": indices,
             "is_ground_truth": [image != f.image for image, f in zip(images, chosen)],
+            "recorded_filenames": [f.image for f in chosen],  # what the camera recorded, ground truth or not
             "layout": capture.layout,
         }
         seeds = self.seed_points()
