@@ -7,7 +7,7 @@
 # (DUNR and its triangulation cache, made on a CPU machine: the GPU image has no pycolmap).
 # Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing, random-background, full-setting}
+plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing, random-background, full-setting, generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
@@ -106,6 +106,15 @@ case "$plan" in
     bench "full-${TAG:?TAG names the setting}" --scenes ${SCENES:-demo stress:clean stress:drift stress:ffc stress:outlier} \
       --methods wild-thermal --set "${SETTING:?SETTING: a bench --set}" --seeds 3 --steps 5000 --num-downscales 1 \
       --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 5
+    ;;
+  generated)  # issue 16's table on the generated scenes, every method (METHODS), scored with the targets of
+    # 3ef2af3 (time/half/oracle against the recorded frame): 5,000 steps, 1/2-resolution warm-up, 3 seeds,
+    # RUNS at a time (timings shared); TAG names the part. Needs .devicebundle.
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    bench "generated-${TAG:?TAG names the part}" \
+      --scenes ${SCENES:-demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting} \
+      --methods ${METHODS:?METHODS: bench --methods} --seeds 3 --steps 5000 --num-downscales 1 \
+      --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu ${RUNS:-6}
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
