@@ -7,7 +7,7 @@
 # (DUNR and its triangulation cache, made on a CPU machine: the GPU image has no pycolmap).
 # Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing, random-background, full-setting, generated}
+plan=${1:?plan: install, profile, compare, dunr-splatfacto, dunr-wild-thermal, dunr-both, demo, stress-no-preprocessing, no-preprocessing, random-background, full-setting, generated, dunr-full, dunr-ablations}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
@@ -115,6 +115,16 @@ case "$plan" in
       --scenes ${SCENES:-demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting} \
       --methods ${METHODS:?METHODS: bench --methods} --seeds 3 --steps 5000 --num-downscales 1 \
       --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu ${RUNS:-6}
+    ;;
+  dunr-full)  # issue 16's table on DUNR with the defaults of 83ad6d5: the full method as auto_stop_dunr
+    # (15,000 steps of the 30k schedule asked, the automatic stop on), 3 seeds side by side
+    bench dunr-full "${dunr[@]/--scene/--scenes}" --methods wild-thermal --seeds 3 --steps 15000 --schedule 30000 \
+      --eval-at 1000 2000 5000 10000 15000 --fps-frames 0 --runs-per-gpu 3
+    ;;
+  dunr-ablations)  # ... and the ablations as dunr_protocols_3seeds (the first 10,000 steps, no stop), 9 runs at once
+    bench dunr-ablations "${dunr[@]/--scene/--scenes}" --methods wild-thermal-emission-mlp wild-thermal-3dgs \
+      wild-thermal-3dgs-stab-bbhe --seeds 3 --steps 10000 --schedule 30000 --no-auto-stop \
+      --eval-at 1000 2000 5000 10000 --fps-frames 0 --runs-per-gpu 9
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
