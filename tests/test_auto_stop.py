@@ -119,9 +119,11 @@ def test_held_back_frames_take_no_gradient_and_get_their_neighbours_state(tmp_pa
     assert weight[held[0] - 1].abs().sum() > 0  # trained rows moved away from their zero start
 
 
-def test_the_score_is_the_time_protocol_on_the_held_back_frame(tmp_path, demo_scene_dir):
+def test_the_score_is_the_aligned_time_render_of_the_held_back_frame(tmp_path, demo_scene_dir, monkeypatch):
     """PSNR in the original space, against the frame as captured, rendered with the embedding and
-    LUT interpolated between its trained neighbours (never its own LUT, which its pixels made)."""
+    LUT interpolated between its trained neighbours (never its own LUT, which its pixels made), after
+    a gain + offset fit: a frame whose level jumped scores the same but for the gain's scale."""
+    from thermal_wild_ns.analysis.evaluation import fit_gain_offset
     from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
     from thermal_wild_ns.preprocessing.photometric import blend_luts
 
@@ -135,11 +137,18 @@ def test_the_score_is_the_time_protocol_on_the_held_back_frame(tmp_path, demo_sc
     camera = dataset.cameras[image : image + 1]
     _, pred = render(pipeline, camera, PhotometricState("x", model.frame_embed.weight[image].detach(), lut))
     truth = dataset.original_image(image)
-    expected = -10 * np.log10(np.mean((pred - truth) ** 2))
+    a, b = fit_gain_offset(pred, truth)
+    expected = -10 * np.log10(np.mean((a * pred + b - truth) ** 2))
     model.info = info = {"from": "the last training render"}
     score = auto_stop.held_back_score(pipeline, [image])
     assert score == pytest.approx(float(expected), abs=1e-3)
     assert model.training and model.info is info  # scoring leaves the model as it found it
     embedding = model.frame_embed.weight[image].detach()
     _, own = render(pipeline, camera, PhotometricState("own", embedding, sequence.lut(t)))
-    assert abs(-10 * np.log10(np.mean((own - truth) ** 2)) - score) > 1e-3  # its own LUT would score otherwise
+    a, b = fit_gain_offset(own, truth)
+    assert abs(-10 * np.log10(np.mean((a * own + b - truth) ** 2)) - score) > 1e-3  # its own LUT scores otherwise
+    # the frame recorded 1.3 times brighter and 0.1 higher: its errors are 1.3 times larger, nothing else
+    captured = pipeline.datamanager.held_back_truth
+    monkeypatch.setattr(pipeline.datamanager, "held_back_truth", lambda k: 1.3 * captured(k) + 0.1)
+    jumped = auto_stop.held_back_score(pipeline, [image])
+    assert jumped == pytest.approx(score - 20 * np.log10(1.3), abs=1e-3)

@@ -3,8 +3,11 @@
 A few training frames are held back from the gradient (evenly spread, never the first or last, so
 their photometric state can be interpolated from their neighbours). Every `check_every` steps, once
 the schedule's start-up is over (full resolution, past the first opacity reset), the model renders
-them at that interpolated state and is scored against them as captured (PSNR, original space): the
-question the `time` protocol asks of a held-out view, asked of frames that are not the test views.
+them at that interpolated state and is scored against them as captured (PSNR, original space), after
+a least-squares gain + offset fit per frame: the `time` render, scored as the `aligned` protocol
+scores, on frames that are not the test views. The fit keeps a frame's global level, which nothing
+before it predicts when the camera jumped (an AGC step, one bright frame), from swamping the
+score's changes: they are the scene's.
 When the score has not risen by `min_improvement` dB in `patience` checks in a row, training stops,
 and the best-scoring model is kept. Quality on new views can fall after an early peak; the
 held-back frames see that fall, which no measure of the frames being fitted can.
@@ -87,7 +90,8 @@ def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
 def held_back_score(pipeline, images: Sequence[int]) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
-    around them, embedding and LUT alike: the `time` protocol, on training frames."""
+    around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame."""
+    from thermal_wild_ns.analysis.evaluation import fit_gain_offset
     from thermal_wild_ns.model.losses import psnr
     from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
 
@@ -109,9 +113,10 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
             embedding = model.frame_embed.weight[image].detach() if fill is not None else None
             camera = dataset.cameras[image : image + 1].to(model.device)
             _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
-            truth = torch.from_numpy(datamanager.held_back_truth(image))  # [H, W]
-            finite = torch.isfinite(truth)
-            values.append(float(psnr(torch.from_numpy(pred)[finite], truth[finite])))
+            truth = datamanager.held_back_truth(image)  # [H, W]
+            finite = np.isfinite(truth)
+            a, b = fit_gain_offset(pred[finite], truth[finite])
+            values.append(float(psnr(torch.from_numpy(a * pred[finite] + b), torch.from_numpy(truth[finite]))))
     finally:
         model.train(was_training)
         for name, value in kept.items():
