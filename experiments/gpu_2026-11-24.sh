@@ -109,12 +109,12 @@ case "$plan" in
     ;;
   generated)  # issue 16's table on the generated scenes, every method (METHODS), scored with the targets of
     # 3ef2af3 (time/half/oracle against the recorded frame): 5,000 steps, 1/2-resolution warm-up, 3 seeds,
-    # RUNS at a time (timings shared); TAG names the part. Needs .devicebundle.
+    # RUNS at a time (timings shared); TAG names the part; SETTING, a bench --set, if given. Needs .devicebundle.
     source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
     bench "generated-${TAG:?TAG names the part}" \
       --scenes ${SCENES:-demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting} \
-      --methods ${METHODS:?METHODS: bench --methods} --seeds 3 --steps 5000 --num-downscales 1 \
-      --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu ${RUNS:-6}
+      --methods ${METHODS:?METHODS: bench --methods} ${SETTING:+--set "$SETTING"} --seeds 3 --steps 5000 \
+      --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu ${RUNS:-6}
     ;;
   dunr-full)  # issue 16's table on DUNR with the defaults of 83ad6d5: the full method as auto_stop_dunr
     # (15,000 steps of the 30k schedule asked, the automatic stop on), 3 seeds side by side
