@@ -291,19 +291,24 @@ def test_a_bench_of_only_skipped_runs_still_writes_its_table(tmp_path):
     assert (tmp_path / "bench.md").is_file() and not (tmp_path / "speed_accuracy.png").exists()
 
 
-def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, monkeypatch):
-    """The NeRF-W prediction of a view is the same whatever the right halves of the held-out frames
-    hold (noise here), while the score, which is of the right half, changes."""
-
-    import thermal_wild_ns.analysis.evaluation as evaluation
+def _trained_demo_pipeline(tmp_path, demo_scene_dir, steps: int):
+    """The full method's pipeline after `steps` steps on the demo scene (a small Gaussian budget)."""
     from thermal_wild_ns.demo import demo_trainer_config
 
-    config = demo_trainer_config(tmp_path, steps=8, max_gaussians=2000)
+    config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=2000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
     trainer.train()
-    pipeline = trainer.pipeline
+    return trainer.pipeline
+
+
+def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, monkeypatch):
+    """The NeRF-W prediction of a view is the same whatever the right halves of the held-out frames
+    hold (noise here), while the score, which is of the right half, changes."""
+    import thermal_wild_ns.analysis.evaluation as evaluation
+
+    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=8)
     predictions = []
     original = evaluation.half_protocol
 
@@ -336,14 +341,8 @@ def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(t
     its drifting sensor state: `novel` and `aligned` are scored against the truth, `time`, `half` and
     `oracle` (the frame's state) against the recorded frame."""
     import thermal_wild_ns.analysis.evaluation as evaluation
-    from thermal_wild_ns.demo import demo_trainer_config
 
-    config = demo_trainer_config(tmp_path, steps=4, max_gaussians=2000)
-    config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
-    trainer.train()
-    pipeline = trainer.pipeline
+    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
     targets = []
     original = evaluation.scores
 
