@@ -123,7 +123,9 @@ class ThermalPipeline(VanillaPipeline):
                 # nerfstudio's headline keys: a held-out frame of a sequence at its time state
                 "psnr": metrics["psnr_time"],
                 "ssim": metrics["ssim_time"],
-                "space": "original radiometric (dataset-normalised), target = the raw held-out frame",
+                "space": "original radiometric (dataset-normalised); targets: the held-out frame as "
+                "recorded (time, half, oracle), the view's truth where the capture has one, else the "
+                "same frame (novel, aligned)",
                 "protocols": protocols,
                 "views": len(rows),
                 "gaussians": result["gaussians"],
