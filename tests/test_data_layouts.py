@@ -138,6 +138,7 @@ def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
     import json
 
     from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     fx.write_thermalnerf(tmp_path / "s")
     meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
@@ -147,10 +148,22 @@ def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
     parser = ThermalDataParserConfig(
         data=tmp_path / "s", layout="thermalnerf", seed_points="random", num_random_points=32
     )
-    datamanager = ThermalDatamanagerConfig(dataparser=parser).setup(device="cpu")
+    # raw frames: the training images cached are then the frames as recorded, undistorted
+    datamanager = ThermalDatamanagerConfig(dataparser=parser, preprocessing=PhotometricConfig("none")).setup(
+        device="cpu"
+    )
     camera, batch = datamanager.next_train(0)
     assert float(camera.distortion_params[0, 0]) == pytest.approx(0.05)
     assert batch["image"].shape == (int(camera.height), int(camera.width), 1)
+    # a frame read again from disk (held-back and held-out targets) is undistorted as the cache was
+    for dataset, cache in (
+        (datamanager.train_dataset, datamanager.cached_train),
+        (datamanager.eval_dataset, datamanager.cached_eval),
+    ):
+        for k in range(len(dataset)):
+            recorded, original = dataset.recorded_image(k), dataset.original_image(k)
+            assert np.array_equal(recorded, cache[k]["image"][..., 0].numpy())
+            assert recorded.shape != original.shape or not np.array_equal(recorded, original)  # it was distorted
 
 
 def test_a_sparse_model_too_small_to_seed_is_not_used(tmp_path):

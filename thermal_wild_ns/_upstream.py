@@ -361,6 +361,23 @@ def single_channel_datamanager_class():
     return SingleChannelFullImageDatamanager
 
 
+def undistorted_as_cached(camera, image):
+    """nerfstudio 1.1.5's `FullImageDatamanager` undistorts each image as it caches it, through its
+    private `_undistort_image`, and gives its cameras the undistorted intrinsics. A frame the plugin
+    reads from disk later (the raw frame behind a preprocessed or ground-truth image) must go the same
+    way to line up with the cameras the model renders: this is that step, for one camera (shape [])
+    and its frame [H, W] (float32), returned [H, W] (the frame itself where there is no distortion)."""
+    import numpy as np
+    import torch
+    from nerfstudio.data.datamanagers.full_images_datamanager import _undistort_image
+
+    if camera.distortion_params is None or torch.all(camera.distortion_params == 0):
+        return image
+    K = camera.get_intrinsics_matrices().numpy()
+    _, undistorted, _ = _undistort_image(camera, camera.distortion_params.numpy(), {}, image[..., None], K)
+    return np.asarray(undistorted).reshape(undistorted.shape[0], undistorted.shape[1])
+
+
 def trainer_after_load_class():
     """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
     state arrives, and `Trainer._after_train` (private) saves the final checkpoint with no hook

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -16,7 +17,7 @@ from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from thermal_wild_ns._upstream import single_channel_datamanager_class
+from thermal_wild_ns._upstream import single_channel_datamanager_class, undistorted_as_cached
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError
@@ -29,6 +30,10 @@ NOT_PREPROCESSED = "none (variant)"
 
 class ThermalDataset(InputDataset):
     """Frames as float32 [H, W, 1] in the dataset's normalised radiometric scale (no 8-bit rounding)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._recorded: Dict[int, np.ndarray] = {}  # see `recorded_image`
 
     @property
     def thermal_range(self) -> RadiometricRange:
@@ -53,18 +58,26 @@ class ThermalDataset(InputDataset):
         return np.repeat(image[..., None], 3, axis=-1) if self.metadata.get("grey_rgb") else image[..., None]
 
     def original_image(self, image_idx: int) -> np.ndarray:
-        """The frame as captured [H, W] float32, in the dataset-normalised radiometric scale (never
-        preprocessed), at the dataset's scale factor."""
-        return self._scaled(self.thermal_range.read(self._dataparser_outputs.image_filenames[image_idx]))
+        """The image file as captured [H, W] float32, in the dataset-normalised radiometric scale (never
+        preprocessed), at the dataset's scale factor, not yet undistorted: what nerfstudio's cache
+        undistorts (`recorded_image` is a frame in the geometry the model renders)."""
+        return self._read(self._dataparser_outputs.image_filenames[image_idx])
+
+    def _read(self, path: Path) -> np.ndarray:
+        return self._scaled(self.thermal_range.read(path))
 
     def recorded_image(self, image_idx: int) -> np.ndarray:
-        """The frame as the camera recorded it [H, W] (as `original_image`): the same image, except for a
-        held-out view of a capture with clean ground truth (generated scenes), whose image is that truth
-        while the camera recorded the view under its sensor state of the moment (drift, gain, faults)."""
-        recorded = self.metadata.get("recorded_filenames")
-        if recorded is None:
-            return self.original_image(image_idx)
-        return self._scaled(self.thermal_range.read(recorded[image_idx]))
+        """The frame as the camera recorded it [H, W] (dataset-normalised, never preprocessed), in the
+        geometry the model renders: scaled and undistorted as the cached images are. It is the cached
+        image itself except for a preprocessed training frame and for a held-out view of a capture with
+        clean ground truth (generated scenes), whose image is that truth while the camera recorded the
+        view under its sensor state of the moment (drift, gain, faults). Read once per image."""
+        if image_idx not in self._recorded:
+            files = self.metadata.get("recorded_filenames") or self._dataparser_outputs.image_filenames
+            camera = copy.deepcopy(self._dataparser_outputs.cameras[image_idx : image_idx + 1])  # as captured
+            camera.rescale_output_resolution(self.scale_factor)
+            self._recorded[image_idx] = undistorted_as_cached(camera.reshape(()), self._read(files[image_idx]))
+        return self._recorded[image_idx]
 
     def _scaled(self, image: np.ndarray) -> np.ndarray:
         if self.scale_factor == 1.0:
@@ -171,13 +184,11 @@ class ThermalDatamanager(single_channel_datamanager_class()):
     def hold_back(self, images: Tuple[int, ...]) -> None:
         self.held_back = tuple(sorted(images))
         self._order = (None, [])
-        self._held_back_truth: Dict[int, np.ndarray] = {}
 
     def held_back_truth(self, image: int) -> np.ndarray:
-        """A held-back training image as captured [H, W] (read once: it is scored again and again)."""
-        if image not in self._held_back_truth:
-            self._held_back_truth[image] = self.train_dataset.original_image(image)
-        return self._held_back_truth[image]
+        """A held-back training image as captured [H, W], in the geometry the model renders
+        (`ThermalDataset.recorded_image`)."""
+        return self.train_dataset.recorded_image(image)
 
     def train_order(self, epoch: int) -> List[int]:
         """The permutation of the trained images (all but `held_back`) for pass `epoch` (a function
