@@ -196,14 +196,16 @@ def apply_setting(config, setting: str) -> None:
     except (ValueError, SyntaxError):
         value = text
     *parents, name = path.split(".")
+
+    def has(owner, key: str) -> bool:  # dataclass fields, or keys of a dict (the trainer's `optimizers`)
+        return key in owner if isinstance(owner, dict) else hasattr(owner, key)
+
     chain = [config]
-    for part in parents:  # dataclass fields, or keys of a dict (the trainer's `optimizers`)
-        owner = chain[-1]
-        if isinstance(owner, dict) and part not in owner or not isinstance(owner, dict) and not hasattr(owner, part):
-            raise ValueError(f"--set {setting!r}: {type(owner).__name__} has no field {part!r}")
-        chain.append(owner[part] if isinstance(owner, dict) else getattr(owner, part))
-    if isinstance(chain[-1], dict) or not hasattr(chain[-1], name):
-        raise ValueError(f"--set {setting!r}: {type(chain[-1]).__name__} has no field {name!r}")
+    for depth, part in enumerate(path.split(".")):
+        if not has(chain[-1], part):
+            raise ValueError(f"--set {setting!r}: {type(chain[-1]).__name__} has no field {part!r}")
+        if depth < len(parents):
+            chain.append(chain[-1][part] if isinstance(chain[-1], dict) else getattr(chain[-1], part))
     for owner, attribute in zip(reversed(chain), [name, *reversed(parents)]):
         if isinstance(owner, dict):
             owner[attribute] = value
