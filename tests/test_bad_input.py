@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.pipeline.run_check import check_trained_run
@@ -29,17 +30,20 @@ def test_trained_run_checks(tmp_path):
     with pytest.raises(SystemExit, match=r"nowhere\.yml: no such file"):
         check_trained_run(tmp_path / "nowhere.yml")
     (tmp_path / "bad.yml").write_text("key: [unclosed")
-    with pytest.raises(SystemExit, match=r"bad\.yml: not a nerfstudio config"):
+    with pytest.raises(SystemExit, match=r"bad\.yml: the run.s config is damaged or cut short"):
         check_trained_run(tmp_path / "bad.yml")
     with pytest.raises(SystemExit, match=r"a 'splatfacto' run; this command needs a wild-thermal\* run"):
         check_trained_run(_saved_config(tmp_path / "a", "splatfacto"))
     untrained = _saved_config(tmp_path / "b", "wild-thermal")
-    with pytest.raises(SystemExit, match=r"no checkpoint in .*nerfstudio_models"):
+    with pytest.raises(SystemExit, match=r"nerfstudio_models: no step-\*\.ckpt checkpoint in it"):
         check_trained_run(untrained)
     checkpoints = untrained.parent / "nerfstudio_models"
     checkpoints.mkdir()
-    (checkpoints / "step-000000009.ckpt").write_bytes(b"")
-    check_trained_run(untrained)  # passes: what is in the checkpoint is the loader's business
+    (checkpoints / "step-000000009.ckpt").write_bytes(b"")  # an empty file is no checkpoint
+    with pytest.raises(SystemExit, match=r"step-000000009\.ckpt: the checkpoint is truncated.*train again"):
+        check_trained_run(untrained)
+    torch.save({"step": 9}, checkpoints / "step-000000009.ckpt")
+    check_trained_run(untrained)  # a whole checkpoint passes
 
 
 @pytest.mark.slow
@@ -81,7 +85,8 @@ def test_ns_eval_of_a_run_without_checkpoints_fails_before_reading_data(tmp_path
     result = _command(
         "ns-eval", "--load-config", str(config), "--output-path", str(tmp_path / "eval.json"), cwd=tmp_path
     )
-    assert result.returncode == 1 and "no checkpoint of this run to load" in result.stderr, result.stderr[-2000:]
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert "nerfstudio_models: no step-*.ckpt checkpoint in it" in result.stderr, result.stderr[-2000:]
     assert "Traceback" not in result.stderr
     # the demo dataparser would have generated its scene, and preprocessing filled its cache
     assert not (tmp_path / "run" / "scene").exists() and not (tmp_path / "run" / ".thermal_cache").exists()

@@ -19,7 +19,7 @@ import shutil
 import sys
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Dict
+from typing import Callable, Dict, Optional
 
 CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
 """The versions every patch here was written and tested against (pyproject.toml pins them)."""
@@ -378,6 +378,45 @@ def undistorted_as_cached(camera, image):
     return np.asarray(undistorted).reshape(undistorted.shape[0], undistorted.shape[1])
 
 
+def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
+    """nerfstudio 1.1.5's `eval_setup` (ns-eval, ns-render, ns-viewer, ns-export) reads a run's config
+    with `yaml.load(config_path.read_text())`: a damaged file fails there with a YAML error about
+    "<unicode string>", or (cut short at a line end) with the plugin's `IncompleteConfig`, neither
+    naming the file. Where `error` rose inside `eval_setup`, the one-line explanation naming its
+    `config_path` (a local of that function); None for any other error."""
+    from thermal_wild_ns.errors import IncompleteConfig
+
+    try:
+        import yaml
+    except ImportError:
+        return None
+    if not isinstance(error, (yaml.YAMLError, IncompleteConfig)):
+        return None
+    while traceback is not None:
+        frame = traceback.tb_frame
+        if frame.f_code.co_name == "eval_setup" and "config_path" in frame.f_locals:
+            problem = " ".join(str(error).split())
+            return (
+                f"{frame.f_locals['config_path']}: the run's config is damaged or cut short ({problem}); "
+                "restore it from a copy, or train the run again"
+            )
+        traceback = traceback.tb_next
+    return None
+
+
+def trainer_checkpoint_state(trainer, step: int) -> dict:
+    """What nerfstudio 1.1.5's `Trainer.save_checkpoint` puts into a checkpoint (and its loaders
+    read back): the plugin writes the same dictionary, but atomically (`pipeline/run_check.py`)."""
+    pipeline = trainer.pipeline.module if hasattr(trainer.pipeline, "module") else trainer.pipeline
+    return {
+        "step": step,
+        "pipeline": pipeline.state_dict(),
+        "optimizers": {k: v.state_dict() for (k, v) in trainer.optimizers.optimizers.items()},
+        "schedulers": {k: v.state_dict() for (k, v) in trainer.optimizers.schedulers.items()},
+        "scalers": trainer.grad_scaler.state_dict(),
+    }
+
+
 def trainer_after_load_class():
     """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
     state arrives, and `Trainer._after_train` (private) saves the final checkpoint with no hook
@@ -440,6 +479,37 @@ def gaussian_splat_export_hooks(
         ns_export.ExportGaussianSplat.write_ply = staticmethod(write_ply)
         stack.callback(setattr, ns_export.ExportGaussianSplat, "write_ply", staticmethod(original_write))
         yield
+
+
+@contextlib.contextmanager
+def interpolation_over_one_pose():
+    """nerfstudio 1.1.5's `ns-render interpolate` crashes inside numpy ("need at least one array to
+    stack") where its pose source holds one camera (a small capture's one held-out view): there is
+    no pair to interpolate between. While this context is open, such a path is that one pose, so
+    the command renders it."""
+    from nerfstudio.cameras.cameras import Cameras
+    from nerfstudio.scripts import render as ns_render
+
+    original = ns_render.get_interpolated_camera_path
+
+    def interpolated(cameras, steps, order_poses):
+        if len(cameras) > 1:
+            return original(cameras, steps, order_poses)
+        Ks = cameras.get_intrinsics_matrices()  # [1, 3, 3]
+        return Cameras(
+            fx=Ks[:, 0, 0],
+            fy=Ks[:, 1, 1],
+            cx=Ks[0, 0, 2],
+            cy=Ks[0, 1, 2],
+            camera_type=cameras.camera_type[0],
+            camera_to_worlds=cameras.camera_to_worlds,
+        )
+
+    ns_render.get_interpolated_camera_path = interpolated
+    try:
+        yield
+    finally:
+        ns_render.get_interpolated_camera_path = original
 
 
 @contextlib.contextmanager

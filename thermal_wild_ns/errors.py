@@ -2,7 +2,8 @@
 
 An `InputError` that reaches the top of an `ns-*` or `wild-thermal-*` command prints as one line
 (`error: FILE: what is wrong`) and exits with status 1; set THERMAL_WILD_NS_DEBUG=1 for the
-traceback. Every other exception, a bug, still prints its traceback."""
+traceback. So does a run's damaged config.yml given to nerfstudio's loading commands
+(`_upstream.explain_config_load_error`). Every other exception, a bug, still prints its traceback."""
 
 from __future__ import annotations
 
@@ -20,16 +21,26 @@ class MissingInput(InputError, FileNotFoundError):
     """A file or folder the user's data or options point to is not there."""
 
 
+class IncompleteConfig(InputError):
+    """A run's config.yml lacks settings it was saved with (cut short: a copy or a disk that failed)."""
+
+
 def report_input_errors_briefly() -> None:
-    """Make this process print an uncaught `InputError` as one line (commands call this; importing
-    the package does not). Idempotent."""
+    """Make this process print an uncaught `InputError` as one line (the plugin's commands and its
+    method registration, which every `ns-*` command imports, call this; importing the package does
+    not). Idempotent."""
     previous = sys.excepthook
     if getattr(previous, "thermal_wild_ns", False):
         return
 
     def hook(kind, value, traceback):
-        if isinstance(value, InputError) and not os.environ.get(DEBUG):
-            print(f"error: {value}\n(the traceback: {DEBUG}=1)", file=sys.stderr)
+        from thermal_wild_ns._upstream import explain_config_load_error
+
+        message = explain_config_load_error(value, traceback)
+        if message is None and isinstance(value, InputError):
+            message = str(value)
+        if message is not None and not os.environ.get(DEBUG):
+            print(f"error: {message}\n(the traceback: {DEBUG}=1)", file=sys.stderr)
             return
         previous(kind, value, traceback)
 

@@ -10,11 +10,15 @@ from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+from thermal_wild_ns.errors import report_input_errors_briefly
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.training.guard import GuardedTrainerConfig
 from thermal_wild_ns.training.optimizers import FusedAdamOptimizerConfig
+
+# every ns-* command imports this registration: its input errors (a damaged run, a bad dataset) print as one line
+report_input_errors_briefly()
 
 # Paper: Adam with weight decay, separate learning rates for geometry, opacity and appearance,
 # no schedule. Weight decay applies to the appearance networks and embeddings, never to geometry.

@@ -21,7 +21,6 @@ from typing import Dict, List
 
 import numpy as np
 import tyro
-from tqdm import tqdm
 
 from thermal_wild_ns.analysis.diagnostics import (
     error_amplification,
@@ -37,6 +36,7 @@ from thermal_wild_ns.data.dataparsers import LayoutName, ThermalDataParserConfig
 from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
+from thermal_wild_ns.progress import track
 
 
 @dataclass
@@ -160,7 +160,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     capture, rng = parser.capture(), parser.radiometric_range()
     args.output_dir.mkdir(parents=True, exist_ok=True)
     sequence = preprocess(capture.frames, rng, args.preprocessing, args.cache_dir)
-    raw = [rng.read(f.image) for f in tqdm(capture.frames, desc="Reading frames")]
+    raw = [rng.read(f.image) for f in track(capture.frames, "Reading frames")]
     processed = [sequence.read_frame(t) for t in range(len(capture.frames))]
     native = lambda frames: [float(rng.to_native(f.mean())) for f in frames]  # noqa: E731
     result = {

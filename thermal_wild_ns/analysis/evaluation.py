@@ -41,6 +41,7 @@ from thermal_wild_ns.model.losses import psnr, ssim
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
     canonical_state,
+    check_same_geometry,
     render,
     rendering_at,
     state_at,
@@ -48,6 +49,7 @@ from thermal_wild_ns.pipeline.photometric_state import (
     to_original,
     to_training_space,
 )
+from thermal_wild_ns.progress import track
 
 PROTOCOLS = ("novel", "time", "aligned", "half", "oracle")
 """Every protocol `evaluate` scores; `oracle` uses the held-out frame's pixels."""
@@ -146,7 +148,12 @@ def evaluate(
     dataset = datamanager.eval_dataset
     pipeline.eval()
     rows = []
-    for i, (camera, batch) in enumerate(datamanager.fixed_indices_eval_dataloader):
+    views = track(
+        datamanager.fixed_indices_eval_dataloader,
+        f"Scoring held-out views ({', '.join(protocols)})",
+        total=len(dataset),
+    )
+    for i, (camera, batch) in enumerate(views):
         frame = int(dataset.metadata["frame_indices"][int(batch["image_idx"])])
         gt = batch["image"].float().mean(dim=-1).cpu().numpy()  # the held-out view, original space
         recorded = dataset.recorded_image(int(batch["image_idx"]))  # the frame as the camera recorded it
@@ -154,11 +161,13 @@ def evaluate(
         novel = None
         if {"novel", "aligned"} & set(protocols):
             _, novel = render(pipeline, camera, canonical_state(pipeline))
+            check_same_geometry(novel, gt, f"held-out frame {frame}")
         time_state = state_at(pipeline, frame)
         if "novel" in protocols:
             row.update({f"{k}_novel": v for k, v in scores(novel, gt).items()})
         if "time" in protocols or out_dir is not None:
             _, timed = render(pipeline, camera, time_state)
+            check_same_geometry(timed, recorded, f"held-out frame {frame} as recorded")
             row.update({f"{k}_time": v for k, v in scores(timed, recorded).items()})
             if out_dir is not None:
                 _write_panel(out_dir / f"test_{i:02d}.png", recorded, timed)

@@ -168,6 +168,26 @@ class ThermalDataParser(DataParser):
                     raise InputError(f"{capture.root}: no training frame is left once the degenerate ones are out")
         return scan.range
 
+    def fingerprint(self) -> Dict[str, str]:
+        """What a trained run was trained on, to tell later whether the data changed: each frame
+        (its path under the data folder) -> a digest of its file's bytes and of its camera (pose and
+        intrinsics, rounded far below any real change)."""
+        capture = self.capture()
+        root = Path(capture.root)
+        digests = {}
+        for frame in capture.frames:
+            digest = hashlib.sha1(Path(frame.image).read_bytes())
+            camera = np.round(
+                np.concatenate([np.ravel(frame.camera_to_world), [frame.fx, frame.fy, frame.cx, frame.cy]]), 5
+            )
+            digest.update(np.ascontiguousarray(camera, dtype=np.float64).tobytes())
+            try:
+                name = str(Path(frame.image).relative_to(root))
+            except ValueError:
+                name = str(frame.image)
+            digests[name] = digest.hexdigest()
+        return digests
+
     def radiometric_range(self) -> RadiometricRange:
         """Dataset-level range: declared by the dataset or measured over the training frames, once."""
         self.capture()

@@ -18,10 +18,10 @@ from typing import List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
 from thermal_wild_ns.errors import InputError, MissingInput
+from thermal_wild_ns.progress import track
 
 IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 
@@ -31,7 +31,8 @@ IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 _NPY_HEADER_LOCK = threading.Lock()
 
 
-def _process_alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` of this host still runs (its temporary files are then in use)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -49,7 +50,7 @@ def make_work_folder(parent: Path, prefix: str) -> Path:
     parent.mkdir(parents=True, exist_ok=True)
     for stale in parent.glob(f"{prefix}*"):
         pid = stale.name[len(prefix) :].split("-")[0]
-        if stale.is_dir() and pid.isdigit() and not _process_alive(int(pid)):
+        if stale.is_dir() and pid.isdigit() and not process_alive(int(pid)):
             shutil.rmtree(stale, ignore_errors=True)
     return Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}-", dir=parent))
 
@@ -64,6 +65,17 @@ def publish_cache_folder(work: Path, final: Path, complete_marker: str) -> None:
         if not (final / complete_marker).is_file():
             raise
         shutil.rmtree(work, ignore_errors=True)
+
+
+def discard_cache_folder(folder: Path) -> None:
+    """Take a damaged cache folder out of the way in one rename (a concurrent reader finds it gone,
+    never half-deleted), then delete it."""
+    aside = folder.parent / f".damaged-{os.getpid()}-{folder.name}"
+    try:
+        folder.rename(aside)
+    except OSError:  # another process took it away first
+        return
+    shutil.rmtree(aside, ignore_errors=True)
 
 
 def load_npy(path: Path, mmap_mode: Optional[str] = None) -> np.ndarray:
@@ -215,7 +227,7 @@ def scan_frames(
     samples = []
     tails = []  # per frame: the values with OUT_OF_RANGE_SHARE of its pixels below / above them
     degenerate = []
-    for i, path in enumerate(tqdm(paths, desc="Checking thermal frames", leave=False, disable=len(paths) < 50)):
+    for i, path in enumerate(track(paths, "Reading thermal frames", min_items=50)):
         raw = read_raw_frame(path, palette)
         if dtype is None:
             dtype = raw.dtype

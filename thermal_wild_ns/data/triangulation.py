@@ -25,10 +25,17 @@ from typing import Dict, Sequence, Tuple
 
 import cv2
 import numpy as np
-from tqdm import tqdm
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.data.capture import ThermalFrame
-from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy, make_work_folder, publish_cache_folder
+from thermal_wild_ns.data.thermal_io import (
+    RadiometricRange,
+    discard_cache_folder,
+    load_npy,
+    make_work_folder,
+    publish_cache_folder,
+)
+from thermal_wild_ns.progress import track
 
 CACHE_VERSION = 1
 
@@ -129,7 +136,7 @@ def triangulate(
     # with them as the frame count grows
     store = work_dir / "descriptors"
     store.mkdir()
-    for i, frame in enumerate(tqdm(frames, desc="SIFT on thermal frames")):
+    for i, frame in enumerate(track(frames, "SIFT on thermal frames")):
         kp, des = sift.detectAndCompute(_feature_image(frame, radiometric_range, clahe), None)
         # OpenCV puts pixel centres on integers, COLMAP at +0.5
         keypoints.append(np.array([k.pt for k in kp], dtype=np.float32).reshape(-1, 2) + 0.5)
@@ -156,7 +163,7 @@ def triangulate(
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     pairs = _pairs(frames, config)
     inlier_counts = []
-    for i, j in tqdm(pairs, desc="Matching frame pairs"):
+    for i, j in track(pairs, "Matching frame pairs"):
         if len(keypoints[i]) < 2 or len(keypoints[j]) < 2:
             continue
         knn = matcher.knnMatch(descriptors(i), descriptors(j), k=2)
@@ -210,7 +217,11 @@ def cached_triangulation(
     key = cache_key(frames, radiometric_range, config)
     final = Path(cache_root) / f"triangulation-{key}"
     if (final / "report.json").is_file():
-        return load_npy(final / "points.npy"), json.loads((final / "report.json").read_text())
+        try:
+            return load_npy(final / "points.npy"), json.loads((final / "report.json").read_text())
+        except (OSError, ValueError) as err:  # a file cut short or damaged (JSONDecodeError is a ValueError)
+            CONSOLE.log(f"[yellow]{final}: the triangulation cache is damaged ({err}): triangulating again")
+            discard_cache_folder(final)
     work = make_work_folder(Path(cache_root), ".triangulation-")
     try:
         start = time.perf_counter()

@@ -140,8 +140,33 @@ def thermal_output(outputs: dict) -> Tensor:
 
 
 def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.ndarray]:
-    """One view at `state`: ([H, W] training space, [H, W] original space), float32 numpy."""
+    """One view at `state`: ([H, W] training space, [H, W] original space), float32 numpy.
+
+    The one render every scorer and command compares with a frame (the automatic stop, the
+    evaluation protocols, the demo's panels): always as outside training, whatever mode the model is
+    in, so at the camera's own resolution (the geometry of `ThermalDataset.recorded_image`, never
+    the warm-up's coarser training resolution), over the baked background, with no densification
+    statistics. The model's training mode and its record of the last training render (`info`,
+    `last_size`, which the densification after a training step reads) are left as they were."""
     model = pipeline.model
-    with rendering_at(model, state), torch.no_grad():
-        rendered = thermal_output(model.get_outputs_for_camera(camera))[..., 0].float().cpu().numpy()
+    was_training = model.training
+    kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
+    model.eval()
+    try:
+        with rendering_at(model, state), torch.no_grad():
+            rendered = thermal_output(model.get_outputs_for_camera(camera))[..., 0].float().cpu().numpy()
+    finally:
+        model.train(was_training)
+        for name, value in kept.items():
+            setattr(model, name, value)
     return rendered, to_original(pipeline, rendered, state)
+
+
+def check_same_geometry(pred: np.ndarray, frame: np.ndarray, what: str) -> None:
+    """A render and the frame it is scored against must be the same pixels: a clear error naming the
+    frame where they are not (a bug of the caller, never of the data)."""
+    if pred.shape != frame.shape:
+        raise ValueError(
+            f"{what}: the render is {pred.shape[1]}x{pred.shape[0]} but the frame {frame.shape[1]}x"
+            f"{frame.shape[0]}; both must come from `render` and `recorded_image`"
+        )

@@ -4,6 +4,7 @@ space, held-out frames at their predicted photometric state, never through their
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Type
@@ -13,9 +14,12 @@ import torch
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
-from thermal_wild_ns.errors import MissingInput, report_input_errors_briefly
+from thermal_wild_ns.errors import InputError, MissingInput, report_input_errors_briefly
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
-from thermal_wild_ns.pipeline.run_check import checkpoints_in
+from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint, write_text_atomically
+
+DATA_RECORD = "data.json"
+"""Beside a run's config: what the run was trained on (`ThermalPipeline._record_or_check_data`)."""
 
 
 @dataclass
@@ -51,14 +55,54 @@ class ThermalPipeline(VanillaPipeline):
         report_input_errors_briefly()
         test_mode = kwargs.get("test_mode", args[1] if len(args) > 1 else "val")
         loads_a_run = test_mode in ("test", "inference")  # nerfstudio's eval_setup; training uses "val"
-        if loads_a_run and config.checkpoint_dir is not None and not checkpoints_in(config.checkpoint_dir):
-            raise MissingInput(f"{config.checkpoint_dir}: no checkpoint of this run to load (did it save one?)")
-        super().__init__(config, *args, **kwargs)
+        if loads_a_run and config.checkpoint_dir is not None:
+            check_checkpoint(config.checkpoint_dir)  # the one nerfstudio loads next: whole, or a clear error
+        try:
+            super().__init__(config, *args, **kwargs)
+        except MissingInput as err:
+            if not loads_a_run:
+                raise
+            raise MissingInput(
+                f"{err}. This run was trained on {config.datamanager.dataparser.data}: where the data has moved, "
+                f"set its new folder as `data:` in the run's config.yml"
+            ) from None
+        if config.checkpoint_dir is not None:
+            self._record_or_check_data(Path(config.checkpoint_dir).parent / DATA_RECORD, loads_a_run)
         if not loads_a_run:
             self._give_inverse_luts()
         if getattr(self.model, "viewer_colour_bar", None) is not None:
             self.model.on_photometric_state_change = self.update_colour_bar
             self.update_colour_bar()
+
+    def _record_or_check_data(self, record: Path, loads_a_run: bool) -> None:
+        """Training: record what the run is trained on (`ThermalDataParser.fingerprint`) beside its
+        config. Loading a run (ns-eval, ns-render, the viewer): the data must be what it was, or the
+        scores and renders would silently be of other frames."""
+        parser = self.datamanager.dataparser
+        if not hasattr(parser, "fingerprint"):
+            return
+        now = {"data": str(parser.config.data), "frames": parser.fingerprint()}
+        if not loads_a_run:
+            write_text_atomically(record, json.dumps(now, indent=1), record.parent / PARTIAL_FOLDER)
+            return
+        if not record.is_file():  # a run of an older version of the plugin: nothing to compare with
+            return
+        then = json.loads(record.read_text())
+        if then["frames"] == now["frames"]:
+            return
+        gone = sorted(set(then["frames"]) - set(now["frames"]))
+        new = sorted(set(now["frames"]) - set(then["frames"]))
+        changed = sorted(k for k in set(then["frames"]) & set(now["frames"]) if then["frames"][k] != now["frames"][k])
+        what = "; ".join(
+            f"{label}: {', '.join(names[:5])}{' ...' if len(names) > 5 else ''}"
+            for label, names in (("missing", gone), ("added", new), ("changed (pixels or camera)", changed))
+            if names
+        )
+        raise InputError(
+            f"{now['data']}: the data changed since this run was trained on it ({then['data']}): {what}. "
+            f"Scores and renders would be of other frames: train again, or restore the data (the run's record: "
+            f"{record})"
+        )
 
     INVERSE_LUT_SAMPLES = 4096
     """Training-space values at which each training frame's inverse LUT is tabulated for a loss in

@@ -24,11 +24,12 @@ from pathlib import Path
 from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
-from tqdm import tqdm
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.data.capture import ThermalFrame
 from thermal_wild_ns.data.thermal_io import (
     RadiometricRange,
+    discard_cache_folder,
     load_npy,
     make_work_folder,
     publish_cache_folder,
@@ -44,6 +45,7 @@ from thermal_wild_ns.preprocessing.photometric import (
     invert_lut,
     time_weights,
 )
+from thermal_wild_ns.progress import track
 
 CACHE_VERSION = 4
 
@@ -156,6 +158,20 @@ class PreprocessedSequence:
             offsets = "the frames differ by level offsets, which the frame embeddings follow"
             reason = f"{offsets} ({measured}, under {CONTRAST_SPREAD})"
         return PreprocessingDecision(pays, reason, raw, processed, contrast)
+
+    def problem(self, frame_count: int) -> Optional[str]:
+        """What is wrong with the cache folder (a file missing, cut short or unreadable), or None.
+        Reads the files' headers and sizes only, not their pixels."""
+        try:
+            train = self.train_indices
+            luts = self.luts
+            if luts.shape != (frame_count, self.grid.num_levels):
+                return f"luts.npy holds {luts.shape}, not ({frame_count}, {self.grid.num_levels})"
+            for index in train:
+                load_npy(self.frame_path(index), mmap_mode="r")  # a file cut short fails its mapping
+        except (OSError, ValueError, KeyError) as err:
+            return str(err)
+        return None
 
     def frame_path(self, index: int) -> Path:
         return self.folder / "frames" / f"{index:05d}.npy"
@@ -271,7 +287,12 @@ def preprocess(
     folder = Path(cache_root) / f"preprocessed-{_key(frames, train, rng, config)}"
     sequence = PreprocessedSequence(folder, grid, rng, config)
     if (folder / "meta.json").is_file():
-        return sequence
+        problem = sequence.problem(len(frames))
+        if problem is None:
+            return sequence
+        CONSOLE.log(f"[yellow]{folder}: the preprocessing cache is damaged ({problem}): preprocessing again")
+        discard_cache_folder(folder)
+        sequence = PreprocessedSequence(folder, grid, rng, config)
     work = make_work_folder(Path(cache_root), ".preprocessing-")
     try:
         (work / "frames").mkdir()
@@ -290,7 +311,7 @@ def preprocess(
                 yield current[0]
 
         stream = frame_luts(raw_frames(), grid, rng.low, rng.high, config, in_reference=train)
-        for t, lut in enumerate(tqdm(stream, total=len(frames), desc=f"Preprocessing ({config.variant})")):
+        for t, lut in enumerate(track(stream, f"Preprocessing ({config.variant})", total=len(frames))):
             luts.write(np.ascontiguousarray(lut, dtype="<f8").tobytes())
             if train[t]:
                 processed = rng.normalize(apply_lut(lut, current[0], grid))

@@ -135,10 +135,12 @@ class RenderCameraPath(RadiometricOptions, ns_render.RenderCameraPath):
 
 @dataclass
 class RenderInterpolated(RadiometricOptions, ns_render.RenderInterpolated):
-    """ns-render interpolate, plus radiometric frames."""
+    """ns-render interpolate, plus radiometric frames; a pose source of one camera renders that pose."""
 
     def main(self) -> None:
-        with _radiometric_too(self, self.output_path):
+        from thermal_wild_ns._upstream import interpolation_over_one_pose
+
+        with _radiometric_too(self, self.output_path), interpolation_over_one_pose():
             super().main()
 
 

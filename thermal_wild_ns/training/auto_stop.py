@@ -94,32 +94,24 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame."""
     from thermal_wild_ns.analysis.evaluation import fit_gain_offset
     from thermal_wild_ns.model.losses import psnr
-    from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
+    from thermal_wild_ns.pipeline.photometric_state import PhotometricState, check_same_geometry, render
 
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, getattr(datamanager, "preprocessed", None)
     held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    was_training = model.training
-    # a render leaves its rasterization record (`info`, `last_size`) on the model, where the
-    # densification callbacks after this step read the training render's
-    kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
     fill = getattr(model, "interpolate_embeddings", None)
     if fill is not None:
         fill(images)
     values = []
-    try:
-        for image in images:
-            t = dataset.frame_index(image)
-            lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
-            embedding = model.frame_embed.weight[image].detach() if fill is not None else None
-            camera = dataset.cameras[image : image + 1].to(model.device)
-            _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
-            truth = datamanager.held_back_truth(image)  # [H, W]
-            finite = np.isfinite(truth)
-            a, b = fit_gain_offset(pred[finite], truth[finite])
-            values.append(float(psnr(torch.from_numpy(a * pred[finite] + b), torch.from_numpy(truth[finite]))))
-    finally:
-        model.train(was_training)
-        for name, value in kept.items():
-            setattr(model, name, value)
+    for image in images:
+        t = dataset.frame_index(image)
+        lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
+        embedding = model.frame_embed.weight[image].detach() if fill is not None else None
+        camera = dataset.cameras[image : image + 1].to(model.device)
+        _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
+        truth = datamanager.held_back_truth(image)  # [H, W]
+        check_same_geometry(pred, truth, f"held-back frame {t}")
+        finite = np.isfinite(truth)
+        a, b = fit_gain_offset(pred[finite], truth[finite])
+        values.append(float(psnr(torch.from_numpy(a * pred[finite] + b), torch.from_numpy(truth[finite]))))
     return float(np.mean(values))

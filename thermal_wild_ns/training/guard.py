@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import dataclasses
 import functools
 import json
 import math
@@ -26,7 +27,9 @@ from pathlib import Path
 from typing import Deque, Dict, List, Optional, Type
 
 import torch
+import yaml
 from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.utils.decorators import check_main_thread
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch.profiler import record_function
 
@@ -36,8 +39,17 @@ from thermal_wild_ns._upstream import (
     guard_optimizer_steps,
     repoint_optimizers,
     trainer_after_load_class,
+    trainer_checkpoint_state,
 )
-from thermal_wild_ns.pipeline.run_check import checkpoints_in
+from thermal_wild_ns.errors import IncompleteConfig, InputError
+from thermal_wild_ns.pipeline.run_check import (
+    PARTIAL_FOLDER,
+    CheckpointNotSaved,
+    check_checkpoint,
+    checkpoints_in,
+    write_atomically,
+    write_text_atomically,
+)
 from thermal_wild_ns.training.auto_stop import AutoStopConfig, PlateauRule, held_back_images, held_back_score
 
 
@@ -82,11 +94,24 @@ class GuardedTrainerConfig(TrainerConfig):
     precision and no gradient accumulation, and falls back to nerfstudio's step (and says why)
     otherwise. False: always nerfstudio's step, the reference the lean one is tested against."""
 
+    def __setstate__(self, state: dict) -> None:
+        """How config.yml is read back (PyYAML sets a saved object's fields through this): a file cut
+        short lacks the fields saved last, which would otherwise fall back to defaults silently."""
+        missing = [f.name for f in dataclasses.fields(self) if f.name not in state]
+        if missing:
+            raise IncompleteConfig(
+                f"{len(missing)} settings are missing, the last saved first: {', '.join(missing[-3:])}"
+            )
+        self.__dict__.update(state)
+
     def save_config(self) -> None:
+        """nerfstudio's `save_config` (config.yml beside the run), written atomically."""
         # the loading commands check for checkpoints before reading data (ThermalPipeline)
         if hasattr(self.pipeline, "checkpoint_dir"):
             self.pipeline.checkpoint_dir = self.get_checkpoint_dir()
-        super().save_config()
+        base = self.get_base_dir()
+        CONSOLE.log(f"Saving config to: {base / 'config.yml'}")
+        write_text_atomically(base / "config.yml", yaml.dump(self), base / PARTIAL_FOLDER)
 
 
 class DivergenceGuard:
@@ -184,10 +209,16 @@ class GuardedTrainer(trainer_after_load_class()):
 
     def setup(self, test_mode="val"):
         load_dir = self.config.load_dir
-        if load_dir is not None and not checkpoints_in(load_dir):
-            what = "no such folder" if not Path(load_dir).is_dir() else "no step-*.ckpt checkpoint in it"
-            # a user's typo, not a bug: one line, no traceback (before the data is read)
-            raise SystemExit(f"--load-dir {load_dir}: {what} (a run's checkpoints are in RUN/nerfstudio_models)")
+        if load_dir is not None:
+            # a user's typo or a damaged file, not a bug: one line, no traceback (before the data is read)
+            if not Path(load_dir).is_dir():
+                raise SystemExit(
+                    f"--load-dir {load_dir}: no such folder (a run's checkpoints are in RUN/nerfstudio_models)"
+                )
+            try:
+                check_checkpoint(Path(load_dir), self.config.load_step)
+            except InputError as err:
+                raise SystemExit(f"--load-dir: {err}") from None
         super().setup(test_mode=test_mode)
         self.guard = DivergenceGuard(self.config.guard)
         self._step = 0
@@ -252,6 +283,10 @@ class GuardedTrainer(trainer_after_load_class()):
         CONSOLE.log(f"automatic stop: capture frames {frames} are held back from training to score it")
         if self.config.load_dir is not None:
             self._resume_auto_stop(Path(self.config.load_dir).parent)
+
+    def _partial_dir(self) -> Path:
+        """Where this run's files are written before their rename into place (`run_check`)."""
+        return self.config.get_base_dir() / PARTIAL_FOLDER
 
     def _state_path(self, kind: str, step: int, run: Optional[Path] = None) -> Path:
         """Where a state of step `step` is kept beside the run's config (this run's, or `run`'s):
@@ -335,17 +370,35 @@ class GuardedTrainer(trainer_after_load_class()):
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.auto_stop.keep_best:
             self._best = self._snapshot(step)
-            path = self._state_path("best", step)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            torch.save(self._best, path)
+            best = self._best
+            write_atomically(self._state_path("best", step), lambda tmp: torch.save(best, tmp), self._partial_dir())
         if self.progress.plateaued and self.stop_reason is None:
             self.stop_reason = self.progress.reason(self.config.auto_stop.check_every)
             self.stop_training = True  # nerfstudio's loop ends before the next step
             CONSOLE.log(f"[bold]step {step}: training stops: {self.stop_reason}")
         self._write_auto_stop_record(kept=None)
 
+    @check_main_thread
     def save_checkpoint(self, step: int) -> None:
-        super().save_checkpoint(step)
+        """nerfstudio's checkpoint (`trainer_checkpoint_state`), written atomically: a run killed or
+        out of disk space while saving keeps its previous checkpoint whole, and no partial file is
+        ever in `nerfstudio_models/`."""
+        path = self.checkpoint_dir / f"step-{step:09d}.ckpt"
+        state = trainer_checkpoint_state(self, step)
+        try:
+            write_atomically(path, lambda tmp: torch.save(state, tmp), self._partial_dir())
+        except CheckpointNotSaved as err:
+            kept = checkpoints_in(self.checkpoint_dir)
+            resume = (
+                f"the last checkpoint, {kept[-1]}, is whole: resume from it with --load-dir {self.checkpoint_dir}"
+                if kept
+                else "no earlier checkpoint was saved"
+            )
+            raise CheckpointNotSaved(f"step {step}: {err}. Training stops; {resume}") from err.__cause__
+        if self.config.save_only_latest_checkpoint:  # only once the new one is in place
+            for old in checkpoints_in(self.checkpoint_dir):
+                if old != path:
+                    old.unlink()
         # a resume from this checkpoint (or a later one) needs no best model older than the best so far
         best = self.progress.best_step if self.progress is not None else None
         if best is not None:
@@ -363,9 +416,10 @@ class GuardedTrainer(trainer_after_load_class()):
         kept = self._step
         if self._best is not None and self.progress.best > final + self.progress.min_improvement:
             # the state trained last, for a resume that goes on training (the final checkpoint holds the kept one)
-            path = self._state_path("trained", self._step)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            torch.save(self._snapshot(self._step), path)
+            trained = self._snapshot(self._step)
+            write_atomically(
+                self._state_path("trained", self._step), lambda tmp: torch.save(trained, tmp), self._partial_dir()
+            )
             self._restore(self._best)
             self.pipeline.model.step = self._step  # splatfacto's load_state_dict sets it to 30000
             kept = self._best["step"]
@@ -389,9 +443,9 @@ class GuardedTrainer(trainer_after_load_class()):
             "final_psnr": final,
             "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
         }
-        path = self.config.get_base_dir() / "auto_stop.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(record, indent=1))
+        write_text_atomically(
+            self.config.get_base_dir() / "auto_stop.json", json.dumps(record, indent=1), self._partial_dir()
+        )
 
     def _guarded_iteration(self, step: int):
         if not self.config.guard.enabled:
