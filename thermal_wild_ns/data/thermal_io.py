@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
+from thermal_wild_ns.data.rjpeg import is_radiometric_jpeg, read_rjpeg
 from thermal_wild_ns.errors import InputError, MissingInput
 from thermal_wild_ns.progress import track
 
@@ -84,12 +85,16 @@ def load_npy(path: Path, mmap_mode: Optional[str] = None) -> np.ndarray:
         return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
 
 
-def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
+def _stored_frame(path: Path, radiometric_jpeg: bool = True) -> Tuple[np.ndarray, bool]:
     """The file's pixels, a grey 3-channel image collapsed to [H, W]; and whether it is a
-    colour-mapped frame (then RGB uint8 [H, W, 3])."""
+    colour-mapped frame (then RGB uint8 [H, W, 3]). A radiometric JPEG (`rjpeg.py`) gives its raw
+    sensor counts [H, W] uint16, not its colour preview, unless `radiometric_jpeg` is False (a
+    layout of colour-mapped exports, which may keep part of the camera's records)."""
     path = Path(path)
     if not path.is_file():
         raise MissingInput(f"{path}: thermal frame not found")
+    if radiometric_jpeg and is_radiometric_jpeg(path):
+        return read_rjpeg(path).raw, False
     if path.suffix.lower() == ".npy":
         try:
             image = load_npy(path)
@@ -116,11 +121,12 @@ def _stored_frame(path: Path) -> Tuple[np.ndarray, bool]:
 def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
     """One thermal frame as a 2D array in its native units and dtype ([H, W]).
 
-    8/16-bit PNG/TIFF/JPG and float `.npy` arrays. A 3-channel grey image (all channels equal) is
-    read as grey; a colour-mapped one is inverted to its palette levels (uint8) with `palette`,
-    or with the detected palette when `palette` is None (see `palettes.py`).
+    8/16-bit PNG/TIFF/JPG, radiometric JPEGs (their raw counts, where no `palette` is given) and
+    float `.npy` arrays. A 3-channel grey image (all channels equal) is read as grey; a
+    colour-mapped one is inverted to its palette levels (uint8) with `palette`, or with the
+    detected palette when `palette` is None (see `palettes.py`).
     """
-    image, colour = _stored_frame(path)
+    image, colour = _stored_frame(path, radiometric_jpeg=palette is None)
     if colour:
         image = decode_colour_frame(image, Path(path), palette)
     if image.ndim != 2:

@@ -1,0 +1,139 @@
+"""Radiometric JPEGs: the raw counts and °C of every camera in `../shared/data/rjpeg_samples`, the
+source's own temperature rasters of flight2 reproduced, and clear errors for JPEGs without
+thermal data."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from thermal_wild_ns.data.rjpeg import NoCelsiusDecoder, NotRadiometric, is_radiometric_jpeg, read_rjpeg
+from thermal_wild_ns.errors import InputError
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+SAMPLES = SHARED / "rjpeg_samples"
+FLIGHT2 = SHARED / "flight2"
+needs_shared = pytest.mark.skipif(not SAMPLES.is_dir(), reason="../shared/data is not here")
+
+
+def _exiftool(sample: Path) -> dict:
+    """The sample's ExifTool dump, `Tag Name : value` lines."""
+    dump = {}
+    for line in sample.with_suffix(".exif.txt").read_text(encoding="utf8").splitlines():
+        name, _, value = line.partition(":")
+        dump.setdefault(name.strip(), value.strip())
+    return dump
+
+
+def _number(text: str) -> float:
+    return float(re.match(r"-?[0-9.]+", text).group(0))
+
+
+SAMPLE_FILES = sorted(p.name for p in SAMPLES.glob("*.jpg")) if SAMPLES.is_dir() else []
+
+
+@needs_shared
+@pytest.mark.parametrize("name", SAMPLE_FILES)
+def test_every_camera_gives_its_raw_raster_and_celsius_or_says_what_to_install(name):
+    sample = SAMPLES / name
+    dump = _exiftool(sample)
+    thermal = read_rjpeg(sample)
+    assert is_radiometric_jpeg(sample)
+    assert thermal.raw.dtype == np.uint16 and thermal.raw.std() > 0  # a scene, not a constant
+    if "Raw Thermal Image Width" in dump:  # FLIR format: the raster and calibration ExifTool reads
+        assert thermal.format == "flir"
+        assert thermal.raw.shape == (int(dump["Raw Thermal Image Height"]), int(dump["Raw Thermal Image Width"]))
+        celsius = thermal.celsius()
+        assert celsius.shape == thermal.raw.shape and np.isfinite(celsius).all()
+        assert -100 < float(np.median(celsius)) < 200
+    else:  # DJI format: the raster's size is ExifTool's 'Thermal Data' at the preview's aspect ratio
+        assert thermal.format == "dji" and thermal.camera.startswith("DJI")
+        pixels = int(re.search(r"Binary data (\d+) bytes", dump["Thermal Data"]).group(1)) // 2
+        if dump["Camera Model Name"] == "XT S":  # its raster is in APP4; ExifTool's 'Thermal Data' is its APP3 part
+            pixels = int(dump["Image Width"]) * int(dump["Image Height"])
+        preview = int(dump["Image Width"]) / int(dump["Image Height"])
+        height, width = thermal.raw.shape
+        assert height * width == pixels and width / height == pytest.approx(preview)
+        what = rf"{re.escape(str(sample))}: a DJI-format R-JPEG \(DJI .+\).*Thermal SDK"
+        with pytest.raises(NoCelsiusDecoder, match=what):
+            thermal.celsius()
+
+
+@needs_shared
+@pytest.mark.parametrize("name", [n for n in SAMPLE_FILES if not re.search(r"_R\.jpg$", n)])
+def test_the_flir_calibration_equals_exiftools(name):
+    sample = SAMPLES / name
+    dump, cal = _exiftool(sample), read_rjpeg(SAMPLES / name).calibration
+    for tag, value in (
+        ("Planck R1", cal.planck_r1),
+        ("Planck R2", cal.planck_r2),
+        ("Planck B", cal.planck_b),
+        ("Planck F", cal.planck_f),
+        ("Planck O", cal.planck_o),
+        ("Emissivity", cal.emissivity),
+        ("Object Distance", cal.object_distance),
+        ("Reflected Apparent Temperature", cal.reflected_temperature - 273.15),
+        ("Atmospheric Temperature", cal.atmospheric_temperature - 273.15),
+        ("Relative Humidity", cal.relative_humidity * 100),
+        ("Atmospheric Trans Alpha 1", cal.alpha1),
+        ("Atmospheric Trans X", cal.atmospheric_trans_x),
+    ):
+        expected = _number(dump[tag])
+        assert value == pytest.approx(expected, rel=1e-6, abs=0.051), tag  # ExifTool prints 0.1 °C, 0.01 m
+
+
+@needs_shared
+@pytest.mark.parametrize("frame", ["DJI_0199", "DJI_0207", "DJI_0215", "DJI_0223"])
+def test_flight2s_reference_temperatures_are_reproduced(frame):
+    """The source's rasters (milli-°C, uint16) were made with a 1 m object distance; the files
+    store 20 m. At the same setting the decoder reproduces them; at the file's own it does not,
+    so the test would notice a decoder that ignored the distance."""
+    thermal = read_rjpeg(FLIGHT2 / "rjpeg" / f"{frame}.jpg")
+    reference = cv2.imread(str(FLIGHT2 / "reference_mK" / f"{frame}.tiff"), cv2.IMREAD_UNCHANGED) / 1000.0
+    assert thermal.camera == "DJI FLIR" and thermal.raw.shape == reference.shape == (512, 640)
+    as_made = dataclasses.replace(thermal.calibration, object_distance=1.0).celsius(thermal.raw)
+    assert np.abs(as_made - reference).max() <= 0.05
+    assert thermal.calibration.object_distance == 20.0
+    assert np.abs(thermal.celsius() - reference).max() > 0.05
+
+
+# ------------------------------------------------------------------ JPEGs without thermal data
+def _jpeg(make: str = "") -> bytes:
+    from PIL import Image
+
+    image = Image.fromarray(np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    exif = Image.Exif()
+    if make:
+        exif[0x010F], exif[0x0110] = make, "ZH20T"
+    out = io.BytesIO()
+    image.save(out, "JPEG", exif=exif.tobytes())
+    return out.getvalue()
+
+
+@pytest.mark.parametrize("make", ["", "DJI"])
+def test_a_jpeg_without_thermal_data_is_named_never_read_as_its_preview(tmp_path, make):
+    path = tmp_path / "DJI_0001_V.jpg"
+    path.write_bytes(_jpeg(make))
+    assert not is_radiometric_jpeg(path)
+    with pytest.raises(NotRadiometric, match=rf"{re.escape(str(path))}: no radiometric data .*colour preview"):
+        read_rjpeg(path)
+
+
+@needs_shared
+def test_a_damaged_rjpeg_names_the_file(tmp_path):
+    data = (FLIGHT2 / "rjpeg" / "DJI_0199.jpg").read_bytes()
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(data[:30000])  # inside the FLIR segments
+    with pytest.raises(InputError, match=re.escape(str(cut))):
+        read_rjpeg(cut)
+    other = tmp_path / "not.jpg"
+    cv2.imwrite(str(tmp_path / "x.png"), np.zeros((8, 8), np.uint8))
+    other.write_bytes((tmp_path / "x.png").read_bytes())
+    with pytest.raises(InputError, match=rf"{re.escape(str(other))}: not a JPEG"):
+        read_rjpeg(other)

@@ -1,0 +1,325 @@
+"""Radiometric JPEGs (R-JPEG), as thermal cameras and drones write them: the sensor's raw counts
+behind the 8-bit colour-mapped preview, and what turns them into °C.
+
+Two formats:
+- **FLIR** (FLIR cameras; DJI Zenmuse XT, XT2, XT R, whose cores are FLIR's): APP1 segments
+  `FLIR\\0` hold an FFF container whose records give the raw raster (`RawData`, a PNG or plain
+  16-bit) and the camera's calibration (`CameraInfo`: Planck constants R1, R2, B, F, O; emissivity,
+  distance, reflected and atmospheric temperature, humidity, the atmosphere's transmission
+  constants). FLIR cameras write the container big-endian, DJI's FLIR-core cameras little-endian
+  (ExifTool tells them apart by the header's version number, as here).
+- **DJI** (Zenmuse H20T/H20N/H30T, Matrice 30T, Mavic 3T, Matrice 3TD, Matrice 4T, Mavic 2
+  Enterprise Advanced, Zenmuse XT S): the raw 16-bit raster sits in APP3 segments (APP4 on the
+  XT S), little-endian. DJI's conversion to °C is its own native SDK (Linux and Windows only), not
+  a published formula: the raw raster is read here; °C needs that decoder (`celsius` says which).
+
+The layout of the FLIR records follows ExifTool's `FLIR.pm` tag tables (the offsets below); the
+°C conversion is the standard FLIR one (ExifTool's documentation of the Planck constants,
+Thermimage's `raw2temp`), with the atmosphere's transmission over the object distance. Each is
+checked against ExifTool's dumps and the camera vendor's own temperature rasters (`tests/test_rjpeg.py`).
+No library does both formats: flyr, the maintained pure-Python FLIR reader, assumes the
+big-endian container and fails on DJI's FLIR-core files (`docs/rjpeg.md` has the comparison).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from thermal_wild_ns.errors import InputError
+
+DJI_CELSIUS_DECODER = (
+    "DJI's R-JPEG format converts to °C only through DJI's native Thermal SDK "
+    "(https://www.dji.com/downloads/softwares/dji-thermal-sdk); its pure-Python port `dji-thermal-cli` "
+    "(AGPL-3.0) needs Python >= 3.12. The raw counts train the model all the same"
+)
+
+
+class NotRadiometric(InputError):
+    """A JPEG with no thermal data behind its preview (a visual camera's photo, an exported
+    colour-mapped image): never read as temperatures."""
+
+
+class NoCelsiusDecoder(InputError):
+    """The file's raw counts are read, but what converts them to °C is not installed."""
+
+
+@dataclass(frozen=True)
+class FlirCalibration:
+    """A FLIR-format file's calibration: what turns its raw counts into °C."""
+
+    planck_r1: float
+    planck_r2: float
+    planck_b: float
+    planck_f: float
+    planck_o: float
+    emissivity: float
+    object_distance: float
+    """Metres."""
+    reflected_temperature: float
+    """Kelvin, as stored."""
+    atmospheric_temperature: float
+    """Kelvin."""
+    ir_window_temperature: float
+    """Kelvin."""
+    ir_window_transmission: float
+    relative_humidity: float
+    """Fraction 0..1."""
+    alpha1: float
+    alpha2: float
+    beta1: float
+    beta2: float
+    atmospheric_trans_x: float
+
+    def _radiance(self, kelvin: float) -> float:
+        """A black body at `kelvin`, in raw counts (the inverse of the Planck curve below)."""
+        return self.planck_r1 / (self.planck_r2 * (math.exp(self.planck_b / kelvin) - self.planck_f)) - self.planck_o
+
+    def atmospheric_transmission(self) -> float:
+        """Of the air between object and camera (half the distance each side of the IR window)."""
+        t_c = self.atmospheric_temperature - 273.15
+        h2o = self.relative_humidity * math.exp(1.5587 + 0.06939 * t_c - 0.00027816 * t_c**2 + 0.00000068455 * t_c**3)
+        d, x = math.sqrt(self.object_distance / 2), self.atmospheric_trans_x
+        return x * math.exp(-d * (self.alpha1 + self.beta1 * math.sqrt(h2o))) + (1 - x) * math.exp(
+            -d * (self.alpha2 + self.beta2 * math.sqrt(h2o))
+        )
+
+    def celsius(self, raw: np.ndarray) -> np.ndarray:
+        """Raw counts [H, W] -> °C [H, W] float32: the object's own radiance, after the reflected
+        surroundings, the atmosphere and the IR window are taken out."""
+        e, tau, window = self.emissivity, self.atmospheric_transmission(), self.ir_window_transmission
+        reflected = (1 - e) / e * self._radiance(self.reflected_temperature)
+        atmosphere = (1 - tau) / e / tau * self._radiance(self.atmospheric_temperature)
+        window_own = (1 - window) / e / tau / window * self._radiance(self.ir_window_temperature)
+        atmosphere_2 = (1 - tau) / e / tau / window / tau * self._radiance(self.atmospheric_temperature)
+        obj = raw.astype(np.float64) / e / tau / window / tau - atmosphere - atmosphere_2 - window_own - reflected
+        kelvin = self.planck_b / np.log(self.planck_r1 / (self.planck_r2 * (obj + self.planck_o)) + self.planck_f)
+        return (kelvin - 273.15).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class RadiometricJpeg:
+    """One R-JPEG's thermal content."""
+
+    path: Path
+    camera: str
+    """EXIF make and model, e.g. 'DJI FLIR' (a Zenmuse XT), 'DJI M3T'."""
+    format: str
+    """'flir' or 'dji'."""
+    raw: np.ndarray
+    """[H, W] uint16 raw sensor counts, at the thermal sensor's resolution."""
+    calibration: Optional[FlirCalibration]
+    """FLIR format only."""
+
+    def celsius(self) -> np.ndarray:
+        """[H, W] float32 °C, where the file's format gives the means; else `NoCelsiusDecoder`."""
+        if self.calibration is None:
+            raise NoCelsiusDecoder(f"{self.path}: a DJI-format R-JPEG ({self.camera}): {DJI_CELSIUS_DECODER}")
+        return self.calibration.celsius(self.raw)
+
+
+# ------------------------------------------------------------------ JPEG segments
+def jpeg_segments(data: bytes, path: Path) -> List[Tuple[int, bytes]]:
+    """(marker, payload) of each segment before the image data; an `InputError` if not a JPEG."""
+    if data[:2] != b"\xff\xd8":
+        raise InputError(f"{path}: not a JPEG file")
+    segments, i = [], 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            raise InputError(f"{path}: damaged JPEG (no segment marker at byte {i})")
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0xDA, 0xD9):  # the image data starts (or the file ends): no metadata after it
+            break
+        length = struct.unpack(">H", data[i + 2 : i + 4])[0]
+        segments.append((marker, data[i + 4 : i + 2 + length]))
+        i += 2 + length
+    return segments
+
+
+def _exif_camera(segments: List[Tuple[int, bytes]]) -> str:
+    """EXIF Make and Model (the first APP1 'Exif' segment's IFD0), '' where absent."""
+    for marker, payload in segments:
+        if marker != 0xE1 or not payload.startswith(b"Exif\0\0"):
+            continue
+        tiff = payload[6:]
+        order = "<" if tiff[:2] == b"II" else ">"
+        (ifd,) = struct.unpack(order + "I", tiff[4:8])
+        (count,) = struct.unpack(order + "H", tiff[ifd : ifd + 2])
+        found: Dict[int, str] = {}
+        for k in range(count):
+            tag, kind, n, value = struct.unpack(order + "HHII", tiff[ifd + 2 + 12 * k : ifd + 14 + 12 * k])
+            if tag in (0x010F, 0x0110) and kind == 2:  # Make, Model (ASCII)
+                raw = tiff[ifd + 10 + 12 * k : ifd + 14 + 12 * k] if n <= 4 else tiff[value : value + n]
+                found[tag] = raw.split(b"\0")[0].decode("latin-1").strip()
+        return " ".join(v for v in (found.get(0x010F, ""), found.get(0x0110, "")) if v)
+    return ""
+
+
+# ------------------------------------------------------------------ FLIR
+def _flir_container(segments: List[Tuple[int, bytes]]) -> Optional[bytes]:
+    """The FFF container of the FLIR APP1 segments, joined in their chunk order; None if none."""
+    chunks = {}
+    for marker, payload in segments:
+        if marker == 0xE1 and payload.startswith(b"FLIR\0") and len(payload) >= 8:
+            chunks[payload[6]] = payload[8:]
+    return b"".join(chunks[k] for k in sorted(chunks)) if chunks else None
+
+
+def _flir_records(fff: bytes, path: Path) -> Tuple[str, Dict[int, bytes]]:
+    """The container's byte order ('<' or '>') and its records by type."""
+    if fff[:4] not in (b"FFF\0", b"AFF\0"):
+        raise InputError(f"{path}: its FLIR segments hold no FFF container")
+    order = ">"
+    version = struct.unpack(">I", fff[20:24])[0]
+    if not 100 <= version < 200:  # as ExifTool: a version out of range means the other byte order
+        order = "<"
+    offset, count = struct.unpack(order + "II", fff[24:32])
+    records = {}
+    for k in range(count):
+        entry = fff[offset + 32 * k : offset + 32 * k + 32]
+        if len(entry) < 20:
+            raise InputError(f"{path}: FLIR record directory cut short")
+        kind, _, _, _, start, length = struct.unpack(order + "HHIIII", entry[:20])
+        if kind and kind not in records:
+            records[kind] = fff[start : start + length]
+    return order, records
+
+
+def _record_order(record: bytes) -> str:
+    """A record's own byte order: its first 16-bit word is 2 (ExifTool's check)."""
+    return "<" if struct.unpack("<H", record[:2])[0] < 0x100 else ">"
+
+
+RAW_DATA, CAMERA_INFO = 1, 32
+"""FFF record types (ExifTool FLIR.pm: RawData, CameraInfo)."""
+
+_CAMERA_INFO = {  # field: (byte offset, struct format), ExifTool FLIR::CameraInfo
+    "emissivity": (0x20, "f"),
+    "object_distance": (0x24, "f"),
+    "reflected_temperature": (0x28, "f"),
+    "atmospheric_temperature": (0x2C, "f"),
+    "ir_window_temperature": (0x30, "f"),
+    "ir_window_transmission": (0x34, "f"),
+    "relative_humidity": (0x3C, "f"),
+    "planck_r1": (0x58, "f"),
+    "planck_b": (0x5C, "f"),
+    "planck_f": (0x60, "f"),
+    "alpha1": (0x70, "f"),
+    "alpha2": (0x74, "f"),
+    "beta1": (0x78, "f"),
+    "beta2": (0x7C, "f"),
+    "atmospheric_trans_x": (0x80, "f"),
+    "planck_o": (0x308, "i"),
+    "planck_r2": (0x30C, "f"),
+}
+
+
+def _flir_raw(record: bytes, path: Path) -> np.ndarray:
+    import cv2
+
+    order = _record_order(record)
+    width, height = struct.unpack(order + "HH", record[2:6])
+    image = record[0x20:]
+    if image[:4] == b"\x89PNG":
+        raw = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
+        if raw is None or raw.dtype != np.uint16:
+            raise InputError(f"{path}: its FLIR raw image (PNG) cannot be decoded")
+        raw = raw.byteswap()  # FLIR writes the PNG's 16-bit samples little-endian (ExifTool notes it)
+    else:
+        if len(image) < 2 * width * height:
+            raise InputError(f"{path}: its FLIR raw image is cut short ({len(image)} bytes for {width}x{height})")
+        raw = np.frombuffer(image[: 2 * width * height], np.dtype(np.uint16).newbyteorder(order))
+        raw = raw.reshape(height, width).astype(np.uint16)
+    if raw.shape != (height, width):
+        size = f"{raw.shape[1]}x{raw.shape[0]}"
+        raise InputError(f"{path}: its FLIR raw image is {size}, its record says {width}x{height}")
+    return raw
+
+
+def _flir_calibration(record: bytes) -> FlirCalibration:
+    order = _record_order(record)
+    values = {name: struct.unpack_from(order + kind, record, at)[0] for name, (at, kind) in _CAMERA_INFO.items()}
+    if values["relative_humidity"] > 2:  # some cameras store percent (ExifTool's conversion)
+        values["relative_humidity"] /= 100
+    return FlirCalibration(**{k: float(v) for k, v in values.items()})
+
+
+# ------------------------------------------------------------------ DJI
+def _dji_raw(segments: List[Tuple[int, bytes]], preview: Tuple[int, int]) -> Optional[np.ndarray]:
+    """The raw raster of a DJI-format file: the APP3 (or, on the XT S, APP4) segments joined, 16-bit
+    little-endian, at the preview's aspect ratio (the thermal sensor may be smaller than the preview)."""
+    width, height = preview
+    for marker in (0xE3, 0xE4):
+        data = b"".join(payload for m, payload in segments if m == marker)
+        pixels = len(data) // 2
+        if pixels < 64 * 64 or len(data) % 2:
+            continue
+        w = round(math.sqrt(pixels * width / height))
+        if w and pixels % w == 0 and abs(w / (pixels // w) - width / height) < 1e-3:
+            return np.frombuffer(data, "<u2").reshape(pixels // w, w).astype(np.uint16)
+    return None
+
+
+def _preview_size(segments: List[Tuple[int, bytes]], path: Path) -> Tuple[int, int]:
+    for marker, payload in segments:
+        if marker in (0xC0, 0xC1, 0xC2):  # start of frame
+            height, width = struct.unpack(">HH", payload[1:5])
+            return width, height
+    raise InputError(f"{path}: a JPEG without an image frame header")
+
+
+# ------------------------------------------------------------------ reading
+def read_rjpeg(path: Path) -> RadiometricJpeg:
+    """The thermal content of one R-JPEG, FLIR or DJI format; `NotRadiometric` naming the file
+    where it has none (never its colour preview)."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise InputError(f"{path}: unreadable ({err.strerror or err})") from err
+    segments = jpeg_segments(data, path)
+    camera = _exif_camera(segments)
+    fff = _flir_container(segments)
+    if fff is not None:
+        _, records = _flir_records(fff, path)
+        if RAW_DATA not in records or CAMERA_INFO not in records:
+            raise NotRadiometric(f"{path}: its FLIR segments hold no raw thermal image or no calibration")
+        raw, calibration = _flir_raw(records[RAW_DATA], path), _flir_calibration(records[CAMERA_INFO])
+        return RadiometricJpeg(path, camera, "flir", raw, calibration)
+    raw = _dji_raw(segments, _preview_size(segments, path)) if camera.startswith("DJI") else None
+    if raw is not None:
+        return RadiometricJpeg(path, camera, "dji", raw, None)
+    raise NotRadiometric(
+        f"{path}: no radiometric data (neither FLIR records nor DJI's thermal segments) behind the JPEG"
+        f"{' of ' + camera if camera else ''}: only its colour preview, which is not temperatures. Use the files "
+        f"as the thermal camera wrote them (DJI: the *_R.jpg / *_T.jpg ones)"
+    )
+
+
+def is_radiometric_jpeg(path: Path) -> bool:
+    """Whether the file is a JPEG with FLIR records or DJI thermal segments (reads its header only)."""
+    path = Path(path)
+    if path.suffix.lower() not in (".jpg", ".jpeg"):
+        return False
+    with open(path, "rb") as handle:
+        head = handle.read(4 << 20)  # DJI's raw segments come within the first few MB
+    try:
+        segments = jpeg_segments(head, path)
+    except InputError:
+        return False
+    if _flir_container(segments) is not None:
+        return True
+    try:
+        if not _exif_camera(segments).startswith("DJI"):
+            return False
+        return _dji_raw(segments, _preview_size(segments, path)) is not None
+    except (InputError, struct.error):
+        return False
