@@ -11,6 +11,8 @@ ended inside the warm-up)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import layout_fixtures as fx
 import pytest
 from ns_runs import STEPS, check_run_end_to_end, ns_train, run_args
@@ -20,7 +22,8 @@ pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 FRAMES = 26
 """Enough frames for the automatic stop to hold two training frames back (it needs 20)."""
 
-SCALE = {"msx-data": 0.125, "ye-thermal-data": 0.25}
+SCALE = {"msx-data": 0.125, "ye-thermal-data": 0.25, "metashape-data": 0.125}
+FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
 
 # registered parser -> (fixture writer, folder name); 'thermal' detects the layout itself
 PARSERS = {
@@ -35,6 +38,8 @@ PARSERS = {
     "thermal-colmap-data": (lambda root: fx.write_colmap(root, n=FRAMES), "scene"),
     "ti-nsd-data": (lambda root: fx.write_ti_nsd(root, n=FRAMES), "scene"),
     "thermal-demo-data": (None, "scene"),
+    # a real drone survey as the drone wrote it: radiometric JPEGs + the Metashape alignment
+    "metashape-data": (lambda root: root.symlink_to(FLIGHT2, target_is_directory=True), "flight2"),
 }
 
 

@@ -15,6 +15,7 @@ from typing import List, Literal, Optional, Union
 
 import numpy as np
 
+from thermal_wild_ns.data.metashape import Georeference
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError, MissingInput
 
@@ -72,6 +73,8 @@ class ThermalCapture:
     """The palette of colour-mapped frames, when the layout fixes one (otherwise detected)."""
     points: Optional[SeedPoints] = None
     """The layout's own sparse points (SfM), when it ships a non-empty set."""
+    georeference: Optional[Georeference] = None
+    """Where the capture's world frame sits on the Earth, when the layout says (photogrammetry)."""
 
 
 def check_pose(c2w: np.ndarray, source: Union[Path, str]) -> np.ndarray:

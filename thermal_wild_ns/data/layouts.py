@@ -425,6 +425,78 @@ def read_mvtv(root: Path) -> ThermalCapture:
     return read_llff(root, layout="mvtv")
 
 
+METASHAPE_FOLDERS = ("", "metashape")
+"""Where a Metashape XML is looked for, relative to the data folder."""
+FRAME_FOLDERS = ("rjpeg", "images", "thermal", "")
+"""Where a drone survey's frames are looked for (the first folder with image files)."""
+
+
+def _metashape_xml(root: Path) -> Optional[Path]:
+    """The Metashape XML in `root` or `root/metashape` (a chunk's doc.xml or exported cameras)."""
+    for folder in METASHAPE_FOLDERS:
+        for path in sorted((root / folder).glob("*.xml")):
+            with open(path, "rb") as handle:
+                head = handle.read(4096)
+            if b"<chunk" in head or b"<document" in head:
+                return path
+    return None
+
+
+def read_metashape(root: Path) -> ThermalCapture:
+    """A drone survey aligned in Agisoft Metashape: its XML (`metashape_xml` names where it is
+    looked for) and the frames as the camera wrote them (radiometric JPEGs, or 16-bit frames), in
+    the first of `FRAME_FOLDERS` that holds images, matched to the cameras by file name. Poses in a
+    local east-north-up frame in metres where the chunk is georeferenced (`metashape.py`); frames
+    in file-name order, which is capture order for drone files (DJI_0001, ...). Split: every 8th
+    frame held out."""
+    from thermal_wild_ns.data.metashape import read_metashape_xml
+    from thermal_wild_ns.data.rjpeg import read_rjpeg
+
+    xml = _metashape_xml(root)
+    if xml is None:
+        raise MissingInput(f"{root}: no Metashape XML in {' or '.join(str(root / f) for f in METASHAPE_FOLDERS)}")
+    folder = next((root / f for f in FRAME_FOLDERS if (root / f).is_dir() and _image_files(root / f)), None)
+    if folder is None:
+        folders = ", ".join(f + "/" for f in FRAME_FOLDERS if f)
+        raise MissingInput(f"{root}: no frames in any of {folders} or the folder itself")
+    images = {p.stem: p for p in _image_files(folder)}
+    cameras, georeference, unaligned = read_metashape_xml(xml)
+    frames = []
+    for camera in sorted(cameras, key=lambda c: natural_key(c.label)):
+        image = images.get(Path(camera.label).stem)
+        if image is None:
+            continue
+        if image.suffix.lower() in (".jpg", ".jpeg"):
+            read_rjpeg(image)  # a JPEG of a survey must carry its thermal data: never its colour preview
+        s = camera.sensor
+        frames.append(
+            ThermalFrame(image, camera.camera_to_local, s.fx, s.fy, s.cx, s.cy, s.width, s.height, s.distortion.copy())
+        )
+    if not frames:
+        raise InputError(
+            f"{xml}: none of its {len(cameras)} aligned cameras has a frame in {folder} "
+            f"(cameras are matched to files by name, e.g. {cameras[0].label})"
+        )
+    without = sorted(set(images) - {Path(c.label).stem for c in cameras})
+    if without:
+        not_aligned = [name for name in without if name in {Path(u).stem for u in unaligned}]
+        warnings.warn(
+            f"{folder}: {len(without)} frame(s) without a pose in {xml.name} are left out"
+            f"{' (Metashape could not align ' + ', '.join(not_aligned[:5]) + ')' if not_aligned else ''}: "
+            f"{', '.join(without[:5])}{' ...' if len(without) > 5 else ''}",
+            stacklevel=2,
+        )
+    for frame, split in zip(frames, interval_split(len(frames))):
+        frame.split = split
+    return ThermalCapture("metashape", root, frames, "every 8th frame held out", georeference=georeference)
+
+
+def _metashape_mismatch(root: Path) -> Optional[str]:
+    if _metashape_xml(root) is None:
+        return "no Metashape XML (with a <chunk>) in the folder or metashape/"
+    return None
+
+
 # --------------------------------------------------------------------------- registry / detection
 @dataclass(frozen=True)
 class Layout:
@@ -536,6 +608,11 @@ LAYOUTS: Dict[str, Layout] = {
         "TI-NSD (Thermal3D-GS): images/ with numeric names + sparse/0, names sorted as strings",
     ),
     "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
+    "metashape": Layout(
+        read_metashape,
+        _metashape_mismatch,
+        "a drone survey aligned in Metashape: its XML (or metashape/*.xml) + the frames (R-JPEGs) in rjpeg/ or images/",
+    ),
 }
 
 

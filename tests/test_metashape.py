@@ -1,0 +1,68 @@
+"""A drone survey aligned in Metashape (flight2): poses in a local east-north-up frame with the
+georeference kept, Metashape's distortion in OpenCV's order, frames read as radiometric JPEGs."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from thermal_wild_ns.data import layouts
+from thermal_wild_ns.data.capture import validate
+from thermal_wild_ns.data.metashape import datum_to_wgs84, ecef_to_geodetic
+from thermal_wild_ns.data.rjpeg import NotRadiometric
+from thermal_wild_ns.data.thermal_io import read_raw_frame
+
+FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
+needs_flight2 = pytest.mark.skipif(not FLIGHT2.is_dir(), reason="../shared/data/flight2 is not here")
+
+
+@needs_flight2
+def test_flight2_is_detected_and_read_as_a_georeferenced_nadir_survey():
+    assert layouts.detect_layout(FLIGHT2) == "metashape"
+    capture = validate(layouts.read_metashape(FLIGHT2))
+    assert [f.image.name for f in capture.frames] == sorted(p.name for p in (FLIGHT2 / "rjpeg").glob("*.jpg"))
+    assert [f.split for f in capture.frames][:9] == ["test"] + ["train"] * 7 + ["test"]
+    centres = np.array([f.camera_to_world[:3, 3] for f in capture.frames])  # [32, 3] metres, east-north-up
+    assert np.ptp(centres[:, :2], axis=0).max() > 40 and np.ptp(centres[:, 2]) < 5  # flown level over the site
+    looking = np.array([f.camera_to_world[:3, 2] for f in capture.frames])  # OpenCV z: the viewing direction
+    assert (looking[:, 2] < -0.95).all()  # nadir: every camera looks down
+    geo = capture.georeference
+    # Lake Geneva's north shore (LV95 ~2'507'700 / 1'139'150), ~346 m above sea + ~50 m geoid
+    assert 46.3 < geo.latitude < 46.5 and 6.1 < geo.longitude < 6.4 and 380 < geo.height < 420
+    assert 'EPSG","2056' in geo.crs_wkt
+    frame = capture.frames[0]
+    # Metashape's P1, P2 are OpenCV's p2, p1 (Agisoft's camera model): nerfstudio order k1..k4, p1, p2
+    assert frame.distortion[4:] == pytest.approx([0.0038518362275804805, 0.0086626298488847245])
+    assert (frame.width, frame.height, frame.cx) == (640, 512, pytest.approx(320 + 10.090000975425118))
+    raw = read_raw_frame(frame.image)  # the sensor's counts, not the colour preview
+    assert raw.dtype == np.uint16 and raw.shape == (512, 640) and 2000 < raw.min() < raw.max() < 3500
+
+
+def test_the_datum_shift_and_geodetic_conversion():
+    # WGS84 (no TOWGS84): identity; CH1903+: the published 3-parameter shift
+    assert np.array_equal(datum_to_wgs84(None), np.eye(4))
+    shift = datum_to_wgs84('DATUM["CH1903+",TOWGS84[674.374,15.056,405.346,0,0,0,0]]')
+    assert shift[:3, 3] == pytest.approx([674.374, 15.056, 405.346]) and np.allclose(shift[:3, :3], np.eye(3))
+    assert ecef_to_geodetic(np.array([6378137.0, 0.0, 0.0])) == pytest.approx((0.0, 0.0, 0.0), abs=1e-6)
+    lat, lon, h = ecef_to_geodetic(np.array([0.0, 6378137.0 + 100.0, 0.0]))
+    assert (lat, lon, h) == pytest.approx((0.0, 90.0, 100.0), abs=1e-6)
+    lat, lon, h = np.radians(46.4), np.radians(6.24), 400.0  # flight2's site, forward by the textbook formula
+    e2 = 6.69437999014e-3
+    n = 6378137.0 / np.sqrt(1 - e2 * np.sin(lat) ** 2)
+    xyz = [(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon), (n * (1 - e2) + h) * np.sin(lat)]
+    assert ecef_to_geodetic(np.array(xyz)) == pytest.approx((46.4, 6.24, 400.0), abs=1e-6)
+
+
+@needs_flight2
+def test_a_survey_of_colour_previews_is_refused_naming_the_file(tmp_path):
+    root = tmp_path / "survey"
+    (root / "rjpeg").mkdir(parents=True)
+    shutil.copytree(FLIGHT2 / "metashape", root / "metashape")
+    preview = cv2.imread(str(FLIGHT2 / "rjpeg" / "DJI_0199.jpg"))  # the colour preview only, re-encoded
+    cv2.imwrite(str(root / "rjpeg" / "DJI_0199.jpg"), preview)
+    with pytest.raises(NotRadiometric, match=r"DJI_0199\.jpg: no radiometric data"):
+        layouts.read_metashape(root)

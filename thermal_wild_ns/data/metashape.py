@@ -1,0 +1,231 @@
+"""Agisoft Metashape alignments: a drone survey's poses, sensor calibration and georeference.
+
+A Metashape chunk (`doc.xml` inside a `.psx` project's `chunk.zip`, or File > Export Cameras as
+XML) holds per camera a 4x4 camera-to-chunk transform (camera axes x right, y down, z forward:
+OpenCV's), the sensors' calibration, and the chunk-to-geocentric transform (rotation, translation,
+scale: x_ecef = s R x + t) with the project's coordinate system.
+
+nerfstudio's converter (`ns-process-data metashape`, `process_data/metashape_utils.py` in 1.1.5)
+is not reused, for two reasons: it divides the geocentric translation by the scale and keeps it,
+so a survey's poses lie about 10^6 units from the origin, where the float32 the dataparser
+stores them in resolves centimetres at best; and it copies Metashape's tangential coefficients
+P1, P2 to OpenCV's p1, p2, whose roles are swapped (Metashape's P1 is OpenCV's p2: Agisoft's
+manual, "Camera models"). Here poses go to a local east-north-up frame in metres around the
+cameras' mean position, whose origin (geocentric and geodetic) and the project's coordinate system
+are kept as the capture's `Georeference`, so outputs can land where the site is.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from thermal_wild_ns.errors import InputError
+
+WGS84_A, WGS84_F = 6378137.0, 1 / 298.257223563
+
+
+@dataclass(frozen=True)
+class Georeference:
+    """Where a capture's local frame sits on the Earth: x east, y north, z up, in metres, with its
+    origin at `origin_ecef` (WGS84 geocentric, metres) = (`latitude`, `longitude`, `height`)."""
+
+    origin_ecef: Tuple[float, float, float]
+    latitude: float
+    longitude: float
+    height: float
+    """Above the WGS84 ellipsoid, metres."""
+    crs_wkt: Optional[str] = None
+    """The project's coordinate system (Metashape's `<reference>`), for outputs in it."""
+    source: str = ""
+
+    def ecef_to_local(self) -> np.ndarray:
+        """[4, 4]: geocentric -> local east-north-up."""
+        lat, lon = math.radians(self.latitude), math.radians(self.longitude)
+        east = [-math.sin(lon), math.cos(lon), 0.0]
+        north = [-math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)]
+        up = [math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)]
+        m = np.eye(4)
+        m[:3, :3] = np.array([east, north, up])
+        m[:3, 3] = -m[:3, :3] @ np.asarray(self.origin_ecef)
+        return m
+
+    def as_dict(self) -> dict:
+        return {
+            "frame": "local east-north-up, metres",
+            "origin_ecef": list(self.origin_ecef),
+            "latitude": self.latitude,
+            "longitude": self.longitude,
+            "height": self.height,
+            "crs_wkt": self.crs_wkt,
+            "source": self.source,
+        }
+
+
+def ecef_to_geodetic(xyz: np.ndarray) -> Tuple[float, float, float]:
+    """WGS84 geocentric -> (latitude°, longitude°, ellipsoidal height m), by Bowring's iteration."""
+    x, y, z = (float(v) for v in xyz)
+    e2 = WGS84_F * (2 - WGS84_F)
+    lon = math.atan2(y, x)
+    p = math.hypot(x, y)
+    lat = math.atan2(z, p * (1 - e2))
+    for _ in range(6):
+        n = WGS84_A / math.sqrt(1 - e2 * math.sin(lat) ** 2)
+        height = p / math.cos(lat) - n
+        lat = math.atan2(z, p * (1 - e2 * n / (n + height)))
+    n = WGS84_A / math.sqrt(1 - e2 * math.sin(lat) ** 2)
+    return math.degrees(lat), math.degrees(lon), p / math.cos(lat) - n
+
+
+@dataclass
+class MetashapeCamera:
+    label: str
+    camera_to_local: np.ndarray
+    """[4, 4] OpenCV axes, local east-north-up metres."""
+    sensor: "MetashapeSensor"
+
+
+@dataclass
+class MetashapeSensor:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    """Pixels from the top-left corner of the image (COLMAP's convention)."""
+    cy: float
+    distortion: np.ndarray
+    """[6] k1, k2, k3, k4, p1, p2 in OpenCV's (and nerfstudio's) sense."""
+
+
+def datum_to_wgs84(crs_wkt: Optional[str]) -> np.ndarray:
+    """[4, 4] from the geocentric frame of the project's datum (where Metashape's chunk transform
+    lands) to WGS84's: the WKT's `TOWGS84[dx, dy, dz, rx, ry, rz, ds]` (metres, arc-seconds, ppm,
+    position-vector convention); identity where it has none (a WGS84 project). On a CH1903+
+    project the shift is about 790 m: skipped, heights would be off by hundreds of metres."""
+    m = np.eye(4)
+    found = re.search(r"TOWGS84\[([^\]]*)\]", crs_wkt or "")
+    if found is None:
+        return m
+    values = [float(v) for v in found.group(1).split(",")] + [0.0] * 7
+    dx, dy, dz, rx, ry, rz, ds = values[:7]
+    rx, ry, rz = (math.radians(v / 3600) for v in (rx, ry, rz))
+    m[:3, :3] = (1 + ds * 1e-6) * np.array([[1, -rz, ry], [rz, 1, -rx], [-ry, rx, 1]])
+    m[:3, 3] = [dx, dy, dz]
+    return m
+
+
+def _floats(element: Optional[ET.Element], path: Path, what: str) -> np.ndarray:
+    if element is None or not (element.text or "").strip():
+        raise InputError(f"{path}: Metashape XML without {what}")
+    try:
+        return np.array([float(v) for v in element.text.split()])
+    except ValueError as err:
+        raise InputError(f"{path}: Metashape {what} is not numbers ({err})") from None
+
+
+def _sensor(element: ET.Element, path: Path) -> Optional[MetashapeSensor]:
+    calibrations = element.findall("calibration")
+    if not calibrations:
+        return None
+    # the adjusted calibration when the alignment refined it, else the initial one
+    calibration = next((c for c in calibrations if c.get("class") == "adjusted"), calibrations[0])
+    resolution = calibration.find("resolution")
+    if resolution is None:
+        resolution = element.find("resolution")
+    if resolution is None or element.get("type", "frame") != "frame":
+        raise InputError(
+            f"{path}: Metashape sensor '{element.get('label')}' is a {element.get('type')} camera; "
+            f"only frame (pinhole) cameras are read"
+        )
+    width, height = int(resolution.get("width")), int(resolution.get("height"))
+
+    def value(name: str) -> float:
+        node = calibration.find(name)
+        return float(node.text) if node is not None and node.text else 0.0
+
+    f = value("f")
+    if f <= 0:
+        raise InputError(f"{path}: Metashape sensor '{element.get('label')}' has no focal length")
+    distortion = np.array([value("k1"), value("k2"), value("k3"), value("k4"), value("p2"), value("p1")])
+    return MetashapeSensor(
+        width, height, f + value("b1"), f, width / 2 + value("cx"), height / 2 + value("cy"), distortion
+    )
+
+
+def _chunk_transform(element: Optional[ET.Element], path: Path) -> Optional[np.ndarray]:
+    """[4, 4] chunk -> geocentric (s R | t), None where the chunk is not georeferenced."""
+    if element is None:
+        return None
+    rotation = element.find("rotation")
+    translation = element.find("translation")
+    scale = element.find("scale")
+    if rotation is None or translation is None:
+        return None
+    m = np.eye(4)
+    m[:3, :3] = _floats(rotation, path, "chunk rotation").reshape(3, 3) * (
+        float(scale.text) if scale is not None else 1.0
+    )
+    m[:3, 3] = _floats(translation, path, "chunk translation")
+    return m
+
+
+def read_metashape_xml(path: Path) -> Tuple[List[MetashapeCamera], Optional[Georeference], List[str]]:
+    """The aligned cameras of a Metashape XML (a chunk's `doc.xml` or an exported cameras XML), in
+    a local east-north-up frame where it is georeferenced (else the chunk's own), with the
+    georeference; and the labels of the cameras it could not align (no transform)."""
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as err:
+        raise InputError(f"{path}: not a readable Metashape XML ({err})") from None
+    chunk = root if root.tag == "chunk" else root.find("chunk")
+    if chunk is None:
+        raise InputError(f"{path}: not a Metashape XML (no <chunk>)")
+    sensors: Dict[str, MetashapeSensor] = {}
+    for element in chunk.iter("sensor"):
+        sensor = _sensor(element, path)
+        if sensor is not None:
+            sensors[element.get("id")] = sensor
+    if not sensors:
+        raise InputError(f"{path}: no calibrated sensor in this Metashape XML (align the photos first)")
+    components = {
+        c.get("id"): _chunk_transform(c.find("transform"), path) for c in chunk.iter("component") if c.get("id")
+    }
+    chunk_transform = _chunk_transform(chunk.find("transform"), path)
+    cameras, unaligned = [], []
+    raw: List[Tuple[str, np.ndarray, MetashapeSensor]] = []
+    for element in chunk.iter("camera"):
+        label = element.get("label", "")
+        transform = element.find("transform")
+        if transform is None or element.get("sensor_id") not in sensors:
+            unaligned.append(label)
+            continue
+        to_world = components.get(element.get("component_id")) if element.get("component_id") else None
+        to_world = to_world if to_world is not None else chunk_transform
+        pose = _floats(transform, path, f"camera '{label}' transform").reshape(4, 4)
+        raw.append((label, (to_world @ pose) if to_world is not None else pose, sensors[element.get("sensor_id")]))
+    if not raw:
+        raise InputError(f"{path}: no aligned camera in this Metashape XML")
+    georeference = None
+    if chunk_transform is not None or any(t is not None for t in components.values()):
+        reference = chunk.find("reference")
+        crs = reference.text if reference is not None else None
+        to_wgs84 = datum_to_wgs84(crs)
+        origin = to_wgs84[:3, :3] @ np.mean([pose[:3, 3] for _, pose, _ in raw], axis=0) + to_wgs84[:3, 3]
+        lat, lon, height = ecef_to_geodetic(origin)
+        georeference = Georeference(tuple(float(v) for v in origin), lat, lon, height, crs, str(path))
+        to_local = georeference.ecef_to_local() @ to_wgs84
+    else:
+        to_local = np.eye(4)
+    for label, pose, sensor in raw:
+        local = to_local @ pose
+        scale = np.cbrt(np.linalg.det(local[:3, :3]))  # the chunk's scale: the camera's axes stay unit
+        local[:3, :3] /= scale
+        cameras.append(MetashapeCamera(label, local, sensor))
+    return cameras, georeference, unaligned
