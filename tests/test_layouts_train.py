@@ -11,6 +11,8 @@ ended inside the warm-up)."""
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 import layout_fixtures as fx
@@ -69,4 +71,8 @@ def test_parser_trains_scores_evaluates_and_renders(parser, tmp_path):
     assert config.pipeline.model.num_downscales > 0  # the warm-up was on: the run ended inside it
     layout = config.pipeline.datamanager.dataparser.layout
     assert layout == ("auto" if parser == "thermal" else layout)
-    check_run_end_to_end(out / "x" / "wild-thermal" / "run", tmp_path)
+    results = check_run_end_to_end(out / "x" / "wild-thermal" / "run", tmp_path)
+    if parser == "metashape-data":  # a calibrated camera: ns-eval scores in °C too; the run knows where it is
+        assert all(math.isfinite(results[f"celsius_{m}_time"]) for m in ("mae", "rmse", "p95"))
+        record = json.loads((out / "x" / "wild-thermal" / "run" / "data.json").read_text())
+        assert 46.3 < record["georeference"]["latitude"] < 46.5 and "2056" in record["georeference"]["crs_wkt"]

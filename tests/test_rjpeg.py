@@ -137,3 +137,21 @@ def test_a_damaged_rjpeg_names_the_file(tmp_path):
     other.write_bytes((tmp_path / "x.png").read_bytes())
     with pytest.raises(InputError, match=rf"{re.escape(str(other))}: not a JPEG"):
         read_rjpeg(other)
+
+
+@needs_shared
+def test_a_calibrated_range_scores_in_celsius():
+    from thermal_wild_ns.analysis.evaluation import scores
+    from thermal_wild_ns.data.thermal_io import RadiometricRange
+
+    thermal = read_rjpeg(FLIGHT2 / "rjpeg" / "DJI_0199.jpg")
+    rng = RadiometricRange(2400.0, 3400.0, "uint16", planck=thermal.calibration)
+    assert rng.has_celsius and not RadiometricRange(0.0, 1.0, "uint16").has_celsius
+    normalised = rng.normalize(thermal.raw)
+    np.testing.assert_allclose(rng.to_celsius(normalised), thermal.celsius(), atol=1e-4)
+    hotter = rng.normalize(thermal.raw.astype(np.float64) + 10)  # 10 counts more everywhere
+    result = scores(hotter, normalised, rng.to_celsius)
+    per_count = np.abs(thermal.calibration.celsius(thermal.raw + 10.0) - thermal.celsius())  # [H, W] °C
+    assert result["celsius_mae"] == pytest.approx(per_count.mean(), rel=1e-3)
+    assert result["celsius_mae"] <= result["celsius_rmse"] <= result["celsius_p95"] + 1e-6
+    assert "celsius_mae" not in scores(hotter, normalised)

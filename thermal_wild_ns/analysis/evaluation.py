@@ -31,7 +31,7 @@ and `oracle` renders are the same image.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Dict, Optional, Tuple
+from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -67,16 +67,29 @@ def fit_gain_offset(pred: np.ndarray, target: np.ndarray) -> Tuple[float, float]
     return a, float(t.mean() - a * p.mean())
 
 
-def scores(pred: np.ndarray, gt: np.ndarray) -> Dict[str, float]:
-    """PSNR and SSIM of two [H, W] images of the dataset-normalised space (data range 1)."""
+def scores(pred: np.ndarray, gt: np.ndarray, to_celsius: Optional[Callable] = None) -> Dict[str, float]:
+    """PSNR and SSIM of two [H, W] images of the dataset-normalised space (data range 1); with
+    `to_celsius` (the dataset's calibration), the error in °C too: mean absolute, root mean square
+    and the 95th percentile of the absolute error over the view's pixels."""
 
     def tensor(x):
         return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[..., None]
 
-    return {
+    result = {
         "psnr": float(psnr(tensor(pred), tensor(gt))),
         "ssim": float(ssim(tensor(pred), tensor(gt), data_range=1.0)),
     }
+    if to_celsius is not None:
+        error = np.abs(to_celsius(np.clip(pred, 0.0, 1.0)) - to_celsius(gt))  # [H, W] °C
+        error = error[np.isfinite(error)]
+        result.update(
+            {
+                "celsius_mae": float(error.mean()),
+                "celsius_rmse": float(np.sqrt((error**2).mean())),
+                "celsius_p95": float(np.percentile(error, 95)),
+            }
+        )
+    return result
 
 
 def fit_embedding(
@@ -147,6 +160,8 @@ def evaluate(
     model, datamanager = pipeline.model, pipeline.datamanager
     dataset = datamanager.eval_dataset
     pipeline.eval()
+    rng = datamanager.train_dataset.thermal_range
+    to_celsius = rng.to_celsius if rng.has_celsius else None  # °C errors where the capture is calibrated
     rows = []
     views = track(
         datamanager.fixed_indices_eval_dataloader,
@@ -164,24 +179,24 @@ def evaluate(
             check_same_geometry(novel, gt, f"held-out frame {frame}")
         time_state = state_at(pipeline, frame)
         if "novel" in protocols:
-            row.update({f"{k}_novel": v for k, v in scores(novel, gt).items()})
+            row.update({f"{k}_novel": v for k, v in scores(novel, gt, to_celsius).items()})
         if "time" in protocols or out_dir is not None:
             _, timed = render(pipeline, camera, time_state)
             check_same_geometry(timed, recorded, f"held-out frame {frame} as recorded")
-            row.update({f"{k}_time": v for k, v in scores(timed, recorded).items()})
+            row.update({f"{k}_time": v for k, v in scores(timed, recorded, to_celsius).items()})
             if out_dir is not None:
                 _write_panel(out_dir / f"test_{i:02d}.png", recorded, timed)
         if "aligned" in protocols:
             a, b = fit_gain_offset(novel, gt)
-            row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt).items()})
+            row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt, to_celsius).items()})
         if "half" in protocols:
             half = recorded.shape[1] // 2
             pred = half_protocol(pipeline, camera, recorded[:, :half].copy(), time_state, fit_steps, fit_lr)
-            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], recorded[:, half:]).items()})
+            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], recorded[:, half:], to_celsius).items()})
         if "oracle" in protocols:
             state = oracle_state(pipeline, camera, frame, recorded, time_state, fit_steps, fit_lr)
             _, pred = render(pipeline, camera, state)
-            row.update({f"{k}_oracle": v for k, v in scores(pred, recorded).items()})
+            row.update({f"{k}_oracle": v for k, v in scores(pred, recorded, to_celsius).items()})
         rows.append(row)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}

@@ -17,6 +17,7 @@ layout; `thermal` detects the layout and says which it chose.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 from dataclasses import dataclass, field
@@ -166,6 +167,8 @@ class ThermalDataParser(DataParser):
                 capture.frames = [f for i, f in enumerate(capture.frames) if i not in dropped]
                 if not any(f.split != "test" for f in capture.frames):
                     raise InputError(f"{capture.root}: no training frame is left once the degenerate ones are out")
+        if capture.celsius_calibration is not None:
+            return dataclasses.replace(scan.range, planck=capture.celsius_calibration)
         return scan.range
 
     def fingerprint(self) -> Dict[str, str]:

@@ -461,13 +461,14 @@ def read_metashape(root: Path) -> ThermalCapture:
         raise MissingInput(f"{root}: no frames in any of {folders} or the folder itself")
     images = {p.stem: p for p in _image_files(folder)}
     cameras, georeference, unaligned = read_metashape_xml(xml)
-    frames = []
+    frames, calibrations = [], {}
     for camera in sorted(cameras, key=lambda c: natural_key(c.label)):
         image = images.get(Path(camera.label).stem)
         if image is None:
             continue
         if image.suffix.lower() in (".jpg", ".jpeg"):
-            read_rjpeg(image)  # a JPEG of a survey must carry its thermal data: never its colour preview
+            # a JPEG of a survey must carry its thermal data: never its colour preview
+            calibrations[image.name] = read_rjpeg(image).calibration
         s = camera.sensor
         frames.append(
             ThermalFrame(image, camera.camera_to_local, s.fx, s.fy, s.cx, s.cy, s.width, s.height, s.distortion.copy())
@@ -488,7 +489,31 @@ def read_metashape(root: Path) -> ThermalCapture:
         )
     for frame, split in zip(frames, interval_split(len(frames))):
         frame.split = split
-    return ThermalCapture("metashape", root, frames, "every 8th frame held out", georeference=georeference)
+    return ThermalCapture(
+        "metashape",
+        root,
+        frames,
+        "every 8th frame held out",
+        georeference=georeference,
+        celsius_calibration=_one_calibration(calibrations, folder),
+    )
+
+
+def _one_calibration(calibrations: Dict[str, object], folder: Path):
+    """The frames' shared °C calibration (the camera's settings do not change within a flight); None
+    where a frame has none (DJI's format). Where the settings differ (emissivity or distance changed
+    mid-flight), the first frame's, said in the log: the model has one radiometric scale."""
+    found = list(calibrations.values())
+    if not found or any(c is None for c in found):
+        return None
+    differing = sorted(name for name, c in calibrations.items() if c != found[0])
+    if differing:
+        warnings.warn(
+            f"{folder}: {len(differing)} frame(s) carry other measurement settings than the first "
+            f"({', '.join(differing[:5])}); °C use the first frame's",
+            stacklevel=2,
+        )
+    return found[0]
 
 
 def _metashape_mismatch(root: Path) -> Optional[str]:

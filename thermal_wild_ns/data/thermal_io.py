@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
-from thermal_wild_ns.data.rjpeg import is_radiometric_jpeg, read_rjpeg
+from thermal_wild_ns.data.rjpeg import FlirCalibration, is_radiometric_jpeg, read_rjpeg
 from thermal_wild_ns.errors import InputError, MissingInput
 from thermal_wild_ns.progress import track
 
@@ -158,6 +158,14 @@ class RadiometricRange:
     """Temperature (degC) of `high`, when the dataset documents it."""
     palette: Optional[str] = None
     """Colour palette the frames were exported with (native values are its levels 0..255), if any."""
+    planck: Optional[FlirCalibration] = None
+    """The camera's own calibration of its raw counts (radiometric JPEGs of the FLIR format): °C by
+    the Planck curve, not linear between bounds."""
+
+    @property
+    def has_celsius(self) -> bool:
+        """Whether native values convert to °C (a camera calibration, or documented bounds)."""
+        return self.planck is not None or (self.celsius_low is not None and self.celsius_high is not None)
 
     def normalize(self, raw: np.ndarray) -> np.ndarray:
         return ((raw.astype(np.float64) - self.low) / (self.high - self.low)).astype(np.float32)
@@ -171,7 +179,10 @@ class RadiometricRange:
         return self.normalize(read_raw_frame(path, self.palette))
 
     def to_celsius(self, normalised: np.ndarray) -> np.ndarray:
-        """Normalised values -> degC (linear between the documented bounds)."""
+        """Normalised values -> degC: through the camera's calibration where it has one, else linear
+        between the documented bounds."""
+        if self.planck is not None:
+            return self.planck.celsius(self.to_native(np.asarray(normalised, dtype=np.float64)))
         if self.celsius_low is None or self.celsius_high is None:
             raise InputError("this dataset documents no temperature bounds (celsius_low/celsius_high)")
         return self.celsius_low + normalised * (self.celsius_high - self.celsius_low)

@@ -53,7 +53,13 @@ def header_comments(pipeline) -> List[str]:
         "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",
         f"native_range {rng.low:g} {rng.high:g}",
     ]
-    if rng.celsius_low is not None and rng.celsius_high is not None:
+    if rng.planck is not None:
+        cal = rng.planck
+        lines.append(
+            f"celsius_planck R1 {cal.planck_r1:g} R2 {cal.planck_r2:g} B {cal.planck_b:g} F {cal.planck_f:g} "
+            f"O {cal.planck_o:g} emissivity {cal.emissivity:g} distance {cal.object_distance:g} (of native units)"
+        )
+    elif rng.celsius_low is not None and rng.celsius_high is not None:
         lines.append(f"celsius_range {rng.celsius_low:g} {rng.celsius_high:g} (at native_range, linear)")
     return [f"thermal_wild_ns {line}" for line in lines]
 

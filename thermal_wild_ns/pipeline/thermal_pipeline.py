@@ -41,7 +41,7 @@ def colour_bar(pipeline, state: PhotometricState, ticks: int = 5) -> str:
 
     rng = pipeline.datamanager.train_dataset.thermal_range
     levels = to_original(pipeline, np.linspace(0.0, 1.0, ticks, dtype=np.float32), state)
-    if rng.celsius_low is not None and rng.celsius_high is not None:
+    if rng.has_celsius:
         return ", ".join(f"{v:.1f}" for v in rng.to_celsius(levels)) + " degC"
     return ", ".join(f"{v:.0f}" for v in rng.to_native(levels)) + f" ({rng.dtype} levels)"
 
@@ -83,6 +83,10 @@ class ThermalPipeline(VanillaPipeline):
             return
         now = {"data": str(parser.config.data), "frames": parser.fingerprint()}
         if not loads_a_run:
+            georeference = parser.capture().georeference
+            # where the run's world frame is on the Earth (before nerfstudio's dataparser transform,
+            # dataparser_transforms.json beside it), for outputs that land where the site is
+            now["georeference"] = None if georeference is None else georeference.as_dict()
             write_text_atomically(record, json.dumps(now, indent=1), record.parent / PARTIAL_FOLDER)
             return
         if not record.is_file():  # a run of an older version of the plugin: nothing to compare with

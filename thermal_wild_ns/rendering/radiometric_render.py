@@ -17,6 +17,7 @@ beside a `radiometry.json` that states the mapping.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,7 +49,7 @@ class RadiometricFrameWriter:
     def __init__(self, pipeline, state, folder: Path, mode: str):
         datamanager = pipeline.datamanager
         rng = datamanager.train_dataset.thermal_range
-        if mode == "celsius" and (rng.celsius_low is None or rng.celsius_high is None):
+        if mode == "celsius" and not rng.has_celsius:
             raise ValueError(
                 f"{datamanager.config.dataparser.data}: the dataset documents no temperature bounds; use "
                 f"--radiometric uint16"
@@ -86,6 +87,7 @@ class RadiometricFrameWriter:
                     "native_range": [rng.low, rng.high],
                     "native_dtype": rng.dtype,
                     "celsius_range": [rng.celsius_low, rng.celsius_high],
+                    "celsius_calibration": None if rng.planck is None else dataclasses.asdict(rng.planck),
                     "mapping": "render -> the state's LUT inverse -> dataset range"
                     if self.state.lut is not None
                     else "render -> dataset range",
