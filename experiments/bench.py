@@ -54,6 +54,8 @@ FULL_SCHEDULE = 30_000
 steps; shorter runs scale it proportionally, the same for every method."""
 HEADLINE_PROTOCOLS = ("novel", "time", "aligned", "half")
 """The leak-free protocols the tables lead with; `oracle` is shown apart."""
+SCORE_PREFIXES = ("psnr_", "ssim_", "celsius_")
+"""The keys of a run's final evaluation the bench keeps: PSNR, SSIM and, where the scene converts to °C, its errors."""
 
 
 @dataclass
@@ -360,7 +362,7 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
         "model_mb": round(_model_megabytes(pipeline.model), 2),
         "render_fps": fps,
         "curve": recorder.curve,
-        **{key: value for key, value in final.items() if key.startswith(("psnr_", "ssim_"))},
+        **{key: value for key, value in final.items() if key.startswith(SCORE_PREFIXES)},
         "per_view": final["per_view"],
         "config": str(config.get_base_dir() / "config.yml"),
     }
@@ -387,8 +389,7 @@ def aggregate(runs: List[Dict]) -> Dict[Tuple[str, str], Dict]:
         keys = [
             k
             for k in (done[0] if done else {})
-            if k.startswith(("psnr_", "ssim_"))
-            or k in ("steps", "ms_per_step", "train_seconds", "gaussians", "model_mb")
+            if k.startswith(SCORE_PREFIXES) or k in ("steps", "ms_per_step", "train_seconds", "gaussians", "model_mb")
         ]
         out[key] = {k: spread([r[k] for r in done]) for k in keys}
         out[key]["failed"] = len(group) - len(done)
@@ -439,6 +440,22 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
                     + (" / " + _cell(st, f"ssim_{protocol}", 3) if st and f"ssim_{protocol}" in st else "")
                 )
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
+        lines.append("")
+    celsius = [p for p in (*HEADLINE_PROTOCOLS, "oracle") if any(f"celsius_mae_{p}" in st for st in stats.values())]
+    if celsius:  # scenes whose camera converts to °C (a calibration, or documented bounds)
+        lines += [
+            "Held-out error in °C, MAE / RMSE / p95 of |error| over each view's pixels (scenes with a calibration):",
+            "",
+            "| method | protocol | " + " | ".join(scenes) + " |",
+            "|" + " --- |" * (len(scenes) + 2),
+        ]
+        for m in methods:
+            for protocol in celsius:
+                cells = [
+                    " / ".join(_cell(stats.get((m, s)), f"celsius_{k}_{protocol}") for k in ("mae", "rmse", "p95"))
+                    for s in scenes
+                ]
+                lines.append(f"| {m} | `{protocol}` | " + " | ".join(cells) + " |")
         lines.append("")
     lines += [
         "Cost (mean over seeds; render FPS: test cameras, first seed; baked = the canonical emission cached, as the "

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The GPU runs of 2026-11-25 (issue 31: flight2, a drone survey read from its R-JPEGs and Metashape XML):
+#     bash experiments/gpu_2026-11-25.sh PLAN
+# from the repository root on the GPU machine, two calls back to back on one warm machine: `install`
+# with `.devicebundle` carried, then `flight2` with `.data` carried: `.data/flight2` (a copy of
+# ../shared/data/flight2) and `.data/cache` (its triangulation, made on the CPU machine: the GPU image
+# has no pycolmap) by
+#     python -c "from pathlib import Path; from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig as C; \
+#       C(data=Path('.data/flight2').resolve(), cache_dir=Path('.data/cache').resolve()).setup().get_dataparser_outputs('train')"
+# Results go to $OUT (what the device tool brings back).
+set -uo pipefail
+plan=${1:?plan: install, flight2}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
+
+case "$plan" in
+  install)  # wheels, gsplat's prebuilt extension and this project into /tmp/site
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    tail -2 "$OUT/bundle_setup.log"
+    ;;
+  flight2)  # the full method with its defaults (automatic stop) on flight2, 3 seeds side by side: the
+    # protocols and the held-out error in °C (the camera's own calibration)
+    timeout 540 python3 -m experiments.bench --output-dir /tmp/flight2 --scenes "$PWD/.data/flight2" \
+      --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 15000 --schedule 30000 \
+      --eval-at 2000 5000 10000 15000 --fit-steps 20 --fps-frames 0 --runs-per-gpu 3 > /tmp/flight2.log 2>&1 \
+      || tail -30 /tmp/flight2.log
+    cp /tmp/flight2.log "$OUT/flight2.log"
+    for f in bench.json bench.md; do cp "/tmp/flight2/$f" "$OUT/flight2-$f" 2>/dev/null; done
+    grep -E "^\| wild" "$OUT/flight2-bench.md" | head -4
+    ;;
+esac
