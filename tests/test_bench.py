@@ -346,9 +346,9 @@ def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(t
     targets = []
     original = evaluation.scores
 
-    def recording(pred, gt):
+    def recording(pred, gt, to_celsius=None):
         targets.append(gt)
-        return original(pred, gt)
+        return original(pred, gt, to_celsius)
 
     monkeypatch.setattr(evaluation, "scores", recording)
     evaluation.evaluate(pipeline, fit_steps=1)

@@ -16,6 +16,7 @@ from thermal_wild_ns.data import thermal_io
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.layouts import detect_layout
 from thermal_wild_ns.data.palettes import PALETTE_NAMES, apply_palette, detect_palette, invert_palette, palette_rgb
+from thermal_wild_ns.data.rjpeg import is_radiometric_jpeg
 from thermal_wild_ns.data.thermal_io import load_npy, read_raw_frame, scan_frames
 from thermal_wild_ns.errors import InputError
 
@@ -304,7 +305,14 @@ def test_real_rgbt_frames_decode_as_iron_monotonically(frame):
     path = RGBT_FRAMES / frame
     rgb = cv2.imread(str(path), cv2.IMREAD_COLOR)[..., ::-1]
     assert detect_palette(rgb, path) == "iron"
-    levels = read_raw_frame(path)  # the reader's own route: detection, then nearest-colour inversion
+    if is_radiometric_jpeg(path):  # FLIR records behind the preview: its raw counts, unless a palette is named
+        try:
+            assert read_raw_frame(path).dtype == np.uint16
+        except InputError as err:
+            assert "JPEG-LS compressed" in str(err) and str(path) in str(err)
+        levels = read_raw_frame(path, "iron")
+    else:
+        levels = read_raw_frame(path)  # the reader's own route: detection, then nearest-colour inversion
     low, high = np.percentile(levels, [1, 99])
     assert high - low >= 150, (low, high)
     luminance = rgb.astype(np.float64) @ [0.299, 0.587, 0.114]

@@ -228,6 +228,11 @@ def _flir_raw(record: bytes, path: Path) -> np.ndarray:
     order = _record_order(record)
     width, height = struct.unpack(order + "HH", record[2:6])
     image = record[0x20:]
+    if image[:4] == b"\xff\xd8\xff\xf7":  # JPEG-LS (FLIR's E-series and others): no decoder here
+        raise InputError(
+            f"{path}: its raw thermal image is JPEG-LS compressed, which this reader does not decode; to train "
+            f"on its colour preview instead, name the palette it was exported with (the dataparser's --palette)"
+        )
     if image[:4] == b"\x89PNG":
         raw = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
         if raw is None or raw.dtype != np.uint16:

@@ -244,7 +244,7 @@ def scan_frames(
     samples = []
     tails = []  # per frame: the values with OUT_OF_RANGE_SHARE of its pixels below / above them
     degenerate = []
-    for i, path in enumerate(track(paths, "Reading thermal frames", min_items=50)):
+    for i, path in enumerate(track(paths, "Reading thermal frames", min_items=20)):
         raw = read_raw_frame(path, palette)
         if dtype is None:
             dtype = raw.dtype
