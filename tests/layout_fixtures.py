@@ -286,3 +286,43 @@ def write_ti_nsd(root: Path, n: int = 20) -> List[Tuple[np.ndarray, np.ndarray]]
     poses = cameras(n)
     write_colmap_model(root / "sparse" / "0", names, poses, K, (64, 48))
     return [(c2w, K) for c2w in poses]
+
+
+ODM_LLA = {"latitude": 46.4, "longitude": 6.24, "altitude": 400.0}
+"""The OpenDroneMap fixture's reference point (near flight2's site)."""
+
+
+def write_odm(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndarray]]:
+    """An OpenDroneMap project: images/DJI_00NN.png and opensfm/reconstruction.json (OpenSfM's
+    normalised brown cameras, world-to-camera axis-angle poses, points) + opensfm/reference_lla.json."""
+    width, height = 64, 48
+    K = _K(60.0, 61.0, 33.0, 23.5)
+    (root / "images").mkdir(parents=True)
+    (root / "opensfm").mkdir()
+    poses = cameras(n)
+    size = max(width, height)
+    camera = {
+        "projection_type": "brown",
+        "width": width,
+        "height": height,
+        "focal_x": K[0, 0] / size,
+        "focal_y": K[1, 1] / size,
+        "c_x": (K[0, 2] - width / 2) / size,
+        "c_y": (K[1, 2] - height / 2) / size,
+        **{k: 0.0 for k in ("k1", "k2", "k3", "p1", "p2")},
+    }
+    shots = {}
+    for i, c2w in enumerate(poses):
+        name = f"DJI_{i + 1:04d}.png"
+        cv2.imwrite(str(root / "images" / name), thermal_image(width, height, i))
+        w2c = np.linalg.inv(c2w)
+        shots[name] = {
+            "camera": "v2 thermal",
+            "rotation": cv2.Rodrigues(w2c[:3, :3])[0].ravel().tolist(),
+            "translation": w2c[:3, 3].tolist(),
+        }
+    points = {str(k): {"coordinates": (KNOWN_POINT + 0.05 * k).tolist(), "color": [200, 200, 200]} for k in range(40)}
+    reconstruction = [{"cameras": {"v2 thermal": camera}, "shots": shots, "points": points}]
+    (root / "opensfm" / "reconstruction.json").write_text(json.dumps(reconstruction))
+    (root / "opensfm" / "reference_lla.json").write_text(json.dumps(ODM_LLA))
+    return [(c2w, K) for c2w in poses]

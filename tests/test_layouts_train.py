@@ -40,6 +40,7 @@ PARSERS = {
     "thermal-colmap-data": (lambda root: fx.write_colmap(root, n=FRAMES), "scene"),
     "ti-nsd-data": (lambda root: fx.write_ti_nsd(root, n=FRAMES), "scene"),
     "thermal-demo-data": (None, "scene"),
+    "odm-data": (lambda root: fx.write_odm(root, n=FRAMES), "survey"),
     # a real drone survey as the drone wrote it: radiometric JPEGs + the Metashape alignment
     "metashape-data": (lambda root: root.symlink_to(FLIGHT2, target_is_directory=True), "flight2"),
 }
@@ -76,3 +77,26 @@ def test_parser_trains_scores_evaluates_and_renders(parser, tmp_path):
         assert all(math.isfinite(results[f"celsius_{m}_time"]) for m in ("mae", "rmse", "p95"))
         record = json.loads((out / "x" / "wild-thermal" / "run" / "data.json").read_text())
         assert 46.3 < record["georeference"]["latitude"] < 46.5 and "2056" in record["georeference"]["crs_wkt"]
+        check_survey_exports(out / "x" / "wild-thermal" / "run" / "config.yml", tmp_path)
+
+
+def check_survey_exports(config, tmp_path):
+    """A °C point cloud and a °C orthomosaic where the site is (LV95), from a run of a few steps: every
+    Gaussian and every covered pixel (its Gaussians are not yet opaque)."""
+    import numpy as np
+    import rasterio
+    from plyfile import PlyData
+
+    from thermal_wild_ns.export.survey import ExportCelsiusPoints, ExportOrthomosaic
+
+    ExportCelsiusPoints(config, tmp_path / "points.ply", min_opacity=0.0).main()
+    points = PlyData.read(str(tmp_path / "points.ply"))["vertex"].data
+    assert len(points) > 1000 and np.isfinite(points["value"]).all()
+    assert 2_507_500 < np.median(points["x"]) < 2_507_900 and 1_139_000 < np.median(points["y"]) < 1_139_300
+    ExportOrthomosaic(config, tmp_path / "ortho.tif", ground_resolution=1.0, min_coverage=0.0).main()
+    with rasterio.open(tmp_path / "ortho.tif") as raster:
+        celsius, height = raster.read(1), raster.read(2)
+        assert raster.crs.to_epsg() == 2056 and raster.count == 2 and abs(raster.transform.a - 1.0) < 0.01
+        assert 2_507_500 < raster.bounds.left < raster.bounds.right < 2_507_900
+    assert np.isfinite(celsius).mean() > 0.5 and -20 < np.nanmedian(celsius) < 60
+    assert np.nanmedian(height) < 400  # below the cameras (~400 m above the ellipsoid); 3 steps shape no ground yet

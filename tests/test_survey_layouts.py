@@ -1,5 +1,6 @@
-"""A drone survey aligned in Metashape (flight2): poses in a local east-north-up frame with the
-georeference kept, Metashape's distortion in OpenCV's order, frames read as radiometric JPEGs."""
+"""Drone surveys from their photogrammetry: Metashape (flight2: poses in a local east-north-up frame
+with the georeference kept, Metashape's distortion in OpenCV's order, frames read as radiometric
+JPEGs, cameras landing where the GPS put them) and OpenDroneMap / OpenSfM (a project made in code)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 from thermal_wild_ns.data import layouts
 from thermal_wild_ns.data.capture import validate
-from thermal_wild_ns.data.metashape import datum_to_wgs84, ecef_to_geodetic
+from thermal_wild_ns.data.georeference import datum_to_wgs84, ecef_to_geodetic
 from thermal_wild_ns.data.rjpeg import NotRadiometric
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 
@@ -66,3 +67,43 @@ def test_a_survey_of_colour_previews_is_refused_naming_the_file(tmp_path):
     cv2.imwrite(str(root / "rjpeg" / "DJI_0199.jpg"), preview)
     with pytest.raises(NotRadiometric, match=r"DJI_0199\.jpg: no radiometric data"):
         layouts.read_metashape(root)
+
+
+@needs_flight2
+def test_the_cameras_land_where_metashapes_references_put_them():
+    """Local east-north-up -> the project's CRS (LV95) through the recorded georeference: the camera
+    centres Metashape aligned fall on the positions the drone's GPS gave (its <reference> x, y, z)."""
+    import xml.etree.ElementTree as ET
+
+    from thermal_wild_ns.export.survey import SurveyFrame
+
+    capture = layouts.read_metashape(FLIGHT2)
+    survey = SurveyFrame(capture.georeference)
+    assert survey.crs.to_epsg() == 2056
+    chunk = ET.parse(FLIGHT2 / "metashape" / "chunk_doc.xml").getroot()
+    gps = {c.get("label"): c.find("reference") for c in chunk.iter("camera")}
+    centres = np.array([f.camera_to_world[:3, 3] for f in capture.frames])
+    projected = survey.to_crs(centres)  # [32, 3] easting, northing, ellipsoidal height
+    reference = np.array([[float(gps[f.image.stem].get(k)) for k in "xy"] for f in capture.frames])
+    assert np.median(np.linalg.norm(projected[:, :2] - reference, axis=1)) < 3.0  # GPS-grade agreement
+
+
+def test_an_opendronemap_project_is_detected_and_read_with_its_georeference(tmp_path):
+    import layout_fixtures as fx
+
+    from thermal_wild_ns.data.georeference import geodetic_to_ecef
+
+    truth = fx.write_odm(tmp_path / "survey", n=12)
+    assert layouts.detect_layout(tmp_path / "survey") == "odm"
+    capture = validate(layouts.read_odm(tmp_path / "survey"))
+    assert [f.image.name for f in capture.frames] == [f"DJI_{i + 1:04d}.png" for i in range(12)]
+    for frame, (c2w, K) in zip(capture.frames, truth):
+        np.testing.assert_allclose(frame.camera_to_world, c2w, atol=1e-9)
+        assert (frame.fx, frame.fy, frame.cx, frame.cy) == pytest.approx((K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+        # the fixture's known point lands where the reconstruction's camera says
+        np.testing.assert_allclose(fx.project(frame.camera_to_world, frame.intrinsics_matrix()), fx.project(c2w, K))
+    assert capture.points.xyz.shape == (40, 3) and capture.points.source == "opensfm"
+    geo = capture.georeference
+    assert (geo.latitude, geo.longitude, geo.height) == (46.4, 6.24, 400.0) and geo.crs_wkt is None
+    np.testing.assert_allclose(geo.origin_ecef, geodetic_to_ecef(46.4, 6.24, 400.0))
+    assert [f.split for f in capture.frames][:9] == ["test"] + ["train"] * 7 + ["test"]

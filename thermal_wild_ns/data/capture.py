@@ -15,7 +15,7 @@ from typing import List, Literal, Optional, Union
 
 import numpy as np
 
-from thermal_wild_ns.data.metashape import Georeference
+from thermal_wild_ns.data.georeference import Georeference
 from thermal_wild_ns.data.rjpeg import FlirCalibration
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError, MissingInput

@@ -402,6 +402,7 @@ llff_dataparser = _spec("llff", layouts.LAYOUTS["llff"].description)
 colmap_dataparser = _spec("colmap", layouts.LAYOUTS["colmap"].description)
 ti_nsd_dataparser = _spec("ti-nsd", layouts.LAYOUTS["ti-nsd"].description)
 metashape_dataparser = _spec("metashape", layouts.LAYOUTS["metashape"].description)
+odm_dataparser = _spec("odm", layouts.LAYOUTS["odm"].description)
 thermal_demo_dataparser = DataParserSpecification(
     config=ThermalDemoDataParserConfig(),
     description="the embedded procedural thermal demo scene (generated, no download)",

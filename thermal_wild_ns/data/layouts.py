@@ -442,61 +442,94 @@ def _metashape_xml(root: Path) -> Optional[Path]:
     return None
 
 
-def read_metashape(root: Path) -> ThermalCapture:
-    """A drone survey aligned in Agisoft Metashape: its XML (`metashape_xml` names where it is
-    looked for) and the frames as the camera wrote them (radiometric JPEGs, or 16-bit frames), in
-    the first of `FRAME_FOLDERS` that holds images, matched to the cameras by file name. Poses in a
-    local east-north-up frame in metres where the chunk is georeferenced (`metashape.py`); frames
-    in file-name order, which is capture order for drone files (DJI_0001, ...). Split: every 8th
-    frame held out."""
-    from thermal_wild_ns.data.metashape import read_metashape_xml
-    from thermal_wild_ns.data.rjpeg import read_rjpeg
-
-    xml = _metashape_xml(root)
-    if xml is None:
-        raise MissingInput(f"{root}: no Metashape XML in {' or '.join(str(root / f) for f in METASHAPE_FOLDERS)}")
+def _survey_frames_folder(root: Path) -> Path:
     folder = next((root / f for f in FRAME_FOLDERS if (root / f).is_dir() and _image_files(root / f)), None)
     if folder is None:
         folders = ", ".join(f + "/" for f in FRAME_FOLDERS if f)
         raise MissingInput(f"{root}: no frames in any of {folders} or the folder itself")
+    return folder
+
+
+def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligned=(), **facts) -> ThermalCapture:
+    """A drone survey's capture from its photogrammetry: `posed`, (name, ThermalFrame with no image
+    yet) per aligned camera, matched by file name to the frames in the survey's frame folder; frames
+    in file-name order, which is capture order for drone files (DJI_0001, ...); every 8th held out.
+    Radiometric JPEGs must carry their thermal data (never their colour preview) and give the °C
+    calibration. `facts`: the capture's georeference and points."""
+    from thermal_wild_ns.data.rjpeg import read_rjpeg
+
+    folder = _survey_frames_folder(root)
     images = {p.stem: p for p in _image_files(folder)}
-    cameras, georeference, unaligned = read_metashape_xml(xml)
     frames, calibrations = [], {}
-    for camera in sorted(cameras, key=lambda c: natural_key(c.label)):
-        image = images.get(Path(camera.label).stem)
+    for name, frame in sorted(posed, key=lambda named: natural_key(named[0])):
+        image = images.get(Path(name).stem)
         if image is None:
             continue
         if image.suffix.lower() in (".jpg", ".jpeg"):
-            # a JPEG of a survey must carry its thermal data: never its colour preview
             calibrations[image.name] = read_rjpeg(image).calibration
-        s = camera.sensor
-        frames.append(
-            ThermalFrame(image, camera.camera_to_local, s.fx, s.fy, s.cx, s.cy, s.width, s.height, s.distortion.copy())
-        )
+        frame.image = image
+        frames.append(frame)
     if not frames:
         raise InputError(
-            f"{xml}: none of its {len(cameras)} aligned cameras has a frame in {folder} "
-            f"(cameras are matched to files by name, e.g. {cameras[0].label})"
+            f"{source}: none of its {len(posed)} aligned cameras has a frame in {folder} "
+            f"(cameras are matched to files by name, e.g. {posed[0][0] if posed else '-'})"
         )
-    without = sorted(set(images) - {Path(c.label).stem for c in cameras})
+    without = sorted(set(images) - {Path(name).stem for name, _ in posed})
     if without:
         not_aligned = [name for name in without if name in {Path(u).stem for u in unaligned}]
         warnings.warn(
-            f"{folder}: {len(without)} frame(s) without a pose in {xml.name} are left out"
-            f"{' (Metashape could not align ' + ', '.join(not_aligned[:5]) + ')' if not_aligned else ''}: "
+            f"{folder}: {len(without)} frame(s) without a pose in {source.name} are left out"
+            f"{' (the photogrammetry could not align ' + ', '.join(not_aligned[:5]) + ')' if not_aligned else ''}: "
             f"{', '.join(without[:5])}{' ...' if len(without) > 5 else ''}",
-            stacklevel=2,
+            stacklevel=3,
         )
     for frame, split in zip(frames, interval_split(len(frames))):
         frame.split = split
     return ThermalCapture(
-        "metashape",
+        layout,
         root,
         frames,
         "every 8th frame held out",
-        georeference=georeference,
         celsius_calibration=_one_calibration(calibrations, folder),
+        **facts,
     )
+
+
+def read_metashape(root: Path) -> ThermalCapture:
+    """A drone survey aligned in Agisoft Metashape: its XML (`METASHAPE_FOLDERS` says where it is
+    looked for) and the frames as the camera wrote them (radiometric JPEGs, or 16-bit frames) in
+    the first of `FRAME_FOLDERS` that holds images. Poses in a local east-north-up frame in metres
+    where the chunk is georeferenced (`metashape.py`)."""
+    from thermal_wild_ns.data.metashape import read_metashape_xml
+
+    xml = _metashape_xml(root)
+    if xml is None:
+        raise MissingInput(f"{root}: no Metashape XML in {' or '.join(str(root / f) for f in METASHAPE_FOLDERS)}")
+    cameras, georeference, unaligned = read_metashape_xml(xml)
+    posed = [
+        (c.label, ThermalFrame(Path(), c.camera_to_local, c.sensor.fx, c.sensor.fy, c.sensor.cx, c.sensor.cy,
+                               c.sensor.width, c.sensor.height, c.sensor.distortion.copy()))
+        for c in cameras
+    ]  # fmt: skip
+    return _survey_capture("metashape", root, xml, posed, unaligned, georeference=georeference)
+
+
+OPENSFM_FILES = ("opensfm/reconstruction.json", "reconstruction.json")
+"""Where an OpenDroneMap project (opensfm/) or an OpenSfM dataset keeps its reconstruction."""
+
+
+def read_odm(root: Path) -> ThermalCapture:
+    """A drone survey reconstructed by OpenDroneMap or OpenSfM (`opensfm.py`): the reconstruction's
+    shots, cameras and points in its east-north-up frame around `reference_lla`, and the frames as
+    the camera wrote them in the first of `FRAME_FOLDERS` that holds images (ODM: `images/`)."""
+    from thermal_wild_ns.data.opensfm import read_reconstruction
+
+    path = next((root / f for f in OPENSFM_FILES if (root / f).is_file()), None)
+    if path is None:
+        raise MissingInput(f"{root}: no {' or '.join(OPENSFM_FILES)}")
+    posed, xyz, georeference = read_reconstruction(path)
+    points = SeedPoints(xyz, "opensfm") if xyz is not None and len(xyz) else None
+    return _survey_capture("odm", root, path, posed, georeference=georeference, points=points)
 
 
 def _one_calibration(calibrations: Dict[str, object], folder: Path):
@@ -633,6 +666,11 @@ LAYOUTS: Dict[str, Layout] = {
         "TI-NSD (Thermal3D-GS): images/ with numeric names + sparse/0, names sorted as strings",
     ),
     "colmap": Layout(read_colmap, _colmap_mismatch, "COLMAP sparse/0 + images/"),
+    "odm": Layout(
+        read_odm,
+        lambda root: None if any((root / f).is_file() for f in OPENSFM_FILES) else f"no {' or '.join(OPENSFM_FILES)}",
+        "a drone survey reconstructed by OpenDroneMap / OpenSfM: opensfm/reconstruction.json + images/ (R-JPEGs)",
+    ),
     "metashape": Layout(
         read_metashape,
         _metashape_mismatch,
