@@ -9,7 +9,7 @@
 #       C(data=Path('.data/flight2').resolve(), cache_dir=Path('.data/cache').resolve()).setup().get_dataparser_outputs('train')"
 # Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: install, flight2}
+plan=${1:?plan: install, flight2, flight2-run}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
@@ -28,5 +28,21 @@ case "$plan" in
     cp /tmp/flight2.log "$OUT/flight2.log"
     for f in bench.json bench.md; do cp "/tmp/flight2/$f" "$OUT/flight2-$f" 2>/dev/null; done
     grep -E "^\| wild" "$OUT/flight2-bench.md" | head -4
+    ;;
+  flight2-run)  # one run of the full method with its defaults on flight2 (seed 0), brought back whole for the
+    # survey exports made on the CPU machine (wild-thermal-export celsius-points / orthomosaic)
+    rm -rf /tmp/runs  # a warm machine keeps /tmp: an earlier run's states would travel too
+    timeout 540 ns-train wild-thermal --output-dir /tmp/runs --experiment-name flight2 --timestamp seed0 \
+      --vis tensorboard --max-num-iterations 15000 thermal --data "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" \
+      > "$OUT/flight2-run.log" 2>&1 || tail -30 "$OUT/flight2-run.log"
+    run=/tmp/runs/flight2/wild-thermal/seed0
+    rm -rf "$run"/events* "$run"/.partial "$run"/auto_stop  # what exporting needs: config, records, the model
+    ls "$run"/nerfstudio_models/step-*.ckpt | sort | head -n -1 | xargs -r rm  # the final checkpoint only
+    # the model alone (no optimizer moments): the device tool brings back files of 16 MiB at most
+    python3 -c "import sys, torch; p = sys.argv[1]; c = torch.load(p, weights_only=False); \
+      torch.save({k: c[k] for k in ('step', 'pipeline')}, p)" "$run"/nerfstudio_models/step-*.ckpt
+    tar -C /tmp/runs -cJf "$OUT/flight2-run.tar.xz" flight2  # shallow folders only come back: one archive
+    ls -la "$OUT"
+    tail -3 "$OUT/flight2-run.log"; head -12 /tmp/runs/flight2/wild-thermal/seed0/auto_stop.json
     ;;
 esac

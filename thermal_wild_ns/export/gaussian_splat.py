@@ -32,15 +32,21 @@ def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
     return kept
 
 
-def thermal_values(pipeline) -> np.ndarray:
-    """Baked emission of every Gaussian at the canonical state, in the dataset's native units [N]."""
+def canonical_emission(pipeline) -> np.ndarray:
+    """Baked emission of every Gaussian at the canonical state, dataset-normalised original space [N]."""
     from thermal_wild_ns.pipeline.photometric_state import canonical_state, rendering_at, to_original
 
-    model, datamanager = pipeline.model, pipeline.datamanager
+    model = pipeline.model
     state = canonical_state(pipeline)
     with rendering_at(model, state), torch.no_grad():
         emission = model.gaussian_emission(model.inference_embedding())[:, 0].float().cpu().numpy()
-    return datamanager.train_dataset.thermal_range.to_native(to_original(pipeline, emission, state)).astype(np.float32)
+    return to_original(pipeline, emission, state)
+
+
+def thermal_values(pipeline) -> np.ndarray:
+    """Baked emission of every Gaussian at the canonical state, in the dataset's native units [N]."""
+    rng = pipeline.datamanager.train_dataset.thermal_range
+    return rng.to_native(canonical_emission(pipeline)).astype(np.float32)
 
 
 def header_comments(pipeline) -> List[str]:
@@ -96,8 +102,15 @@ def entrypoint():
     report_input_errors_briefly()
     # a subcommand even though there is one format (a one-member Union would collapse into none),
     # so the command reads like ns-export's: wild-thermal-export gaussian-splat --load-config ...
+    from thermal_wild_ns.export.survey import ExportCelsiusPoints, ExportOrthomosaic
+
     tyro.extras.subcommand_cli_from_dict(
-        {"gaussian-splat": tyro.conf.FlagConversionOff[ExportThermalSplat]}, description=__doc__.splitlines()[0]
+        {
+            "gaussian-splat": tyro.conf.FlagConversionOff[ExportThermalSplat],
+            "celsius-points": tyro.conf.FlagConversionOff[ExportCelsiusPoints],
+            "orthomosaic": tyro.conf.FlagConversionOff[ExportOrthomosaic],
+        },
+        description=__doc__.splitlines()[0],
     ).main()
 
 

@@ -17,7 +17,7 @@ States by name (`--photometric-state` of `wild-thermal-render`; `parse_state`):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -148,18 +148,32 @@ def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.nd
     the warm-up's coarser training resolution), over the baked background, with no densification
     statistics. The model's training mode and its record of the last training render (`info`,
     `last_size`, which the densification after a training step reads) are left as they were."""
+    layers = render_layers(pipeline, camera, state)
+    return layers["training"], layers["original"]
+
+
+def render_layers(pipeline, camera, state: PhotometricState) -> Dict[str, np.ndarray]:
+    """`render` ('training', 'original'), with the Gaussians' 'coverage' of each pixel ([H, W]
+    accumulated opacity, 0..1; ones for a model without it: where it is low the pixel is the
+    background model, not the scene) and their 'depth' ([H, W] along the camera's axis, the
+    model's units; NaN for a model without it)."""
     model = pipeline.model
     was_training = model.training
     kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
     model.eval()
     try:
         with rendering_at(model, state), torch.no_grad():
-            rendered = thermal_output(model.get_outputs_for_camera(camera))[..., 0].float().cpu().numpy()
+            outputs = model.get_outputs_for_camera(camera)
+            rendered = thermal_output(outputs)[..., 0].float().cpu().numpy()  # [H, W]
+            alpha, depth = outputs.get("accumulation"), outputs.get("depth")
+            coverage = np.ones_like(rendered) if alpha is None else alpha[..., 0].float().cpu().numpy()
+            depth = np.full_like(rendered, np.nan) if depth is None else depth[..., 0].float().cpu().numpy()
     finally:
         model.train(was_training)
         for name, value in kept.items():
             setattr(model, name, value)
-    return rendered, to_original(pipeline, rendered, state)
+    original = to_original(pipeline, rendered, state)
+    return {"training": rendered, "original": original, "coverage": coverage, "depth": depth}
 
 
 def check_same_geometry(pred: np.ndarray, frame: np.ndarray, what: str) -> None:
