@@ -104,6 +104,7 @@ def test_an_opendronemap_project_is_detected_and_read_with_its_georeference(tmp_
         np.testing.assert_allclose(fx.project(frame.camera_to_world, frame.intrinsics_matrix()), fx.project(c2w, K))
     assert capture.points.xyz.shape == (40, 3) and capture.points.source == "opensfm"
     geo = capture.georeference
-    assert (geo.latitude, geo.longitude, geo.height) == (46.4, 6.24, 400.0) and geo.crs_wkt is None
+    assert (geo.latitude, geo.longitude, geo.height) == pytest.approx((46.4, 6.24, 400.0), abs=1e-6)
+    assert geo.crs_wkt is None
     np.testing.assert_allclose(geo.origin_ecef, geodetic_to_ecef(46.4, 6.24, 400.0))
     assert [f.split for f in capture.frames][:9] == ["test"] + ["train"] * 7 + ["test"]

@@ -16,16 +16,25 @@ WGS84_A, WGS84_F = 6378137.0, 1 / 298.257223563
 @dataclass(frozen=True)
 class Georeference:
     """Where a capture's local frame sits on the Earth: x east, y north, z up, in metres, with its
-    origin at `origin_ecef` (WGS84 geocentric, metres) = (`latitude`, `longitude`, `height`)."""
+    origin at `origin_ecef` (WGS84 geocentric, metres)."""
 
     origin_ecef: Tuple[float, float, float]
-    latitude: float
-    longitude: float
-    height: float
-    """Above the WGS84 ellipsoid, metres."""
     crs_wkt: Optional[str] = None
     """The project's coordinate system (Metashape's `<reference>`), for outputs in it."""
     source: str = ""
+
+    @property
+    def latitude(self) -> float:
+        return ecef_to_geodetic(np.asarray(self.origin_ecef))[0]
+
+    @property
+    def longitude(self) -> float:
+        return ecef_to_geodetic(np.asarray(self.origin_ecef))[1]
+
+    @property
+    def height(self) -> float:
+        """Of the origin above the WGS84 ellipsoid, metres."""
+        return ecef_to_geodetic(np.asarray(self.origin_ecef))[2]
 
     def ecef_to_local(self) -> np.ndarray:
         """[4, 4]: geocentric -> local east-north-up."""

@@ -456,7 +456,7 @@ def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligne
     in file-name order, which is capture order for drone files (DJI_0001, ...); every 8th held out.
     Radiometric JPEGs must carry their thermal data (never their colour preview) and give the °C
     calibration. `facts`: the capture's georeference and points."""
-    from thermal_wild_ns.data.rjpeg import read_rjpeg
+    from thermal_wild_ns.data.rjpeg import read_calibration
 
     folder = _survey_frames_folder(root)
     images = {p.stem: p for p in _image_files(folder)}
@@ -466,7 +466,7 @@ def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligne
         if image is None:
             continue
         if image.suffix.lower() in (".jpg", ".jpeg"):
-            calibrations[image.name] = read_rjpeg(image).calibration
+            calibrations[image.name] = read_calibration(image)
         frame.image = image
         frames.append(frame)
     if not frames:
@@ -505,12 +505,7 @@ def read_metashape(root: Path) -> ThermalCapture:
     xml = _metashape_xml(root)
     if xml is None:
         raise MissingInput(f"{root}: no Metashape XML in {' or '.join(str(root / f) for f in METASHAPE_FOLDERS)}")
-    cameras, georeference, unaligned = read_metashape_xml(xml)
-    posed = [
-        (c.label, ThermalFrame(Path(), c.camera_to_local, c.sensor.fx, c.sensor.fy, c.sensor.cx, c.sensor.cy,
-                               c.sensor.width, c.sensor.height, c.sensor.distortion.copy()))
-        for c in cameras
-    ]  # fmt: skip
+    posed, georeference, unaligned = read_metashape_xml(xml)
     return _survey_capture("metashape", root, xml, posed, unaligned, georeference=georeference)
 
 

@@ -18,35 +18,15 @@ are kept as the capture's `Georeference`, so outputs can land where the site is.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-from thermal_wild_ns.data.georeference import Georeference, datum_to_wgs84, ecef_to_geodetic
+from thermal_wild_ns.data.capture import ThermalFrame
+from thermal_wild_ns.data.georeference import Georeference, datum_to_wgs84
 from thermal_wild_ns.errors import InputError
-
-
-@dataclass
-class MetashapeCamera:
-    label: str
-    camera_to_local: np.ndarray
-    """[4, 4] OpenCV axes, local east-north-up metres."""
-    sensor: "MetashapeSensor"
-
-
-@dataclass
-class MetashapeSensor:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    """Pixels from the top-left corner of the image (COLMAP's convention)."""
-    cy: float
-    distortion: np.ndarray
-    """[6] k1, k2, k3, k4, p1, p2 in OpenCV's (and nerfstudio's) sense."""
 
 
 def _floats(element: Optional[ET.Element], path: Path, what: str) -> np.ndarray:
@@ -58,7 +38,7 @@ def _floats(element: Optional[ET.Element], path: Path, what: str) -> np.ndarray:
         raise InputError(f"{path}: Metashape {what} is not numbers ({err})") from None
 
 
-def _sensor(element: ET.Element, path: Path) -> Optional[MetashapeSensor]:
+def _sensor(element: ET.Element, path: Path) -> Optional[ThermalFrame]:
     calibrations = element.findall("calibration")
     if not calibrations:
         return None
@@ -82,9 +62,9 @@ def _sensor(element: ET.Element, path: Path) -> Optional[MetashapeSensor]:
     if f <= 0:
         raise InputError(f"{path}: Metashape sensor '{element.get('label')}' has no focal length")
     distortion = np.array([value("k1"), value("k2"), value("k3"), value("k4"), value("p2"), value("p1")])
-    return MetashapeSensor(
-        width, height, f + value("b1"), f, width / 2 + value("cx"), height / 2 + value("cy"), distortion
-    )
+    # a frame of this sensor, its pose and image set per camera
+    fx, cx, cy = f + value("b1"), width / 2 + value("cx"), height / 2 + value("cy")
+    return ThermalFrame(Path(), np.eye(4), fx, f, cx, cy, width, height, distortion)
 
 
 def _chunk_transform(element: Optional[ET.Element], path: Path) -> Optional[np.ndarray]:
@@ -104,10 +84,13 @@ def _chunk_transform(element: Optional[ET.Element], path: Path) -> Optional[np.n
     return m
 
 
-def read_metashape_xml(path: Path) -> Tuple[List[MetashapeCamera], Optional[Georeference], List[str]]:
-    """The aligned cameras of a Metashape XML (a chunk's `doc.xml` or an exported cameras XML), in
-    a local east-north-up frame where it is georeferenced (else the chunk's own), with the
-    georeference; and the labels of the cameras it could not align (no transform)."""
+def read_metashape_xml(
+    path: Path,
+) -> Tuple[List[Tuple[str, ThermalFrame]], Optional[Georeference], List[str]]:
+    """The aligned cameras of a Metashape XML (a chunk's `doc.xml` or an exported cameras XML), as
+    (label, ThermalFrame with no image yet: OpenCV axes, a local east-north-up frame in metres where
+    the chunk is georeferenced, else the chunk's own), with the georeference; and the labels of the
+    cameras it could not align (no transform)."""
     try:
         root = ET.parse(path).getroot()
     except (ET.ParseError, OSError) as err:
@@ -115,7 +98,7 @@ def read_metashape_xml(path: Path) -> Tuple[List[MetashapeCamera], Optional[Geor
     chunk = root if root.tag == "chunk" else root.find("chunk")
     if chunk is None:
         raise InputError(f"{path}: not a Metashape XML (no <chunk>)")
-    sensors: Dict[str, MetashapeSensor] = {}
+    sensors: Dict[str, ThermalFrame] = {}
     for element in chunk.iter("sensor"):
         sensor = _sensor(element, path)
         if sensor is not None:
@@ -127,7 +110,7 @@ def read_metashape_xml(path: Path) -> Tuple[List[MetashapeCamera], Optional[Geor
     }
     chunk_transform = _chunk_transform(chunk.find("transform"), path)
     cameras, unaligned = [], []
-    raw: List[Tuple[str, np.ndarray, MetashapeSensor]] = []
+    raw: List[Tuple[str, np.ndarray, ThermalFrame]] = []
     for element in chunk.iter("camera"):
         label = element.get("label", "")
         transform = element.find("transform")
@@ -146,8 +129,7 @@ def read_metashape_xml(path: Path) -> Tuple[List[MetashapeCamera], Optional[Geor
         crs = reference.text if reference is not None else None
         to_wgs84 = datum_to_wgs84(crs)
         origin = to_wgs84[:3, :3] @ np.mean([pose[:3, 3] for _, pose, _ in raw], axis=0) + to_wgs84[:3, 3]
-        lat, lon, height = ecef_to_geodetic(origin)
-        georeference = Georeference(tuple(float(v) for v in origin), lat, lon, height, crs, str(path))
+        georeference = Georeference(tuple(float(v) for v in origin), crs, str(path))
         to_local = georeference.ecef_to_local() @ to_wgs84
     else:
         to_local = np.eye(4)
@@ -155,5 +137,5 @@ def read_metashape_xml(path: Path) -> Tuple[List[MetashapeCamera], Optional[Geor
         local = to_local @ pose
         scale = np.cbrt(np.linalg.det(local[:3, :3]))  # the chunk's scale: the camera's axes stay unit
         local[:3, :3] /= scale
-        cameras.append(MetashapeCamera(label, local, sensor))
+        cameras.append((label, replace(sensor, camera_to_world=local, distortion=sensor.distortion.copy())))
     return cameras, georeference, unaligned

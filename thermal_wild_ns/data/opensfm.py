@@ -83,4 +83,4 @@ def _georeference(reconstruction: dict, path: Path) -> Optional[Georeference]:
     if not lla:
         return None
     lat, lon, alt = float(lla["latitude"]), float(lla["longitude"]), float(lla["altitude"])
-    return Georeference(tuple(float(v) for v in geodetic_to_ecef(lat, lon, alt)), lat, lon, alt, None, str(path))
+    return Georeference(tuple(float(v) for v in geodetic_to_ecef(lat, lon, alt)), None, str(path))

@@ -111,8 +111,9 @@ class RadiometricJpeg:
     """EXIF make and model, e.g. 'DJI FLIR' (a Zenmuse XT), 'DJI M3T'."""
     format: str
     """'flir' or 'dji'."""
-    raw: np.ndarray
-    """[H, W] uint16 raw sensor counts, at the thermal sensor's resolution."""
+    raw: Optional[np.ndarray]
+    """[H, W] uint16 raw sensor counts, at the thermal sensor's resolution (None where only the
+    calibration was read: `read_calibration`)."""
     calibration: Optional[FlirCalibration]
     """FLIR format only."""
 
@@ -282,14 +283,16 @@ def _preview_size(segments: List[Tuple[int, bytes]], path: Path) -> Tuple[int, i
 
 
 # ------------------------------------------------------------------ reading
-def read_rjpeg(path: Path) -> RadiometricJpeg:
-    """The thermal content of one R-JPEG, FLIR or DJI format; `NotRadiometric` naming the file
-    where it has none (never its colour preview)."""
-    path = Path(path)
+def _read_bytes(path: Path) -> bytes:
     try:
-        data = path.read_bytes()
+        return Path(path).read_bytes()
     except OSError as err:
         raise InputError(f"{path}: unreadable ({err.strerror or err})") from err
+
+
+def _thermal_content(data: bytes, path: Path, decode: bool = True) -> Optional[RadiometricJpeg]:
+    """The file's thermal content (with `decode` False, `raw` is None: only the calibration is
+    read), or None where the JPEG has none. Damaged thermal segments raise, naming the file."""
     segments = jpeg_segments(data, path)
     camera = _exif_camera(segments)
     fff = _flir_container(segments)
@@ -297,16 +300,48 @@ def read_rjpeg(path: Path) -> RadiometricJpeg:
         _, records = _flir_records(fff, path)
         if RAW_DATA not in records or CAMERA_INFO not in records:
             raise NotRadiometric(f"{path}: its FLIR segments hold no raw thermal image or no calibration")
-        raw, calibration = _flir_raw(records[RAW_DATA], path), _flir_calibration(records[CAMERA_INFO])
-        return RadiometricJpeg(path, camera, "flir", raw, calibration)
+        raw = _flir_raw(records[RAW_DATA], path) if decode else None
+        return RadiometricJpeg(path, camera, "flir", raw, _flir_calibration(records[CAMERA_INFO]))
     raw = _dji_raw(segments, _preview_size(segments, path)) if camera.startswith("DJI") else None
-    if raw is not None:
-        return RadiometricJpeg(path, camera, "dji", raw, None)
-    raise NotRadiometric(
+    return None if raw is None else RadiometricJpeg(path, camera, "dji", raw, None)
+
+
+def _not_radiometric(path: Path, data: bytes) -> NotRadiometric:
+    camera = _exif_camera(jpeg_segments(data, path))
+    return NotRadiometric(
         f"{path}: no radiometric data (neither FLIR records nor DJI's thermal segments) behind the JPEG"
         f"{' of ' + camera if camera else ''}: only its colour preview, which is not temperatures. Use the files "
         f"as the thermal camera wrote them (DJI: the *_R.jpg / *_T.jpg ones)"
     )
+
+
+def read_rjpeg(path: Path) -> RadiometricJpeg:
+    """The thermal content of one R-JPEG, FLIR or DJI format; `NotRadiometric` naming the file
+    where it has none (never its colour preview)."""
+    data = _read_bytes(path)
+    content = _thermal_content(data, Path(path))
+    if content is None:
+        raise _not_radiometric(Path(path), data)
+    return content
+
+
+def read_calibration(path: Path) -> Optional[FlirCalibration]:
+    """An R-JPEG's °C calibration (None: DJI's format), without decoding its raw image;
+    `NotRadiometric` naming the file where it has no thermal data."""
+    data = _read_bytes(path)
+    content = _thermal_content(data, Path(path), decode=False)
+    if content is None:
+        raise _not_radiometric(Path(path), data)
+    return content.calibration
+
+
+def radiometric_raw(path: Path) -> Optional[np.ndarray]:
+    """[H, W] uint16 raw counts of a radiometric JPEG, read once; None for any other file (a plain
+    or colour-mapped JPEG, another format)."""
+    if Path(path).suffix.lower() not in (".jpg", ".jpeg"):
+        return None
+    content = _thermal_content(_read_bytes(path), Path(path))
+    return None if content is None else content.raw
 
 
 def is_radiometric_jpeg(path: Path) -> bool:

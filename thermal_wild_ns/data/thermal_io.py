@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
-from thermal_wild_ns.data.rjpeg import FlirCalibration, is_radiometric_jpeg, read_rjpeg
+from thermal_wild_ns.data.rjpeg import FlirCalibration, radiometric_raw
 from thermal_wild_ns.errors import InputError, MissingInput
 from thermal_wild_ns.progress import track
 
@@ -93,8 +93,9 @@ def _stored_frame(path: Path, radiometric_jpeg: bool = True) -> Tuple[np.ndarray
     path = Path(path)
     if not path.is_file():
         raise MissingInput(f"{path}: thermal frame not found")
-    if radiometric_jpeg and is_radiometric_jpeg(path):
-        return read_rjpeg(path).raw, False
+    raw = radiometric_raw(path) if radiometric_jpeg else None
+    if raw is not None:
+        return raw, False
     if path.suffix.lower() == ".npy":
         try:
             image = load_npy(path)

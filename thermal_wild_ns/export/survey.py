@@ -29,6 +29,7 @@ import torch
 
 from thermal_wild_ns.data.georeference import Georeference
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.pipeline.run_check import write_atomically
 
 ORTHO_DISTANCE = 50.0
 """The orthomosaic's camera stands this many site sizes above the ground."""
@@ -52,9 +53,7 @@ def run_georeference(load_config: Path) -> Optional[Georeference]:
     found = json.loads(record.read_text()).get("georeference") if record.is_file() else None
     if found is None:
         return None
-    return Georeference(
-        tuple(found["origin_ecef"]), found["latitude"], found["longitude"], found["height"], found["crs_wkt"]
-    )
+    return Georeference(tuple(found["origin_ecef"]), found["crs_wkt"], found.get("source", ""))
 
 
 class SurveyFrame:
@@ -100,12 +99,6 @@ def celsius_or_native(rng, original: np.ndarray) -> Tuple[np.ndarray, str]:
     if rng.has_celsius:
         return rng.to_celsius(original).astype(np.float32), "celsius"
     return rng.to_native(original).astype(np.float32), f"native {rng.dtype} levels (no temperature calibration)"
-
-
-def _write_atomically(path: Path, write) -> None:
-    from thermal_wild_ns.pipeline.run_check import write_atomically
-
-    write_atomically(Path(path), write)
 
 
 def _load(load_config: Path):
@@ -157,7 +150,7 @@ class ExportCelsiusPoints:
         )
         comments = [f"thermal_wild_ns value: {units}", f"thermal_wild_ns coordinates: {frame}"]
         ply = PlyData([PlyElement.describe(vertices, "vertex")], comments=comments)
-        _write_atomically(self.output_path, lambda tmp: ply.write(str(tmp)))
+        write_atomically(Path(self.output_path), lambda tmp: ply.write(str(tmp)))
         print(f"{self.output_path}: {len(vertices)} points ({units}), coordinates in {frame[:60]}")
         return {"points": len(vertices), "units": units, "georeferenced": georeference is not None}
 
@@ -262,7 +255,7 @@ class ExportOrthomosaic:
                     units=units, photometric_state=state.label, rendered_by="thermal_wild_ns (canonical state)"
                 )
 
-        _write_atomically(self.output_path, write)
+        write_atomically(Path(self.output_path), write)
         covered = np.isfinite(values)
         print(
             f"{self.output_path}: {width}x{rows} at {gsd:.3f} m, {units}, {covered.mean():.0%} of it mapped, "
