@@ -62,7 +62,8 @@ SCORE_PREFIXES = ("psnr_", "ssim_", "celsius_")
 class BenchArgs:
     scenes: Tuple[str, ...] = ("demo",)
     """'demo' (the embedded scene), 'stress:FAULT' (a stress scene, e.g. stress:outlier, stress:all;
-    these are also scored along their smooth camera path) or dataset folders (any supported layout)."""
+    these are also scored along their smooth camera path) or dataset folders (any supported layout,
+    detected; 'LAYOUT:FOLDER' reads the folder with that layout, e.g. exif-gps:DATA)."""
     methods: Tuple[str, ...] = VARIANTS
     steps: int = 30_000
     eval_at: Tuple[int, ...] = (1000, 2000, 5000, 10000, 20000, 30000)
@@ -183,7 +184,16 @@ def scene_dataparser(scene: str, output_dir: Path, cache_dir: Path):
         return ThermalDemoDataParserConfig(data=output_dir / "demo-scene")
     if scene.startswith("stress:"):
         return ThermalDemoDataParserConfig(data=output_dir / scene_name(scene), scene=scene.split(":", 1)[1])  # type: ignore[arg-type]
-    return ThermalDataParserConfig(data=Path(scene), cache_dir=cache_dir)
+    layout, folder = _layout_and_folder(scene)
+    return ThermalDataParserConfig(data=Path(folder), layout=layout, cache_dir=cache_dir)  # type: ignore[arg-type]
+
+
+def _layout_and_folder(scene: str) -> Tuple[str, str]:
+    """('auto', FOLDER), or (LAYOUT, FOLDER) for a scene given as 'LAYOUT:FOLDER'."""
+    from thermal_wild_ns.data.layouts import LAYOUTS
+
+    prefix, _, rest = scene.partition(":")
+    return (prefix, rest) if rest and prefix in LAYOUTS else ("auto", scene)
 
 
 def apply_setting(config, setting: str) -> None:
@@ -244,7 +254,10 @@ def file_slug(label: str) -> str:
 
 
 def scene_name(scene: str) -> str:
-    return scene.replace(":", "-") if scene.startswith("stress:") else Path(scene).name
+    if scene.startswith("stress:"):
+        return scene.replace(":", "-")
+    layout, folder = _layout_and_folder(scene)
+    return Path(folder).name if layout == "auto" else f"{Path(folder).name}-{layout}"
 
 
 def _model_megabytes(model) -> float:

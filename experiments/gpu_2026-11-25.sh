@@ -7,9 +7,12 @@
 # has no pycolmap) by
 #     python -c "from pathlib import Path; from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig as C; \
 #       C(data=Path('.data/flight2').resolve(), cache_dir=Path('.data/cache').resolve()).setup().get_dataparser_outputs('train')"
+# The EXIF route (flight2-exif) reads the same frames with `exif-gps`: its SfM poses are cached the same way,
+#     python -c "from pathlib import Path; from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig as C; \
+#       C(data=Path('.data/flight2').resolve(), layout='exif-gps', cache_dir=Path('.data/cache').resolve()).setup().get_dataparser_outputs('train')"
 # Results go to $OUT (what the device tool brings back).
 set -uo pipefail
-plan=${1:?plan: install, flight2, flight2-run}
+plan=${1:?plan: install, flight2, flight2-exif, flight2-run}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
@@ -28,6 +31,15 @@ case "$plan" in
     cp /tmp/flight2.log "$OUT/flight2.log"
     for f in bench.json bench.md; do cp "/tmp/flight2/$f" "$OUT/flight2-$f" 2>/dev/null; done
     grep -E "^\| wild" "$OUT/flight2-bench.md" | head -4
+    ;;
+  flight2-exif)  # the same as flight2, with the poses of the EXIF route (GPS + gimbal priors, SfM)
+    timeout 540 python3 -m experiments.bench --output-dir /tmp/flight2-exif --scenes "exif-gps:$PWD/.data/flight2" \
+      --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 15000 --schedule 30000 \
+      --eval-at 2000 5000 10000 15000 --fit-steps 20 --fps-frames 0 --runs-per-gpu 3 > /tmp/flight2-exif.log 2>&1 \
+      || tail -30 /tmp/flight2-exif.log
+    cp /tmp/flight2-exif.log "$OUT/flight2-exif.log"
+    for f in bench.json bench.md; do cp "/tmp/flight2-exif/$f" "$OUT/flight2-exif-$f" 2>/dev/null; done
+    grep -E "^\| wild" "$OUT/flight2-exif-bench.md" | head -4
     ;;
   flight2-run)  # one run of the full method with its defaults on flight2 (seed 0), brought back whole for the
     # survey exports made on the CPU machine (wild-thermal-export celsius-points / orthomosaic)

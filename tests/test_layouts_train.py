@@ -24,7 +24,7 @@ pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 FRAMES = 26
 """Enough frames for the automatic stop to hold two training frames back (it needs 20)."""
 
-SCALE = {"msx-data": 0.125, "ye-thermal-data": 0.25, "metashape-data": 0.125}
+SCALE = {"msx-data": 0.125, "ye-thermal-data": 0.25, "metashape-data": 0.125, "exif-gps-data": 0.125}
 FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
 
 # registered parser -> (fixture writer, folder name); 'thermal' detects the layout itself
@@ -43,7 +43,11 @@ PARSERS = {
     "odm-data": (lambda root: fx.write_odm(root, n=FRAMES), "survey"),
     # a real drone survey as the drone wrote it: radiometric JPEGs + the Metashape alignment
     "metashape-data": (lambda root: root.symlink_to(FLIGHT2, target_is_directory=True), "flight2"),
+    # the same survey with no photogrammetry: SfM from the frames' GPS and gimbal priors
+    "exif-gps-data": (lambda root: root.symlink_to(FLIGHT2, target_is_directory=True), "flight2"),
 }
+SITE = {"metashape-data": 2056, "exif-gps-data": 32632}
+"""Where flight2's exports land: Metashape's project CRS (LV95), else the UTM zone of the site (32N)."""
 
 
 def test_every_registered_parser_has_a_case():
@@ -73,30 +77,34 @@ def test_parser_trains_scores_evaluates_and_renders(parser, tmp_path):
     layout = config.pipeline.datamanager.dataparser.layout
     assert layout == ("auto" if parser == "thermal" else layout)
     results = check_run_end_to_end(out / "x" / "wild-thermal" / "run", tmp_path)
-    if parser == "metashape-data":  # a calibrated camera: ns-eval scores in °C too; the run knows where it is
+    if parser in SITE:  # a calibrated camera: ns-eval scores in °C too; the run knows where it is
         assert all(math.isfinite(results[f"celsius_{m}_time"]) for m in ("mae", "rmse", "p95"))
         record = json.loads((out / "x" / "wild-thermal" / "run" / "data.json").read_text())
-        assert 46.3 < record["georeference"]["latitude"] < 46.5 and "2056" in record["georeference"]["crs_wkt"]
-        check_survey_exports(out / "x" / "wild-thermal" / "run" / "config.yml", tmp_path)
+        assert 46.3 < record["georeference"]["latitude"] < 46.5
+        assert ("2056" in (record["georeference"]["crs_wkt"] or "")) == (parser == "metashape-data")
+        check_survey_exports(out / "x" / "wild-thermal" / "run" / "config.yml", tmp_path, SITE[parser])
 
 
-def check_survey_exports(config, tmp_path):
-    """A °C point cloud and a °C orthomosaic where the site is (LV95), from a run of a few steps: every
-    Gaussian and every covered pixel (its Gaussians are not yet opaque)."""
+def check_survey_exports(config, tmp_path, epsg: int):
+    """A °C point cloud and a °C orthomosaic where the site is (in the CRS `epsg`), from a run of a
+    few steps: every Gaussian and every covered pixel (its Gaussians are not yet opaque)."""
     import numpy as np
     import rasterio
     from plyfile import PlyData
+    from rasterio.warp import transform
 
     from thermal_wild_ns.export.survey import ExportCelsiusPoints, ExportOrthomosaic
 
+    # the site's centre (flight2's mean GPS position) in that CRS, and the survey's extent around it
+    (east,), (north,) = transform("EPSG:4326", f"EPSG:{epsg}", [6.2390], [46.3972])
     ExportCelsiusPoints(config, tmp_path / "points.ply", min_opacity=0.0).main()
     points = PlyData.read(str(tmp_path / "points.ply"))["vertex"].data
     assert len(points) > 1000 and np.isfinite(points["value"]).all()
-    assert 2_507_500 < np.median(points["x"]) < 2_507_900 and 1_139_000 < np.median(points["y"]) < 1_139_300
+    assert abs(np.median(points["x"]) - east) < 150 and abs(np.median(points["y"]) - north) < 150
     ExportOrthomosaic(config, tmp_path / "ortho.tif", ground_resolution=1.0, min_coverage=0.0).main()
     with rasterio.open(tmp_path / "ortho.tif") as raster:
         celsius, height = raster.read(1), raster.read(2)
-        assert raster.crs.to_epsg() == 2056 and raster.count == 2 and abs(raster.transform.a - 1.0) < 0.01
-        assert 2_507_500 < raster.bounds.left < raster.bounds.right < 2_507_900
+        assert raster.crs.to_epsg() == epsg and raster.count == 2 and abs(raster.transform.a - 1.0) < 0.01
+        assert east - 250 < raster.bounds.left < raster.bounds.right < east + 250
     assert np.isfinite(celsius).mean() > 0.5 and -20 < np.nanmedian(celsius) < 60
     assert np.nanmedian(height) < 400  # below the cameras (~400 m above the ellipsoid); 3 steps shape no ground yet

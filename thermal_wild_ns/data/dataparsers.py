@@ -94,8 +94,12 @@ class ThermalDataParserConfig(DataParserConfig):
     num_random_points: int = 50_000
     """Random seeds when nothing better exists."""
     triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
+    lens_calibration: Optional[Path] = None
+    """exif-gps layout: the camera's lens calibration (a Metashape / Agisoft Lens calibration XML),
+    held fixed by SfM. Without it the focal length comes from the files and lens distortion is
+    taken as none: a flight straight down over flat ground cannot measure it."""
     cache_dir: Optional[Path] = None
-    """Where triangulated points are cached. Default: `<data>/.thermal_wild_ns`, or
+    """Where triangulated points and SfM poses are cached. Default: `<data>/.thermal_wild_ns`, or
     `~/.cache/thermal_wild_ns/<name>-<hash>` when the data folder is read-only."""
 
 
@@ -123,7 +127,8 @@ class ThermalDataParser(DataParser):
                 "thermalmix": {
                     "holdout_index": self.config.thermalmix_holdout,
                     "celsius": self.config.thermalmix_celsius,
-                }
+                },
+                "exif-gps": {"cache_root": self._cache_root(), "lens_calibration": self.config.lens_calibration},
             }
             capture = validate(layouts.LAYOUTS[name].read(root, **options.get(name, {})))
             n = len(capture.frames)
@@ -200,7 +205,8 @@ class ThermalDataParser(DataParser):
     def _cache_root(self) -> Path:
         if self.config.cache_dir is not None:
             return Path(self.config.cache_dir)
-        root = self.capture().root
+        root = Path(self.config.data)
+        root = root.parent if root.is_file() else root  # a transforms.json given as the data
         if os.access(root, os.W_OK):
             return root / ".thermal_wild_ns"
         digest = hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:8]
@@ -403,6 +409,7 @@ colmap_dataparser = _spec("colmap", layouts.LAYOUTS["colmap"].description)
 ti_nsd_dataparser = _spec("ti-nsd", layouts.LAYOUTS["ti-nsd"].description)
 metashape_dataparser = _spec("metashape", layouts.LAYOUTS["metashape"].description)
 odm_dataparser = _spec("odm", layouts.LAYOUTS["odm"].description)
+exif_gps_dataparser = _spec("exif-gps", layouts.LAYOUTS["exif-gps"].description)
 thermal_demo_dataparser = DataParserSpecification(
     config=ThermalDemoDataParserConfig(),
     description="the embedded procedural thermal demo scene (generated, no download)",

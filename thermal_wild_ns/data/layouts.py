@@ -527,6 +527,68 @@ def read_odm(root: Path) -> ThermalCapture:
     return _survey_capture("odm", root, path, posed, georeference=georeference, points=points)
 
 
+def read_exif_gps(
+    root: Path, cache_root: Optional[Path] = None, lens_calibration: Optional[Path] = None
+) -> ThermalCapture:
+    """A drone survey with no photogrammetry: geotagged frames as the camera wrote them (the first
+    of `FRAME_FOLDERS` that holds images), placed by structure from motion with their EXIF GPS and
+    XMP gimbal angles as priors (`exif_sfm.py`; cached under `cache_root`, default
+    `<root>/.thermal_wild_ns`). `lens_calibration`: a Metashape / Agisoft Lens calibration XML,
+    held fixed (without it the focal length comes from the files and distortion is taken as none).
+    Frames without GPS are left out by name."""
+    from thermal_wild_ns.data.exif_sfm import (
+        cached_structure_from_motion,
+        has_gps,
+        read_frame_prior,
+        survey_georeference,
+    )
+    from thermal_wild_ns.data.metashape import read_lens_calibration
+
+    folder = _survey_frames_folder(root)
+    images = _image_files(folder)
+    geotagged = [p for p in images if has_gps(p)]
+    if not geotagged:
+        raise InputError(f"{folder}: none of its {len(images)} frames has a GPS position in its EXIF")
+    if len(geotagged) < len(images):
+        missing = [p.name for p in images if p not in geotagged]
+        warnings.warn(
+            f"{folder}: {len(missing)} frame(s) without GPS are left out: {', '.join(missing[:5])}", stacklevel=2
+        )
+    width, height = _frame_size(geotagged[0])  # SfM checks that every frame has this size
+    priors = [read_frame_prior(p, width, height) for p in geotagged]
+    georeference = survey_georeference(
+        priors, f"EXIF GPS of {folder} (altitudes above sea level, taken as ellipsoidal heights)"
+    )
+    calibration = read_lens_calibration(Path(lens_calibration)) if lens_calibration is not None else None
+    result = cached_structure_from_motion(
+        geotagged, priors, georeference, calibration, Path(cache_root) if cache_root else root / ".thermal_wild_ns"
+    )
+    camera = result.camera
+    posed = [
+        (
+            name,
+            ThermalFrame(
+                Path(), pose, camera.fx, camera.fy, camera.cx, camera.cy, width, height, camera.distortion.copy()
+            ),
+        )
+        for name, pose in result.poses.items()
+    ]
+    unaligned = [p.name for p in geotagged if p.name not in result.poses]
+    points = SeedPoints(result.points, "sfm (exif-gps)") if len(result.points) else None
+    return _survey_capture("exif-gps", root, folder, posed, unaligned, georeference=georeference, points=points)
+
+
+def _exif_gps_mismatch(root: Path) -> Optional[str]:
+    from thermal_wild_ns.data.exif_sfm import has_gps
+
+    folder = next((root / f for f in FRAME_FOLDERS if (root / f).is_dir() and _image_files(root / f)), None)
+    if folder is None:
+        return "no frames in rjpeg/, images/ or the folder"
+    if not has_gps(_image_files(folder)[0]):
+        return f"{_image_files(folder)[0].name} has no GPS position in its EXIF"
+    return None
+
+
 def _one_calibration(calibrations: Dict[str, object], folder: Path):
     """The frames' shared °C calibration (the camera's settings do not change within a flight); None
     where a frame has none (DJI's format). Where the settings differ (emissivity or distance changed
@@ -670,6 +732,12 @@ LAYOUTS: Dict[str, Layout] = {
         read_metashape,
         _metashape_mismatch,
         "a drone survey aligned in Metashape: its XML (or metashape/*.xml) + the frames (R-JPEGs) in rjpeg/ or images/",
+    ),
+    "exif-gps": Layout(
+        read_exif_gps,
+        _exif_gps_mismatch,
+        "a drone survey with no photogrammetry: geotagged frames (R-JPEGs) placed by SfM from their GPS and "
+        "gimbal priors",
     ),
 }
 

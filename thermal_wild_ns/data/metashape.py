@@ -38,6 +38,24 @@ def _floats(element: Optional[ET.Element], path: Path, what: str) -> np.ndarray:
         raise InputError(f"{path}: Metashape {what} is not numbers ({err})") from None
 
 
+def _calibrated_frame(calibration: ET.Element, width: int, height: int, path: Path, label: str) -> ThermalFrame:
+    """A frame (no image, no pose yet) of the camera a Metashape `<calibration>` describes."""
+
+    def value(name: str) -> float:
+        node = calibration.find(name)
+        try:
+            return float(node.text) if node is not None and node.text else 0.0
+        except ValueError:
+            raise InputError(f"{path}: Metashape calibration '{label}': {name} is not a number") from None
+
+    f = value("f")
+    if f <= 0:
+        raise InputError(f"{path}: Metashape calibration '{label}' has no focal length")
+    distortion = np.array([value("k1"), value("k2"), value("k3"), value("k4"), value("p2"), value("p1")])
+    fx, cx, cy = f + value("b1"), width / 2 + value("cx"), height / 2 + value("cy")
+    return ThermalFrame(Path(), np.eye(4), fx, f, cx, cy, width, height, distortion)
+
+
 def _sensor(element: ET.Element, path: Path) -> Optional[ThermalFrame]:
     calibrations = element.findall("calibration")
     if not calibrations:
@@ -53,18 +71,26 @@ def _sensor(element: ET.Element, path: Path) -> Optional[ThermalFrame]:
             f"only frame (pinhole) cameras are read"
         )
     width, height = int(resolution.get("width")), int(resolution.get("height"))
+    return _calibrated_frame(calibration, width, height, path, element.get("label", ""))
 
-    def value(name: str) -> float:
-        node = calibration.find(name)
-        return float(node.text) if node is not None and node.text else 0.0
 
-    f = value("f")
-    if f <= 0:
-        raise InputError(f"{path}: Metashape sensor '{element.get('label')}' has no focal length")
-    distortion = np.array([value("k1"), value("k2"), value("k3"), value("k4"), value("p2"), value("p1")])
-    # a frame of this sensor, its pose and image set per camera
-    fx, cx, cy = f + value("b1"), width / 2 + value("cx"), height / 2 + value("cy")
-    return ThermalFrame(Path(), np.eye(4), fx, f, cx, cy, width, height, distortion)
+def read_lens_calibration(path: Path) -> ThermalFrame:
+    """A camera's lens calibration as Metashape and Agisoft Lens export it (File > Export >
+    Calibration, XML: `<calibration>` with width, height, f, cx, cy, b1, k1-k4, p1, p2): a frame
+    (no image, no pose) with its intrinsics and distortion."""
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as err:
+        raise InputError(f"{path}: not a readable calibration XML ({err})") from None
+    if root.tag != "calibration":
+        raise InputError(f"{path}: not a Metashape / Agisoft Lens calibration (its root is <{root.tag}>)")
+    if (root.findtext("projection") or "frame") != "frame":
+        raise InputError(f"{path}: a {root.findtext('projection')} camera; only frame (pinhole) cameras are read")
+    try:
+        width, height = int(root.findtext("width")), int(root.findtext("height"))
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: calibration without its image width and height") from None
+    return _calibrated_frame(root, width, height, path, path.name)
 
 
 def _chunk_transform(element: Optional[ET.Element], path: Path) -> Optional[np.ndarray]:

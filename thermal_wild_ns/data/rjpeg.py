@@ -201,6 +201,8 @@ def _record_order(record: bytes) -> str:
 
 RAW_DATA, CAMERA_INFO = 1, 32
 """FFF record types (ExifTool FLIR.pm: RawData, CameraInfo)."""
+FIELD_OF_VIEW = 0x1B4
+"""CameraInfo's horizontal field of view in degrees (float; ExifTool FLIR::CameraInfo FieldOfView)."""
 
 _CAMERA_INFO = {  # field: (byte offset, struct format), ExifTool FLIR::CameraInfo
     "emissivity": (0x20, "f"),
@@ -342,6 +344,19 @@ def radiometric_raw(path: Path) -> Optional[np.ndarray]:
         return None
     content = _thermal_content(_read_bytes(path), Path(path))
     return None if content is None else content.raw
+
+
+def flir_field_of_view(path: Path) -> Optional[float]:
+    """The horizontal field of view (degrees) a FLIR-format file records; None where it records none
+    (DJI's FLIR-core cameras write 0) or has no FLIR records."""
+    fff = _flir_container(jpeg_segments(_read_bytes(path), Path(path)))
+    if fff is None:
+        return None
+    record = _flir_records(fff, Path(path))[1].get(CAMERA_INFO)
+    if record is None or len(record) < FIELD_OF_VIEW + 4:
+        return None
+    degrees = struct.unpack_from(_record_order(record) + "f", record, FIELD_OF_VIEW)[0]
+    return float(degrees) if 1.0 < degrees < 179.0 else None
 
 
 def is_radiometric_jpeg(path: Path) -> bool:

@@ -7,6 +7,7 @@ normalisation would erase exactly the frame-to-frame radiometric consistency the
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import tempfile
@@ -77,6 +78,18 @@ def discard_cache_folder(folder: Path) -> None:
     except OSError:  # another process took it away first
         return
     shutil.rmtree(aside, ignore_errors=True)
+
+
+def file_fingerprint(path: Path) -> bytes:
+    """A file's name, size and a digest of its first and last 64 KiB: what a cache is keyed on,
+    stable across copies (modification times are not) and quick on large files."""
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as file:
+        head = file.read(1 << 16)
+        file.seek(max(0, size - (1 << 16)))
+        tail = file.read()
+    return f"{path.name}:{size}:".encode() + hashlib.sha1(head + tail).digest()
 
 
 def load_npy(path: Path, mmap_mode: Optional[str] = None) -> np.ndarray:

@@ -31,6 +31,7 @@ from thermal_wild_ns.data.capture import ThermalFrame
 from thermal_wild_ns.data.thermal_io import (
     RadiometricRange,
     discard_cache_folder,
+    file_fingerprint,
     load_npy,
     make_work_folder,
     publish_cache_folder,
@@ -66,12 +67,7 @@ def cache_key(frames: Sequence[ThermalFrame], radiometric_range: RadiometricRang
         ).encode()
     )
     for f in frames:
-        # name, size and the file's first and last 64 KiB: stable across copies (mtimes are not)
-        with open(f.image, "rb") as file:
-            head = file.read(1 << 16)
-            file.seek(max(0, f.image.stat().st_size - (1 << 16)))
-            tail = file.read()
-        h.update(f"{f.image.name}:{f.image.stat().st_size}:".encode() + hashlib.sha1(head + tail).digest())
+        h.update(file_fingerprint(f.image))
         # rounded: the same poses read from COLMAP text and from transforms.json differ in the last bits
         h.update(
             np.round(np.asarray([*f.camera_to_world.reshape(-1), f.fx, f.fy, f.cx, f.cy, *f.distortion]), 6).tobytes()
@@ -84,15 +80,17 @@ def _feature_image(frame: ThermalFrame, radiometric_range: RadiometricRange, cla
     return clahe.apply(grey)
 
 
-def _pairs(frames: Sequence[ThermalFrame], config: TriangulationConfig) -> list:
+def prior_pairs(frames: Sequence[ThermalFrame], neighbours: int, max_view_angle_deg: float) -> list:
+    """(i, j), i < j: each frame with its `neighbours` nearest cameras whose viewing directions
+    differ by less than `max_view_angle_deg`, by the frames' (known or prior) poses."""
     centres = np.stack([f.camera_to_world[:3, 3] for f in frames])
     views = np.stack([f.camera_to_world[:3, 2] for f in frames])  # OpenCV z: viewing direction
-    cos_max = np.cos(np.radians(config.max_view_angle_deg))
+    cos_max = np.cos(np.radians(max_view_angle_deg))
     pairs = set()
     for i in range(len(frames)):
         candidates = [j for j in range(len(frames)) if j != i and views[i] @ views[j] > cos_max]
         candidates.sort(key=lambda j: np.linalg.norm(centres[i] - centres[j]))
-        pairs.update((min(i, j), max(i, j)) for j in candidates[: config.neighbours])
+        pairs.update((min(i, j), max(i, j)) for j in candidates[:neighbours])
     return sorted(pairs)
 
 
@@ -112,7 +110,8 @@ def _sampson(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
     return np.sqrt(num / (Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2 + Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2 + 1e-12))
 
 
-def _colmap_camera(frame: ThermalFrame):
+def colmap_camera(frame: ThermalFrame):
+    """The frame's intrinsics and distortion as a pycolmap camera (OPENCV, or FULL_OPENCV with k3/k4)."""
     import pycolmap
 
     k1, k2, k3, k4, p1, p2 = frame.distortion
@@ -149,7 +148,7 @@ def triangulate(
     rec = pycolmap.Reconstruction()
     database = pycolmap.Database.open(str(work_dir / "database.db"))
     for i, frame in enumerate(frames):
-        camera = _colmap_camera(frame)
+        camera = colmap_camera(frame)
         camera.camera_id = i + 1
         rec.add_camera_with_trivial_rig(camera)
         database.write_camera(camera, use_camera_id=True)
@@ -161,7 +160,7 @@ def triangulate(
         database.write_keypoints(i + 1, keypoints[i])
 
     matcher = cv2.BFMatcher(cv2.NORM_L2)
-    pairs = _pairs(frames, config)
+    pairs = prior_pairs(frames, config.neighbours, config.max_view_angle_deg)
     inlier_counts = []
     for i, j in track(pairs, "Matching frame pairs"):
         if len(keypoints[i]) < 2 or len(keypoints[j]) < 2:

@@ -1,0 +1,522 @@
+"""Poses for a drone survey with no photogrammetry: the GPS in each frame's EXIF and the gimbal
+angles in its XMP as priors, refined by structure from motion (pycolmap) on the thermal frames.
+
+What each frame says about itself (`FramePrior`): where it was taken (EXIF GPS; the altitude is
+the GPS's, above sea level), where the camera looked (DJI's XMP `GimbalYaw/Pitch/RollDegree`, or
+FLIR's `Yaw/Pitch/Roll`), and its focal length in pixels where the file says enough (the 35 mm
+equivalent focal length, a FLIR record's field of view, or the focal length with the focal-plane
+resolution). GPS is metres off and the gimbal degrees off: too coarse to train on, enough to say
+which frames overlap and where the site is.
+
+Structure from motion then places the frames from the frames themselves: each frame on the
+flight's radiometric range (one range, never per frame) and locally equalised (CLAHE), COLMAP's
+SIFT with a low peak threshold (thermal frames are low-contrast), each frame matched with its
+nearest cameras that look the same way (from the priors), and COLMAP's incremental mapper with
+the GPS positions as priors, so the result lands in the priors' east-north-up frame, in metres.
+Two choices are thermal- and survey-specific:
+- the mapper's first pair needs only a 4° triangulation angle (COLMAP's default 16° is never
+  reached by overlapping nadir frames at survey height);
+- the intrinsics are held fixed. A survey flown straight down over flat ground cannot tell the
+  focal length from the height, nor radial distortion from a bowl-shaped ground ("doming"), and
+  letting bundle adjustment refine them makes the poses worse, not better. A lens calibration
+  (a Metashape / Agisoft Lens calibration XML) is used as given where the user has one.
+
+The frames SfM cannot place are left out by name; where fewer than `min_registered_share` of them
+are placed, an error says what it found (features, verified pairs) and what to do instead. The
+result is cached per (frames, priors, calibration, parameters), written to a temporary folder and
+renamed into place, as the triangulation cache is.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import time
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from thermal_wild_ns.data.capture import ThermalFrame
+from thermal_wild_ns.data.georeference import Georeference, geodetic_to_ecef
+from thermal_wild_ns.data.rjpeg import flir_field_of_view
+from thermal_wild_ns.data.thermal_io import (
+    discard_cache_folder,
+    file_fingerprint,
+    load_npy,
+    make_work_folder,
+    publish_cache_folder,
+    read_raw_frame,
+)
+from thermal_wild_ns.data.triangulation import colmap_camera, prior_pairs
+from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.progress import track
+
+CACHE_VERSION = 2
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+"""The diagonal the 35 mm equivalent focal length is defined on."""
+
+EXIF_GPS, EXIF_SUB_IFD = 0x8825, 0x8769
+_FOCAL_LENGTH, _FOCAL_35MM, _PLANE_X_RESOLUTION, _PLANE_UNIT = 0x920A, 0xA405, 0xA20E, 0xA210
+_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0}
+"""EXIF FocalPlaneResolutionUnit -> millimetres per unit (inch, cm, mm)."""
+
+
+@dataclass(frozen=True)
+class FramePrior:
+    """What one frame's own metadata says about its camera."""
+
+    latitude: float
+    longitude: float
+    altitude: float
+    """EXIF GPSAltitude, metres above sea level (taken as above the WGS84 ellipsoid: the geoid's
+    height, tens of metres, is not applied, so absolute heights carry it)."""
+    yaw: Optional[float]
+    """Gimbal heading, degrees clockwise from north; None where the XMP has no gimbal angles."""
+    pitch: Optional[float]
+    """Degrees above the horizon (-90: straight down)."""
+    roll: Optional[float]
+    focal_px: Optional[float]
+    """Focal length in pixels of the thermal raster, where the file says enough to know it."""
+    focal_source: str
+
+    def camera_to_enu(self, georeference: Georeference) -> np.ndarray:
+        """[4, 4] camera (OpenCV axes) -> the georeference's east-north-up frame; a camera looking
+        straight down, image top to the north, where the gimbal angles are missing."""
+        pose = np.eye(4)
+        if self.yaw is None:
+            pose[:3, :3] = gimbal_rotation(0.0, -90.0, 0.0)
+        else:
+            pose[:3, :3] = gimbal_rotation(self.yaw, self.pitch, self.roll)
+        ecef = geodetic_to_ecef(self.latitude, self.longitude, self.altitude)
+        to_local = georeference.ecef_to_local()
+        pose[:3, 3] = to_local[:3, :3] @ ecef + to_local[:3, 3]
+        return pose
+
+
+def gimbal_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """[3, 3] camera (OpenCV: x right, y down, z forward) -> east-north-up, for a gimbal's heading
+    (degrees clockwise from north), pitch (up from the horizon) and roll (right side down), applied
+    in that order as drones report them."""
+    yaw, pitch, roll = (math.radians(v) for v in (yaw, pitch, roll))
+    level = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # columns: right, down, forward
+    heading = np.array([[math.cos(yaw), math.sin(yaw), 0.0], [-math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    tilt = np.array(
+        [[1.0, 0.0, 0.0], [0.0, math.cos(pitch), -math.sin(pitch)], [0.0, math.sin(pitch), math.cos(pitch)]]
+    )
+    bank = np.array([[math.cos(roll), 0.0, math.sin(roll)], [0.0, 1.0, 0.0], [-math.sin(roll), 0.0, math.cos(roll)]])
+    return heading @ tilt @ bank @ level
+
+
+def _rational(value) -> float:
+    return float(value[0]) / float(value[1]) if isinstance(value, tuple) else float(value)
+
+
+def _degrees(dms, reference: str) -> float:
+    degrees, minutes, seconds = (_rational(v) for v in dms)
+    return (degrees + minutes / 60.0 + seconds / 3600.0) * (-1.0 if reference in ("S", "W") else 1.0)
+
+
+def _xmp_angle(xmp: str, *names: str) -> Optional[float]:
+    for name in names:  # attribute (DJI) or element (FLIR) form
+        found = re.search(rf'{name}\s*=\s*"([-+0-9.eE]+)"', xmp) or re.search(rf"{name}>([-+0-9.eE]+)<", xmp)
+        if found:
+            return float(found.group(1))
+    return None
+
+
+def focal_length_px(path: Path, width: int, height: int) -> Tuple[Optional[float], str]:
+    """The focal length in pixels of the file's `width` x `height` thermal raster, and what gave it:
+    the EXIF 35 mm equivalent (on the frame's diagonal, as CIPA defines it), a FLIR record's field
+    of view, or the EXIF focal length with the focal-plane resolution; (None, "") where none is
+    recorded."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            sub = image.getexif().get_ifd(EXIF_SUB_IFD)
+    except (OSError, UnidentifiedImageError) as err:
+        raise InputError(f"{path}: unreadable ({err})") from None
+    focal_35 = sub.get(_FOCAL_35MM)
+    if focal_35:
+        return float(focal_35) * math.hypot(width, height) / FULL_FRAME_DIAGONAL_MM, "EXIF 35 mm equivalent"
+    field_of_view = flir_field_of_view(path)
+    if field_of_view:
+        return width / 2.0 / math.tan(math.radians(field_of_view) / 2.0), "FLIR field of view"
+    focal_mm, plane_x, unit = sub.get(_FOCAL_LENGTH), sub.get(_PLANE_X_RESOLUTION), sub.get(_PLANE_UNIT, 2)
+    if focal_mm and plane_x and unit in _UNIT_MM:
+        # the resolution is of the image the EXIF describes, which may be the preview: scale to the raster
+        described = sub.get(0xA002) or width
+        return _rational(focal_mm) * _rational(plane_x) / _UNIT_MM[unit] * width / float(described), "EXIF focal plane"
+    return None, ""
+
+
+def read_frame_prior(path: Path, width: int, height: int) -> FramePrior:
+    """The frame's GPS, gimbal angles and focal length (for a `width` x `height` thermal raster);
+    an error naming the file where it has no GPS position."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            exif, xmp = image.getexif(), image.info.get("xmp", b"")
+    except (OSError, UnidentifiedImageError) as err:
+        raise InputError(f"{path}: unreadable ({err})") from None
+    gps = exif.get_ifd(EXIF_GPS)
+    if not gps or 2 not in gps or 4 not in gps:
+        raise InputError(f"{path}: no GPS position in its EXIF: the EXIF route needs a geotagged frame")
+    altitude = _rational(gps.get(6, 0.0)) * (-1.0 if gps.get(5) in (b"\x01", 1) else 1.0)
+    text = xmp.decode("utf-8", "replace") if isinstance(xmp, bytes) else str(xmp)
+    yaw = _xmp_angle(text, "drone-dji:GimbalYawDegree", "Camera:Yaw")
+    pitch = _xmp_angle(text, "drone-dji:GimbalPitchDegree", "Camera:Pitch")
+    roll = _xmp_angle(text, "drone-dji:GimbalRollDegree", "Camera:Roll")
+    if yaw is None or pitch is None:
+        yaw = pitch = roll = None
+    focal, source = focal_length_px(path, width, height)
+    return FramePrior(
+        _degrees(gps[2], gps.get(1, "N")),
+        _degrees(gps[4], gps.get(3, "E")),
+        altitude,
+        yaw,
+        pitch,
+        roll or 0.0 if yaw is not None else None,
+        focal,
+        source,
+    )
+
+
+def has_gps(path: Path) -> bool:
+    """Whether the file's EXIF holds a GPS position (reads its header only)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            gps = image.getexif().get_ifd(EXIF_GPS)
+    except (OSError, UnidentifiedImageError):
+        return False
+    return bool(gps) and 2 in gps and 4 in gps
+
+
+def survey_georeference(priors: Sequence[FramePrior], source: str) -> Georeference:
+    """A local east-north-up frame around the frames' mean GPS position."""
+    ecef = np.mean([geodetic_to_ecef(p.latitude, p.longitude, p.altitude) for p in priors], axis=0)
+    return Georeference(tuple(float(v) for v in ecef), None, source)
+
+
+@dataclass(frozen=True)
+class SfmConfig:
+    max_features: int = 8000
+    """SIFT features per frame at most."""
+    peak_threshold: float = 0.0067 / 3
+    """COLMAP SIFT peak threshold (a third of its default: thermal frames are low-contrast)."""
+    clahe_clip: float = 2.0
+    """CLAHE clip limit on the range-normalised 8-bit frame before SIFT."""
+    neighbours: int = 12
+    """Each frame is matched with this many nearest cameras (by GPS) that look the same way."""
+    max_view_angle_deg: float = 60.0
+    """Only pairs whose gimbal viewing directions differ by less than this are matched."""
+    init_min_tri_angle_deg: float = 4.0
+    """The mapper's first pair's least triangulation angle (COLMAP's 16° suits hand-held captures)."""
+    gps_sigma_m: Tuple[float, float] = (3.0, 5.0)
+    """Standard deviation of the GPS positions (horizontal, vertical), metres."""
+    fallback_focal_factor: float = 1.2
+    """Focal length = this x the frame's larger side, where neither the file nor a calibration says (COLMAP's guess)."""
+    min_registered_share: float = 0.5
+    """Fewer frames placed than this share is a failure (an error), not a capture."""
+
+
+@dataclass(frozen=True)
+class SfmResult:
+    poses: Dict[str, np.ndarray]
+    """File name -> [4, 4] camera (OpenCV axes) -> east-north-up, metres; the frames SfM placed."""
+    camera: ThermalFrame
+    """The intrinsics every frame shares (no image, no pose)."""
+    points: np.ndarray
+    """[N, 3] sparse points, east-north-up."""
+    report: Dict
+
+
+def _prior_frames(
+    images: Sequence[Path], priors: Sequence[FramePrior], georeference: Georeference, camera: ThermalFrame
+) -> List[ThermalFrame]:
+    return [
+        ThermalFrame(
+            image,
+            prior.camera_to_enu(georeference),
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            camera.width,
+            camera.height,
+        )
+        for image, prior in zip(images, priors)
+    ]
+
+
+def initial_camera(
+    priors: Sequence[FramePrior], width: int, height: int, calibration: Optional[ThermalFrame], config: SfmConfig
+) -> Tuple[ThermalFrame, str]:
+    """The intrinsics SfM holds fixed, and where they came from."""
+    if calibration is not None:
+        if (calibration.width, calibration.height) != (width, height):
+            raise InputError(
+                f"the lens calibration is for {calibration.width}x{calibration.height} frames; "
+                f"these are {width}x{height}"
+            )
+        return calibration, "lens calibration"
+    focals = [p.focal_px for p in priors if p.focal_px]
+    if focals:
+        focal, source = float(np.median(focals)), next(p.focal_source for p in priors if p.focal_px)
+    else:
+        focal, source = config.fallback_focal_factor * max(width, height), "a guess (the files give no focal length)"
+    return ThermalFrame(Path(), np.eye(4), focal, focal, width / 2.0, height / 2.0, width, height), source
+
+
+def _rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def structure_from_motion(
+    images: Sequence[Path],
+    priors: Sequence[FramePrior],
+    georeference: Georeference,
+    calibration: Optional[ThermalFrame],
+    work_dir: Path,
+    config: SfmConfig,
+) -> SfmResult:
+    """The frames' poses in the georeference's east-north-up frame, from the frames and their
+    priors; intermediate files under `work_dir`."""
+    import pycolmap
+
+    pycolmap.set_random_seed(0)  # RANSAC and the mapper draw samples: the same frames give the same poses
+    rasters = [read_raw_frame(path).astype(np.float32) for path in track(images, "Reading frames for SfM")]
+    height, width = rasters[0].shape
+    for path, raster in zip(images, rasters):
+        if raster.shape != (height, width):
+            raise InputError(f"{path}: {raster.shape[1]}x{raster.shape[0]}, the survey's first frame {width}x{height}")
+    camera, camera_source = initial_camera(priors, width, height, calibration, config)
+    low, high = np.percentile(np.stack(rasters), [0.1, 99.9])
+    clahe = cv2.createCLAHE(clipLimit=config.clahe_clip, tileGridSize=(8, 8))
+    folder = work_dir / "frames"
+    folder.mkdir()
+    names = [f"{i:05d}_{path.stem}.png" for i, path in enumerate(images)]  # unique, whatever the folders
+    for name, raster in zip(names, rasters):
+        grey = np.clip((raster - low) / max(high - low, 1e-6) * 255.0, 0, 255).astype(np.uint8)
+        cv2.imwrite(str(folder / name), clahe.apply(grey))
+    del rasters
+
+    database_path = work_dir / "database.db"
+    with CONSOLE.status("SfM: SIFT on the thermal frames"):
+        reader = pycolmap.ImageReaderOptions()
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.sift.peak_threshold = config.peak_threshold
+        extraction.sift.max_num_features = config.max_features
+        extraction.num_threads = 1  # one thread: the same features in the same order on every machine
+        pycolmap.extract_features(
+            database_path,
+            folder,
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+    prior_frames = _prior_frames(images, priors, georeference, camera)
+    database = pycolmap.Database.open(str(database_path))
+    try:
+        fixed = colmap_camera(camera)
+        stored = database.read_all_cameras()
+        fixed.camera_id = stored[0].camera_id
+        fixed.has_prior_focal_length = True
+        database.update_camera(fixed)
+        index = {name: i for i, name in enumerate(names)}
+        features = []
+        for image in database.read_all_images():
+            i = index[image.name]
+            covariance = np.diag([config.gps_sigma_m[0] ** 2, config.gps_sigma_m[0] ** 2, config.gps_sigma_m[1] ** 2])
+            prior = pycolmap.PosePrior(
+                position=prior_frames[i].camera_to_world[:3, 3],
+                position_covariance=covariance,
+                coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                corr_data_id=image.data_id,
+            )
+            database.write_pose_prior(prior)
+            features.append(database.read_keypoints(image.image_id).shape[0])
+    finally:
+        database.close()
+    pairs = prior_pairs(prior_frames, config.neighbours, config.max_view_angle_deg)
+    pairs_path = work_dir / "pairs.txt"
+    pairs_path.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    with CONSOLE.status(f"SfM: matching {len(pairs)} frame pairs"):
+        verification = pycolmap.TwoViewGeometryOptions()
+        verification.ransac.random_seed = 0
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = 1
+        pycolmap.match_image_pairs(
+            database_path,
+            pairing_options=pycolmap.ImportedPairingOptions(match_list_path=pairs_path),
+            matching_options=matching,
+            verification_options=verification,
+            device=pycolmap.Device.cpu,
+        )
+    database = pycolmap.Database.open(str(database_path))
+    try:
+        verified = [len(g.inlier_matches) for g in database.read_two_view_geometries()[1]]
+    finally:
+        database.close()
+
+    options = pycolmap.IncrementalPipelineOptions()
+    options.use_prior_position = True
+    options.use_robust_loss_on_prior_position = True
+    options.multiple_models = False
+    options.mapper.init_min_tri_angle = config.init_min_tri_angle_deg
+    options.ba_refine_focal_length = False
+    options.ba_refine_extra_params = False
+    options.ba_refine_principal_point = False
+    options.mapper.abs_pose_refine_focal_length = False
+    options.mapper.abs_pose_refine_extra_params = False
+    options.random_seed = 0
+    options.num_threads = 1  # the same poses on every machine
+    sparse = work_dir / "sparse"
+    sparse.mkdir()
+    with CONSOLE.status("SfM: incremental mapping with the GPS priors"):
+        models = pycolmap.incremental_mapping(database_path, folder, sparse, options)
+    model = max(models.values(), key=lambda m: m.num_reg_images()) if models else None
+    placed = model.num_reg_images() if model is not None else 0
+    report = {
+        "frames": len(images),
+        "registered": placed,
+        "features_per_frame_median": float(np.median(features)) if features else 0.0,
+        "pairs": len(pairs),
+        "verified_matches_per_pair_median": float(np.median(verified)) if verified else 0.0,
+        "intrinsics": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy, "source": camera_source},
+    }
+    if placed < max(3, math.ceil(config.min_registered_share * len(images))):
+        raise InputError(
+            f"{images[0].parent}: structure from motion placed {placed} of {len(images)} frames (median "
+            f"{report['features_per_frame_median']:.0f} SIFT features per frame, "
+            f"{report['verified_matches_per_pair_median']:.0f} "
+            f"verified matches per pair): the frames have too little texture or overlap for it. Align them in "
+            f"Metashape or OpenDroneMap and use that layout (metashape-data, odm-data)"
+        )
+    poses, by_name = {}, {name: image for name, image in zip(names, images)}
+    for image in model.images.values():
+        if not image.has_pose:
+            continue
+        world_to_camera = np.eye(4)
+        world_to_camera[:3, :4] = image.cam_from_world().matrix()
+        poses[by_name[image.name].name] = np.linalg.inv(world_to_camera)
+    points = np.array([p.xyz for p in model.points3D.values()], dtype=np.float64).reshape(-1, 3)
+    prior_of = {image.name: frame.camera_to_world for image, frame in zip(images, prior_frames)}
+    gps_offsets = [np.linalg.norm(pose[:3, 3] - prior_of[name][:3, 3]) for name, pose in poses.items()]
+    with_gimbal = [name for name, p in zip((i.name for i in images), priors) if p.yaw is not None and name in poses]
+    report.update(
+        {
+            "points": len(points),
+            "reprojection_error_px_mean": float(model.compute_mean_reprojection_error()),
+            "gps_offset_m_median": float(np.median(gps_offsets)),
+            "gimbal_difference_deg_median": float(
+                np.median([_rotation_angle_deg(prior_of[n][:3, :3], poses[n][:3, :3]) for n in with_gimbal])
+            )
+            if with_gimbal
+            else None,
+        }
+    )
+    return SfmResult(poses, camera, points, report)
+
+
+@contextmanager
+def _colmap_errors_only():
+    """COLMAP logs every step of SfM on stderr: the user gets our summary, and COLMAP's errors."""
+    import pycolmap
+
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = int(pycolmap.logging.ERROR)
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = level
+
+
+def _cache_key(images: Sequence[Path], priors, calibration: Optional[ThermalFrame], config: SfmConfig) -> str:
+    import hashlib
+
+    h = hashlib.sha256(json.dumps({"version": CACHE_VERSION, "config": asdict(config)}, sort_keys=True).encode())
+    for image, prior in zip(images, priors):
+        h.update(file_fingerprint(image) + json.dumps(asdict(prior), sort_keys=True).encode())
+    if calibration is not None:
+        h.update(
+            np.round(
+                [calibration.fx, calibration.fy, calibration.cx, calibration.cy, *calibration.distortion], 9
+            ).tobytes()
+        )
+    return h.hexdigest()[:16]
+
+
+def cached_structure_from_motion(
+    images: Sequence[Path],
+    priors: Sequence[FramePrior],
+    georeference: Georeference,
+    calibration: Optional[ThermalFrame],
+    cache_root: Path,
+    config: SfmConfig = SfmConfig(),
+) -> SfmResult:
+    """`structure_from_motion`, computed once per (frames, priors, calibration, parameters): the
+    poses, camera, points and report are kept under `cache_root`, with the COLMAP model (sparse/)."""
+    final = Path(cache_root) / f"sfm-{_cache_key(images, priors, calibration, config)}"
+    if (final / "report.json").is_file():
+        try:
+            stored = json.loads((final / "poses.json").read_text())
+            camera = stored["camera"]
+            return SfmResult(
+                {name: np.asarray(pose) for name, pose in stored["poses"].items()},
+                ThermalFrame(
+                    Path(),
+                    np.eye(4),
+                    camera["fx"],
+                    camera["fy"],
+                    camera["cx"],
+                    camera["cy"],
+                    camera["width"],
+                    camera["height"],
+                    np.asarray(camera["distortion"]),
+                ),
+                load_npy(final / "points.npy"),
+                json.loads((final / "report.json").read_text()),
+            )
+        except (OSError, ValueError, KeyError) as err:  # a file cut short or damaged
+            CONSOLE.log(f"[yellow]{final}: the SfM cache is damaged ({err}): running SfM again")
+            discard_cache_folder(final)
+    work = make_work_folder(Path(cache_root), ".sfm-")
+    try:
+        start = time.perf_counter()
+        with _colmap_errors_only():
+            result = structure_from_motion(images, priors, georeference, calibration, work, config)
+        result.report["seconds"] = round(time.perf_counter() - start, 1)
+        shutil.rmtree(work / "frames")
+        (work / "database.db").unlink()
+        c = result.camera
+        camera = {
+            "fx": c.fx,
+            "fy": c.fy,
+            "cx": c.cx,
+            "cy": c.cy,
+            "width": c.width,
+            "height": c.height,
+            "distortion": list(c.distortion),
+        }
+        poses = {name: pose.tolist() for name, pose in result.poses.items()}
+        (work / "poses.json").write_text(json.dumps({"camera": camera, "poses": poses}))
+        np.save(work / "points.npy", result.points)
+        (work / "report.json").write_text(json.dumps(result.report, indent=1))
+        publish_cache_folder(work, final, "report.json")
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    return result
