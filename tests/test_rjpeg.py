@@ -13,7 +13,15 @@ import cv2
 import numpy as np
 import pytest
 
-from thermal_wild_ns.data.rjpeg import NoCelsiusDecoder, NotRadiometric, is_radiometric_jpeg, read_rjpeg
+from thermal_wild_ns.data.rjpeg import (
+    DJI_CONVERTER_ENV,
+    DjiCalibration,
+    NoCelsiusDecoder,
+    NotRadiometric,
+    dji_converter,
+    is_radiometric_jpeg,
+    read_rjpeg,
+)
 from thermal_wild_ns.errors import InputError
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -40,7 +48,7 @@ SAMPLE_FILES = sorted(p.name for p in SAMPLES.glob("*.jpg")) if SAMPLES.is_dir()
 
 @needs_shared
 @pytest.mark.parametrize("name", SAMPLE_FILES)
-def test_every_camera_gives_its_raw_raster_and_celsius_or_says_what_to_install(name):
+def test_every_camera_gives_its_raw_raster_and_celsius_or_says_what_to_install(name, monkeypatch):
     sample = SAMPLES / name
     dump = _exiftool(sample)
     thermal = read_rjpeg(sample)
@@ -60,7 +68,10 @@ def test_every_camera_gives_its_raw_raster_and_celsius_or_says_what_to_install(n
         preview = int(dump["Image Width"]) / int(dump["Image Height"])
         height, width = thermal.raw.shape
         assert height * width == pixels and width / height == pytest.approx(preview)
-        what = rf"{re.escape(str(sample))}: a DJI-format R-JPEG \(DJI .+\).*Thermal SDK"
+        # DJI's converter not installed: the file, the camera and the command that installs it
+        monkeypatch.setenv(DJI_CONVERTER_ENV, "/nonexistent/dji-thermal-cli")
+        install = "pipx install --python python3.12 dji-thermal-cli"
+        what = rf"{re.escape(str(sample))}: a DJI-format R-JPEG \(DJI .+\).*{install}"
         with pytest.raises(NoCelsiusDecoder, match=what):
             thermal.celsius()
 
@@ -155,3 +166,62 @@ def test_a_calibrated_range_scores_in_celsius():
     assert result["celsius_mae"] == pytest.approx(per_count.mean(), rel=1e-3)
     assert result["celsius_mae"] <= result["celsius_rmse"] <= result["celsius_p95"] + 1e-6
     assert "celsius_mae" not in scores(hotter, normalised)
+
+
+FAKE_CONVERTER = """#!{python}
+# dji-thermal-cli's interface ('process --input-dir --output-dir', <stem>_temp_c.tiff) with a known formula
+import sys, pathlib, cv2, numpy as np
+from thermal_wild_ns.data.rjpeg import read_rjpeg
+args = sys.argv
+source, target = (pathlib.Path(args[args.index(flag) + 1]) for flag in ("--input-dir", "--output-dir"))
+target.mkdir(parents=True, exist_ok=True)
+for path in sorted(source.glob("*.jpg")):
+    cv2.imwrite(str(target / f"{{path.stem}}_temp_c.tiff"), read_rjpeg(path).raw.astype(np.float32) * 0.01 - 150.0)
+"""
+
+
+def _fake_converter(tmp_path: Path, monkeypatch) -> None:
+    import sys
+
+    script = tmp_path / "dji-thermal-cli"
+    script.write_text(FAKE_CONVERTER.format(python=sys.executable))
+    script.chmod(0o755)
+    monkeypatch.setenv(DJI_CONVERTER_ENV, str(script))
+
+
+@needs_shared
+def test_dji_files_read_in_celsius_through_djis_converter_where_it_is_installed(tmp_path, monkeypatch):
+    from thermal_wild_ns.data.layouts import _one_calibration
+    from thermal_wild_ns.data.thermal_io import RadiometricRange
+
+    _fake_converter(tmp_path, monkeypatch)
+    sample = read_rjpeg(SAMPLES / "M3T_DJI_0002_R.jpg")
+    assert np.allclose(sample.celsius(), sample.raw * 0.01 - 150.0, atol=1e-3)
+    # a survey's frames: one table over all of them, which a dataset's range turns into °C
+    frames = [SAMPLES / "M3T_DJI_0002_R.jpg", SAMPLES / "M3TD_DJI_0001_R.jpg"]
+    table = _one_calibration({path: None for path in frames}, SAMPLES)
+    assert isinstance(table, DjiCalibration) and "2 file(s)" in table.source
+    raws = np.concatenate([read_rjpeg(p).raw.ravel() for p in frames])
+    assert table.raw[0] == raws.min() and table.raw[-1] == raws.max()
+    beyond = np.array([raws.min() - 100.0, raws.max() + 100.0])  # linear beyond the table's ends
+    assert np.allclose(table.celsius(beyond), beyond * 0.01 - 150.0, atol=1e-3)
+    rng = RadiometricRange(low=float(raws.min()), high=float(raws.max()), dtype="uint16", planck=table)
+    assert rng.has_celsius and rng.to_celsius(np.array([0.0, 1.0])) == pytest.approx(
+        [raws.min() * 0.01 - 150.0, raws.max() * 0.01 - 150.0], abs=1e-3
+    )
+    # without the converter: raw counts, and the log says how to have °C
+    monkeypatch.setenv(DJI_CONVERTER_ENV, "/nonexistent/dji-thermal-cli")
+    with pytest.warns(UserWarning, match="without °C.*pipx install"):
+        assert _one_calibration({path: None for path in frames}, SAMPLES) is None
+
+
+@needs_shared
+@pytest.mark.skipif(dji_converter() is None, reason="DJI's converter (dji-thermal-cli) is not installed")
+def test_djis_own_converter_gives_plausible_celsius_for_every_dji_camera():
+    for sample in sorted(SAMPLES.glob("*_R.jpg")):
+        thermal = read_rjpeg(sample)
+        celsius = thermal.celsius()
+        assert celsius.shape == thermal.raw.shape and np.isfinite(celsius).all()
+        assert -40 < float(np.median(celsius)) < 120
+        order = np.argsort(thermal.raw.ravel(), kind="stable")
+        assert (np.diff(celsius.ravel()[order]) >= -1e-4).all()  # warmer counts, warmer °C

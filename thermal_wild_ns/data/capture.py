@@ -16,7 +16,7 @@ from typing import List, Literal, Optional, Union
 import numpy as np
 
 from thermal_wild_ns.data.georeference import Georeference
-from thermal_wild_ns.data.rjpeg import FlirCalibration
+from thermal_wild_ns.data.rjpeg import CelsiusCalibration
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError, MissingInput
 
@@ -76,7 +76,7 @@ class ThermalCapture:
     """The layout's own sparse points (SfM), when it ships a non-empty set."""
     georeference: Optional[Georeference] = None
     """Where the capture's world frame sits on the Earth, when the layout says (photogrammetry)."""
-    celsius_calibration: Optional[FlirCalibration] = None
+    celsius_calibration: Optional[CelsiusCalibration] = None
     """The camera's calibration of its raw counts to °C, when the frames carry one (R-JPEGs)."""
 
 

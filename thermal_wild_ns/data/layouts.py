@@ -466,7 +466,7 @@ def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligne
         if image is None:
             continue
         if image.suffix.lower() in (".jpg", ".jpeg"):
-            calibrations[image.name] = read_calibration(image)
+            calibrations[image] = read_calibration(image)
         frame.image = image
         frames.append(frame)
     if not frames:
@@ -589,14 +589,28 @@ def _exif_gps_mismatch(root: Path) -> Optional[str]:
     return None
 
 
-def _one_calibration(calibrations: Dict[str, object], folder: Path):
-    """The frames' shared °C calibration (the camera's settings do not change within a flight); None
-    where a frame has none (DJI's format). Where the settings differ (emissivity or distance changed
-    mid-flight), the first frame's, said in the log: the model has one radiometric scale."""
+def _one_calibration(calibrations: Dict[Path, object], folder: Path):
+    """The frames' shared °C calibration (the camera's settings do not change within a flight):
+    the FLIR records' (where the settings differ, emissivity or distance changed mid-flight, the
+    first frame's, said in the log: the model has one radiometric scale), or DJI's converter's
+    table over all the frames (DJI's format: None, said in the log, where it is not installed)."""
+    from thermal_wild_ns.data.rjpeg import DJI_CONVERTER_INSTALL, dji_calibration, dji_converter
+
     found = list(calibrations.values())
-    if not found or any(c is None for c in found):
+    if not found:
         return None
-    differing = sorted(name for name, c in calibrations.items() if c != found[0])
+    if all(c is None for c in found):  # DJI's format: the calibration is DJI's converter
+        if dji_converter() is None:
+            warnings.warn(
+                f"{folder}: DJI-format R-JPEGs train on their raw counts, without °C: to have °C, "
+                f"{DJI_CONVERTER_INSTALL}",
+                stacklevel=3,
+            )
+            return None
+        return dji_calibration(list(calibrations))
+    if any(c is None for c in found):
+        return None
+    differing = sorted(path.name for path, c in calibrations.items() if c != found[0])
     if differing:
         warnings.warn(
             f"{folder}: {len(differing)} frame(s) carry other measurement settings than the first "

@@ -24,19 +24,29 @@ big-endian container and fails on DJI's FLIR-core files (`docs/rjpeg.md` has the
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import struct
+import subprocess
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from thermal_wild_ns.errors import InputError
 
-DJI_CELSIUS_DECODER = (
-    "DJI's R-JPEG format converts to °C only through DJI's native Thermal SDK "
-    "(https://www.dji.com/downloads/softwares/dji-thermal-sdk); its pure-Python port `dji-thermal-cli` "
-    "(AGPL-3.0) needs Python >= 3.12. The raw counts train the model all the same"
+DJI_CONVERTER = "dji-thermal-cli"
+"""The command that turns DJI-format R-JPEGs into °C: `dji-thermal-cli`, a pure-Python port of DJI's
+Thermal SDK (AGPL-3.0, Python >= 3.12), run as a separate program (`docs/rjpeg.md` says why)."""
+DJI_CONVERTER_ENV = "THERMAL_WILD_NS_DJI_CLI"
+"""Environment variable naming that command where it is not on PATH."""
+DJI_CONVERTER_INSTALL = (
+    "install DJI's converter in its own Python >= 3.12 environment so that `dji-thermal-cli` is on PATH: "
+    "`pipx install --python python3.12 dji-thermal-cli` (or `uv tool install --python 3.12 dji-thermal-cli`; "
+    f"elsewhere, name it with {DJI_CONVERTER_ENV}=/path/to/dji-thermal-cli). DJI's format has no published "
+    "formula; without it the raw counts train the model all the same, without °C"
 )
 
 
@@ -103,6 +113,118 @@ class FlirCalibration:
 
 
 @dataclass(frozen=True)
+class DjiCalibration:
+    """DJI-format files' °C as DJI's converter gives them: a table of raw count -> °C, read off the
+    converter's output for the files themselves (DJI's conversion is a function of the raw count
+    for a file's measurement settings). Linear beyond the table's ends."""
+
+    raw: Tuple[float, ...]
+    """Raw counts, ascending."""
+    celsius_of_raw: Tuple[float, ...]
+    source: str
+    """What made the table (the converter and how many files)."""
+
+    def celsius(self, raw: np.ndarray) -> np.ndarray:
+        table_raw, table_c = np.asarray(self.raw), np.asarray(self.celsius_of_raw)
+        values = np.asarray(raw, dtype=np.float64)
+        out = np.interp(values, table_raw, table_c)
+        if len(table_raw) > 1:  # the table's end slopes beyond its ends
+            span = max(1, len(table_raw) // 20)
+            low_slope = (table_c[span] - table_c[0]) / (table_raw[span] - table_raw[0])
+            high_slope = (table_c[-1] - table_c[-1 - span]) / (table_raw[-1] - table_raw[-1 - span])
+            out = np.where(values < table_raw[0], table_c[0] + (values - table_raw[0]) * low_slope, out)
+            out = np.where(values > table_raw[-1], table_c[-1] + (values - table_raw[-1]) * high_slope, out)
+        return out.astype(np.float32)
+
+
+CelsiusCalibration = Union["FlirCalibration", DjiCalibration]
+"""What turns a file's raw counts into °C (`.celsius(raw)`)."""
+
+
+def dji_converter() -> Optional[str]:
+    """The DJI converter's command where it is installed, else None."""
+    return shutil.which(os.environ.get(DJI_CONVERTER_ENV) or DJI_CONVERTER)
+
+
+def dji_calibration(paths: Sequence[Path]) -> DjiCalibration:
+    """The raw -> °C table of DJI-format R-JPEGs, from DJI's converter run on them (their own
+    embedded measurement settings); `NoCelsiusDecoder` naming the first file where the converter is
+    not installed. Files whose settings differ (the same raw count, other °C) are named in the log;
+    the table takes each count's first file's value."""
+    command = dji_converter()
+    if command is None:
+        camera = _exif_camera(jpeg_segments(_read_bytes(paths[0]), Path(paths[0])))
+        raise NoCelsiusDecoder(f"{paths[0]}: a DJI-format R-JPEG ({camera}): to read it in °C, {DJI_CONVERTER_INSTALL}")
+    table: Dict[int, float] = {}
+    differing = []
+    with tempfile.TemporaryDirectory(prefix="dji-celsius-") as work:
+        inputs, outputs = Path(work) / "in", Path(work) / "out"
+        inputs.mkdir()
+        names = [f"{i:05d}_{Path(p).stem}" for i, p in enumerate(paths)]
+        for name, path in zip(names, paths):
+            shutil.copyfile(
+                path, inputs / f"{name}.jpg"
+            )  # unique names; the converter does not follow links everywhere
+        done = subprocess.run(
+            [
+                command,
+                "process",
+                "--input-dir",
+                str(inputs),
+                "--output-dir",
+                str(outputs),
+                "--output",
+                "temp_c:tiff",
+                "--distance",
+                "embedded",
+                "--quiet",
+            ],
+            capture_output=True,
+            text=True,
+        )
+        for name, path in zip(names, paths):
+            produced = outputs / f"{name}_temp_c.tiff"
+            celsius = _read_float_tiff(produced) if produced.is_file() else None
+            if celsius is None:
+                raise NoCelsiusDecoder(
+                    f"{path}: DJI's converter ({command}) gave no °C for it "
+                    f"(exit {done.returncode}: {(done.stderr or done.stdout).strip()[-300:]})"
+                )
+            raw = read_rjpeg(path).raw
+            if celsius.shape != raw.shape:
+                raise NoCelsiusDecoder(
+                    f"{path}: DJI's converter gave {celsius.shape[::-1]} °C for a {raw.shape[::-1]} raster"
+                )
+            counts, first = np.unique(raw.ravel(), return_index=True)
+            values = celsius.ravel()[first].astype(np.float64)
+            for count, value in zip(counts.tolist(), values.tolist()):
+                known = table.setdefault(count, value)
+                if abs(known - value) > 0.05 and Path(path).name not in differing:
+                    differing.append(Path(path).name)
+    if differing:
+        import warnings
+
+        warnings.warn(
+            f"{len(differing)} file(s) carry other measurement settings than the first ({', '.join(differing[:5])}); "
+            f"°C use the first file's",
+            stacklevel=2,
+        )
+    raw_values = sorted(table)
+    return DjiCalibration(
+        tuple(float(v) for v in raw_values),
+        tuple(table[v] for v in raw_values),
+        f"{Path(command).name} on {len(paths)} file(s)",
+    )
+
+
+def _read_float_tiff(path: Path) -> Optional[np.ndarray]:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return None if image is None else image.astype(np.float32)
+
+
+@dataclass(frozen=True)
 class RadiometricJpeg:
     """One R-JPEG's thermal content."""
 
@@ -118,9 +240,10 @@ class RadiometricJpeg:
     """FLIR format only."""
 
     def celsius(self) -> np.ndarray:
-        """[H, W] float32 °C, where the file's format gives the means; else `NoCelsiusDecoder`."""
+        """[H, W] float32 °C: the FLIR formula, or DJI's converter where it is installed; else
+        `NoCelsiusDecoder` naming the file, the camera and how to install the converter."""
         if self.calibration is None:
-            raise NoCelsiusDecoder(f"{self.path}: a DJI-format R-JPEG ({self.camera}): {DJI_CELSIUS_DECODER}")
+            return dji_calibration([self.path]).celsius(self.raw)
         return self.calibration.celsius(self.raw)
 
 

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
-from thermal_wild_ns.data.rjpeg import FlirCalibration, radiometric_raw
+from thermal_wild_ns.data.rjpeg import CelsiusCalibration, radiometric_raw
 from thermal_wild_ns.errors import InputError, MissingInput
 from thermal_wild_ns.progress import track
 
@@ -172,9 +172,9 @@ class RadiometricRange:
     """Temperature (degC) of `high`, when the dataset documents it."""
     palette: Optional[str] = None
     """Colour palette the frames were exported with (native values are its levels 0..255), if any."""
-    planck: Optional[FlirCalibration] = None
-    """The camera's own calibration of its raw counts (radiometric JPEGs of the FLIR format): °C by
-    the Planck curve, not linear between bounds."""
+    planck: Optional[CelsiusCalibration] = None
+    """The camera's own calibration of its raw counts (radiometric JPEGs: the FLIR format's Planck
+    curve, or DJI's converter's table), not linear between bounds."""
 
     @property
     def has_celsius(self) -> bool:

@@ -21,6 +21,8 @@ import torch
 import tyro
 from nerfstudio.scripts import exporter as ns_export
 
+from thermal_wild_ns.data.rjpeg import DjiCalibration
+
 
 def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
     """Indices into `means` [N, 3] of the exported positions [M, 3] (an ordered subset)."""
@@ -59,7 +61,9 @@ def header_comments(pipeline) -> List[str]:
         "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",
         f"native_range {rng.low:g} {rng.high:g}",
     ]
-    if rng.planck is not None:
+    if isinstance(rng.planck, DjiCalibration):
+        lines.append(f"celsius_table {len(rng.planck.raw)} entries of native units -> degC ({rng.planck.source})")
+    elif rng.planck is not None:
         cal = rng.planck
         lines.append(
             f"celsius_planck R1 {cal.planck_r1:g} R2 {cal.planck_r2:g} B {cal.planck_b:g} F {cal.planck_f:g} "
