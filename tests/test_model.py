@@ -170,30 +170,28 @@ def test_baked_emission_matches_and_is_invalidated():
         unbaked = model.get_outputs(camera)["thermal"].detach()
     with torch.no_grad():
         baked = model.get_outputs(camera)["thermal"]
-        first = model._baked[2]
-        assert model.get_outputs(camera)["thermal"].equal(baked) and model._baked[2] is first  # reused
+        first = model._baked["emission"][2]
+        assert model.get_outputs(camera)["thermal"].equal(baked) and model._baked["emission"][2] is first  # reused
     torch.testing.assert_close(baked, unbaked, atol=1e-5, rtol=0)
     with torch.no_grad():
         model.emission_mlp.net[0].weight.add_(0.01)  # an optimizer step changes parameters in place
         changed = model.get_outputs(camera)["thermal"]
-        assert model._baked[2] is not first and not changed.equal(baked)
-        second = model._baked[2]
-        model.embedding_override = torch.ones_like(model.frame_embed.weight[0])  # another embedding
-        model.get_outputs(camera)
-        assert model._baked[2] is not second
+        assert model._baked["emission"][2] is not first and not changed.equal(baked)
+        second = model._baked["emission"][2]
+        model.get_outputs(camera, frame_embedding=torch.ones_like(model.frame_embed.weight[0]))  # another state
+        assert model._baked["emission"][2] is not second
     # a training step with fused Adam (which leaves tensor versions alone) invalidates it too
-    model.embedding_override = None
     optimizer = torch.optim.Adam([*model.emission_mlp.parameters(), model.frame_embed.weight], lr=0.1, fused=True)
     with torch.no_grad():
         before_step = model.get_outputs(camera)["thermal"]
-        third = model._baked[2]
+        third = model._baked["emission"][2]
     for param in [*model.emission_mlp.parameters(), model.frame_embed.weight]:
         param.grad = torch.ones_like(param)
     optimizer.step()
     model.step += 1  # what the trainer's step callback does
     with torch.no_grad():
         after_step = model.get_outputs(camera)["thermal"]
-    assert model._baked[2] is not third and not after_step.equal(before_step)
+    assert model._baked["emission"][2] is not third and not after_step.equal(before_step)
 
 
 def test_mismatched_checkpoints_are_refused_with_the_reason():
@@ -326,35 +324,37 @@ def test_viewer_controls_pick_colormap_and_embedding():
         level = (out["thermal"].clamp(0, 1)[..., 0] * 255).round().long()
         iron = torch.from_numpy(palette_rgb("iron").astype("float32") / 255)
         assert torch.equal(out["rgb"], iron[level])  # the default colormap
-        model.viewer_colormap.value = "grey"  # what the viewer's dropdown does
-        model.viewer_colormap.cb_hook(model.viewer_colormap)
+        controls = model.viewer_controls  # the elements ns-viewer shows, as its user sets them
+        controls.viewer_colormap.value = "grey"
         assert torch.equal(model.get_outputs(camera)["rgb"][..., 0], level.float() / 255)
         mean_view = model.get_outputs(camera)["thermal"]
         changes = []
-        model.on_photometric_state_change = lambda: changes.append(model.capture_time)
-        model.viewer_time.value = 3.0  # the capture-time slider, at training image 3's position ...
-        model.viewer_time.cb_hook(model.viewer_time)
-        assert model.capture_time is None and changes == [None]  # ... does nothing while the state is canonical
-        model.viewer_state.value = "capture time"
-        model.viewer_state.cb_hook(model.viewer_state)
-        assert model.capture_time == 3.0 and changes == [None, 3.0]  # the pipeline updates its colour bar
+        controls.on_state_change(lambda: changes.append(controls.capture_time))
+        controls.viewer_time.value = 3.0  # the capture-time slider, at training image 3's position ...
+        controls.viewer_time.cb_hook(controls.viewer_time)
+        assert controls.capture_time is None and changes == [None]  # ... does nothing while the state is canonical
+        controls.viewer_state.value = "capture time"
+        controls.viewer_state.cb_hook(controls.viewer_state)
+        assert controls.capture_time == 3.0 and changes == [None, 3.0]  # the pipeline updates its colour bar
+        assert controls.nearest_training_image() == 3
         frame_view = model.get_outputs(camera)["thermal"]
         assert not torch.equal(frame_view, mean_view)
-        model.embedding_override = model.frame_embed.weight[3]  # training image 3's own state
-        assert torch.equal(model.get_outputs(camera)["thermal"], frame_view)
-        model.embedding_override = None
-        model.viewer_time.value = 3.5  # between two training frames: their average state
-        model.viewer_time.cb_hook(model.viewer_time)
+        # the same state passed as an argument: training image 3's own embedding
+        assert torch.equal(
+            model.get_outputs(camera, frame_embedding=model.frame_embed.weight[3])["thermal"], frame_view
+        )
+        controls.viewer_time.value = 3.5  # between two training frames: their average state
         between = model.get_outputs(camera)["thermal"]
-        model.embedding_override = 0.5 * (model.frame_embed.weight[3] + model.frame_embed.weight[4])
-        torch.testing.assert_close(model.get_outputs(camera)["thermal"], between)
-        model.embedding_override = None
-        model.viewer_state.value = "canonical"
-        model.viewer_state.cb_hook(model.viewer_state)
-        assert model.capture_time is None and torch.equal(model.get_outputs(camera)["thermal"], mean_view)
+        halfway = 0.5 * (model.frame_embed.weight[3] + model.frame_embed.weight[4])
+        torch.testing.assert_close(model.get_outputs(camera, frame_embedding=halfway)["thermal"], between)
+        # a render that names its state is that state's, whatever the viewer shows
+        canonical = model.inference_embedding()
+        assert torch.equal(model.get_outputs(camera, frame_embedding=canonical)["thermal"], mean_view)
+        controls.viewer_state.value = "canonical"
+        assert controls.capture_time is None and torch.equal(model.get_outputs(camera)["thermal"], mean_view)
     assert (
-        model.viewer_state.options == ["canonical", "capture time"]
-        and model.viewer_time.max == model.frame_times[-1] == len(model.frame_times) - 1
+        controls.viewer_state.options == ["canonical", "capture time"]
+        and controls.viewer_time.max == model.frame_times[-1] == len(model.frame_times) - 1
     )
 
 
@@ -445,7 +445,7 @@ def test_renders_outside_training_use_the_baked_background():
     with torch.enable_grad():
         exact = model.background(K, c2w, embed, 160, 128)  # under autograd: the MLP itself
     spread = float(exact.max() - exact.min())
-    assert getattr(model, "_baked_background", None) is not None
+    assert "background" in model._baked
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
     # the view directions: the camera-frame directions of the intrinsics, kept once per intrinsics (given
     # on the host or read from K alike), then rotated: the directions of the full pixel grid

@@ -34,7 +34,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
         camera.width,
     )
     # the viewer's colour bar: the demo scene documents its temperature bounds (-10..40 degC)
-    bar = trainer.pipeline.model.viewer_colour_bar.value
+    bar = trainer.pipeline.model.viewer_controls.viewer_colour_bar.value
     values = [float(v) for v in bar.split(": ", 1)[1].removesuffix(" degC").split(", ")]
     assert (
         bar.startswith("iron 0->1")

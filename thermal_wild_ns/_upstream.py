@@ -517,22 +517,25 @@ def trajectory_render_hooks(per_trajectory: Callable):
     """nerfstudio 1.1.5's ns-render commands render a camera path in the module-level
     `_render_trajectory_video(pipeline, ...)`, calling `pipeline.model.get_outputs_for_camera` per
     frame, with no hook. While this context is open, each such call runs inside the context
-    manager `per_trajectory(pipeline)`; what it yields, if not None, is called with every frame's
-    outputs (the same renders as the video, not a second pass)."""
+    manager `per_trajectory(pipeline)`, which yields `(frame_embedding, on_outputs)`: every frame is
+    rendered with `frame_embedding=` that embedding (where not None), and `on_outputs`, if not None,
+    is called with every frame's outputs (the same renders as the video, not a second pass)."""
     from nerfstudio.scripts import render as ns_render
 
     original = ns_render._render_trajectory_video
 
     def trajectory(pipeline, *args, **kwargs):
         model = pipeline.model
-        with per_trajectory(pipeline) as on_outputs:
-            if on_outputs is None:
+        with per_trajectory(pipeline) as (frame_embedding, on_outputs):
+            if frame_embedding is None and on_outputs is None:
                 return original(pipeline, *args, **kwargs)
             render = model.get_outputs_for_camera
+            at_state = {} if frame_embedding is None else {"frame_embedding": frame_embedding}
 
             def recording(*render_args, **render_kwargs):
-                outputs = render(*render_args, **render_kwargs)
-                on_outputs(outputs)
+                outputs = render(*render_args, **render_kwargs, **at_state)
+                if on_outputs is not None:
+                    on_outputs(outputs)
                 return outputs
 
             model.get_outputs_for_camera = recording

@@ -42,8 +42,8 @@ from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
     canonical_state,
     check_same_geometry,
+    outputs_at,
     render,
-    rendering_at,
     state_at,
     thermal_output,
     to_original,
@@ -99,18 +99,15 @@ def fit_embedding(
     by Adam on the L1 loss from `start`. Only those columns of the render enter the loss."""
     embedding = start.detach().clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
     optimizer = torch.optim.Adam([embedding], lr=lr)
-    saved = model.embedding_override
-    model.embedding_override = embedding
     try:
         with torch.enable_grad():
             for _ in range(steps):
                 optimizer.zero_grad()
-                pred = thermal_output(model.get_outputs(camera))[..., 0]
+                pred = thermal_output(model.get_outputs(camera, frame_embedding=embedding))[..., 0]
                 loss = (pred[:, columns] - target[:, columns]).abs().mean()
                 loss.backward()
                 optimizer.step()
     finally:
-        model.embedding_override = saved
         model.zero_grad(set_to_none=True)  # the Gaussians' gradients from these steps are not training's
     return embedding.detach()
 
@@ -258,8 +255,8 @@ def evaluate_path(pipeline, scene_root: Path, keep_frames=()) -> Dict:
             height=reference.height[None],
             camera_type=CameraType.PERSPECTIVE,
         ).to(model.device)
-        with rendering_at(model, canonical), torch.no_grad():
-            outputs = model.get_outputs_for_camera(camera)
+        with torch.no_grad():
+            outputs = outputs_at(model, camera, canonical)
         pred = to_original(pipeline, thermal_output(outputs)[..., 0].float().cpu().numpy(), canonical)
         gt = rng.read(Path(scene_root) / view["file_path"])
         true_depth = load_npy(Path(scene_root) / view["depth_npy_path"]) * scale  # scene units, like the render's

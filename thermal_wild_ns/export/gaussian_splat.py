@@ -36,11 +36,11 @@ def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
 
 def canonical_emission(pipeline) -> np.ndarray:
     """Baked emission of every Gaussian at the canonical state, dataset-normalised original space [N]."""
-    from thermal_wild_ns.pipeline.photometric_state import canonical_state, rendering_at, to_original
+    from thermal_wild_ns.pipeline.photometric_state import canonical_state, to_original
 
     model = pipeline.model
     state = canonical_state(pipeline)
-    with rendering_at(model, state), torch.no_grad():
+    with torch.no_grad():
         emission = model.gaussian_emission(model.inference_embedding())[:, 0].float().cpu().numpy()
     return to_original(pipeline, emission, state)
 

@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Literal, NamedTuple, Optional, Sequence, Tuple, Type, Union
 
+import numpy as np
 import torch
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
@@ -27,12 +28,12 @@ from torch import Tensor, nn
 from torch.nn import Parameter
 from torch.profiler import record_function
 
-from thermal_wild_ns._upstream import viewer_control_class
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
+from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls
 
 
 class View(NamedTuple):
@@ -156,14 +157,8 @@ class WildThermalModel(SplatfactoModel):
         )
         """Capture position (capture-order frame index) of each training image, i.e. of each row of
         `frame_embed`: the time axis along which the photometric state is interpolated."""
-        self.embedding_override: Optional[Tensor] = None
-        """Frame embedding [Df] to render with outside training, instead of `inference_embedding`."""
-        self.capture_time: Optional[float] = None
-        """Render outside training at the photometric state of this capture position (the viewer's
-        capture-time slider) instead of the canonical `inference_embedding`."""
-        self.last_train_loss: Optional[Tensor] = None  # read by the divergence guard (training/guard.py) ...
-        self.last_train_frame: Optional[int] = None  # ... with the image it came from
-        self.skip_densification_step = False  # ... which sets this when it skips a step
+        self._last_training_loss: Tuple[Optional[Tensor], Optional[int]] = (None, None)  # `last_training_loss`
+        self._discard_statistics = False  # `discard_step_statistics`
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
             EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
@@ -183,14 +178,17 @@ class WildThermalModel(SplatfactoModel):
         self.crop_box = None
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
+        self._baked: Dict[str, tuple] = {}  # 'emission' / 'background' -> (inputs, versions, value): `_baked_value`
+        self._colormap_table: Optional[tuple] = None  # ((colormap, device), [256, 3] table): `colormap_table`
+        self._inference_embedding: Optional[tuple] = None  # (choice, step, version) -> embedding: `_cached_embedding`
         self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
         self._training_views: Dict[tuple, View] = {}  # (training camera, downscale) -> its `_view`
         self._frame_directions: Dict[tuple, Tensor] = {}  # see `_camera_frame_directions`
         self._parameter_lists: Dict[int, tuple] = {}  # see `_parameters_of`
         self._frame_checks: Dict[tuple, tuple] = {}  # training image -> (all finite, contrast, original frame)
-        self.inverse_luts: Optional[Tensor] = None
+        self.register_buffer("inverse_luts", self._inverse_luts(), persistent=False)
         """[training images, S] each training frame's inverse LUT sampled at S evenly spaced training-space
-        values (set by the pipeline for `loss_space` 'original' when the frames are preprocessed)."""
+        values, for `loss_space` 'original' when the frames are preprocessed; else None."""
         self.strategy = BudgetedDefaultStrategy(
             max_gaussians=cfg.max_gaussians,
             prune_opa=cfg.cull_alpha_thresh,
@@ -210,86 +208,23 @@ class WildThermalModel(SplatfactoModel):
             verbose=False,
         )
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
-        self._add_viewer_controls(num_frames)
+        self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
+        """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
 
-    def _add_viewer_controls(self, num_frames: int) -> None:
-        """ns-viewer finds these on the model and shows them under "Custom Elements": the colormap,
-        the photometric state to render with (canonical, or any capture time on a slider), and the
-        colour bar in the data's units at that state."""
-        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerSlider, ViewerText
+    INVERSE_LUT_SAMPLES = 4096
+    """Training-space values at which each training frame's inverse LUT is tabulated for a loss in
+    the original space (linear in between: far finer than any step of the equalization)."""
 
-        def set_colormap(element):
-            self.config.colormap = element.value
-
-        def set_state(_element):
-            self.capture_time = float(self.viewer_time.value) if self.viewer_state.value == "capture time" else None
-            if self.on_photometric_state_change is not None:
-                self.on_photometric_state_change()
-
-        self.on_photometric_state_change = None
-        """Called after the viewer changes the state (the pipeline updates the colour bar)."""
-        self.viewer_colormap = ViewerDropdown(
-            "Thermal colormap",
-            self.config.colormap,
-            ["iron", "inferno", "grey"],
-            cb_hook=set_colormap,
-            hint="colours of the rgb output",
-        )
-        self.viewer_state = ViewerDropdown(
-            "Photometric state",
-            "canonical",
-            ["canonical", "capture time"],
-            cb_hook=set_state,
-            hint="canonical: the state every novel view renders with; capture time: the sensor's state at the "
-            "slider's position",
-        )
-        first, last = min(self.frame_times), max(self.frame_times)
-        self.viewer_time = ViewerSlider(
-            "Capture time",
-            first,
-            first,
-            max(last, first + 1e-3),
-            step=0.1,
-            cb_hook=set_state,
-            hint="capture position (frame index); between training frames the state is interpolated",
-        )
-        self.viewer_colour_bar = ViewerText(
-            "Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap"
-        )
-        self.viewer_control = (
-            viewer_control_class()(  # the viewer opens looking at the scene, not from an arbitrary pose
-                lambda client: self._look_through_training_camera(self._nearest_training_image(), client)
-            )
-        )
-        self.viewer_go_to_frame = ViewerButton(
-            "Look through the nearest training camera",
-            cb_hook=lambda _: self._look_through_training_camera(self._nearest_training_image()),
-        )
-
-    def _nearest_training_image(self) -> int:
-        """The training image closest in capture time to the viewer's state (the first one when canonical)."""
-        if self.capture_time is None:
-            return 0
-        return min(range(len(self.frame_times)), key=lambda k: abs(self.frame_times[k] - self.capture_time))
-
-    def _look_through_training_camera(self, image: int, client=None) -> None:
-        """Put a viewer client (default: all) at training image `image`'s camera (or else the first
-        one), as clicking its frustum does."""
-        viewer = getattr(self.viewer_control, "viewer", None)
-        handles = getattr(viewer, "camera_handles", None)
-        if not handles:
-            return
-        handle = handles.get(image) or handles[min(handles)]
-        import numpy as np
-        import viser.transforms as vtf
-
-        # just past the frustum's image plane, which would otherwise cover the view (viser cameras look along +z)
-        forward = vtf.SO3(np.asarray(handle.wxyz)).as_matrix()[:, 2]
-        position = np.asarray(handle.position) + forward * 2.0 * viewer.config.camera_frustum_scale
-        for each in [client] if client is not None else viewer.viser_server.get_clients().values():
-            with each.atomic():
-                each.camera.wxyz = handle.wxyz
-                each.camera.position = position
+    def _inverse_luts(self) -> Optional[Tensor]:
+        """The training frames' inverse LUTs [images, S], from what the model is built with (the
+        training data's `preprocessed` sequence and capture positions); None where unused."""
+        metadata = self.kwargs.get("metadata") or {}
+        sequence = metadata.get("preprocessed")
+        if sequence is None or self.config.loss_space != "original":
+            return None
+        values = np.linspace(0.0, 1.0, self.INVERSE_LUT_SAMPLES)
+        tables = np.stack([sequence.to_original_normalised(values, sequence.lut(int(t))) for t in self.frame_times])
+        return torch.from_numpy(tables.astype(np.float32))  # [images, S]
 
     @property
     def emission(self) -> Tensor:
@@ -337,13 +272,20 @@ class WildThermalModel(SplatfactoModel):
         return groups
 
     # -------------------------------------------------------------- rendering
-    def frame_embedding(self, camera: Cameras) -> Tensor:
-        """The frame embedding for this camera [Df]: the training frame's own while training,
-        the configured fixed choice otherwise."""
+    def frame_embedding(self, camera: Cameras, given: Optional[Tensor] = None) -> Tensor:
+        """The frame embedding for this camera [Df]: the training frame's own while training; else
+        `given` (a photometric state's, passed by the caller), else the viewer's choice
+        (`viewer_embedding`)."""
         weight = self.frame_embed.weight  # [F, Df]
         if self.training and camera.metadata is not None and "cam_idx" in camera.metadata:
             return weight[int(camera.metadata["cam_idx"])]
-        return self.inference_embedding()
+        return given if given is not None else self.viewer_embedding()
+
+    def viewer_embedding(self) -> Tensor:
+        """The frame embedding [Df] of a render that names no state (ns-viewer): the state at the
+        viewer's capture time where its user chose one, else the canonical `inference_embedding`."""
+        t = self.viewer_controls.capture_time
+        return self.inference_embedding() if t is None else self._cached_embedding(f"time:{t}")
 
     @property
     def uses_frame_embedding(self) -> bool:
@@ -372,21 +314,21 @@ class WildThermalModel(SplatfactoModel):
                 self.frame_embed.weight[row] = self.embedding_at(self.frame_times[row], without=rows)
 
     def inference_embedding(self) -> Tensor:
-        """The frame embedding [Df] used outside training: `embedding_override` when set (evaluation
-        protocols, `wild-thermal-render --photometric-state`), else the state at `capture_time`
-        when set (the viewer), else the configured canonical `inference_embedding`. Outside
-        autograd the same tensor is returned until the embeddings change, so the baked emission
-        keyed on it stays valid."""
+        """The canonical frame embedding [Df]: the configured `inference_embedding` (the training
+        frames' mean by default). Outside autograd the same tensor is returned until the embeddings
+        change, so the baked emission keyed on it stays valid."""
+        return self._cached_embedding(self.config.inference_embedding)
+
+    def _cached_embedding(self, choice: str) -> Tensor:
+        """The frame embedding [Df] `choice` names ('mean', 'zero', a training image's index, or
+        'time:T'), kept outside autograd until the embeddings change (`_inference_embedding`)."""
         weight = self.frame_embed.weight  # [F, Df]
-        if self.embedding_override is not None:
-            return self.embedding_override
-        choice = self.config.inference_embedding if self.capture_time is None else f"time:{self.capture_time}"
-        cached = getattr(self, "_inference_embedding", None)
+        cached = self._inference_embedding
         key = (choice, self.step, weight._version)  # the step: fused Adam does not bump tensor versions
         if cached is not None and cached[0] == key and cached[1] is weight:
             return cached[2]
-        if self.capture_time is not None:
-            value = self.embedding_at(self.capture_time)
+        if choice.startswith("time:"):
+            value = self.embedding_at(float(choice[5:]))
         elif choice == "mean":
             value = weight.mean(dim=0)
         elif choice == "zero":
@@ -420,7 +362,7 @@ class WildThermalModel(SplatfactoModel):
         embedding or any parameter it depends on changes (`_baked_value`)."""
         embed = self.gauss_params["gauss_embed"]
         tensors = (self.emission, embed, *self._parameters_of(self.emission_mlp), frame_embed)
-        return self._baked_value("_baked", tensors, lambda: self.emission_mlp(self.emission, embed, frame_embed))
+        return self._baked_value("emission", tensors, lambda: self.emission_mlp(self.emission, embed, frame_embed))
 
     def _parameters_of(self, module: nn.Module) -> Tuple[Tensor, ...]:
         """A module's parameters, listed once: they stay the same objects for the model's life
@@ -431,18 +373,18 @@ class WildThermalModel(SplatfactoModel):
         return cached[1]
 
     def _baked_value(self, slot: str, tensors: Tuple[Tensor, ...], compute) -> Tensor:
-        """`compute()` (without autograd), kept in attribute `slot` until one of `tensors` changes: a
+        """`compute()` (without autograd), kept as `_baked[slot]` until one of `tensors` changes: a
         training step (`self.step`; fused Adam updates in place without bumping tensor versions),
         an in-place edit or load (versions) or densification (identities). The check runs on the
         host: no GPU round trip per frame. The cache holds the tensors themselves, so their
         identities cannot be recycled."""
         versions = (self.step, *(t._version for t in tensors))
-        cached = getattr(self, slot, None)
+        cached = self._baked.get(slot)
         if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
             return cached[2]
         with torch.no_grad():
             value = compute()
-        setattr(self, slot, (tensors, versions, value))
+        self._baked[slot] = (tensors, versions, value)
         return value
 
     BAKED_BACKGROUND_TEXELS = (129, 256)
@@ -456,7 +398,7 @@ class WildThermalModel(SplatfactoModel):
         sampling wraps around). Kept like `baked_emission` (`_baked_value`): until the embedding or
         a parameter of the MLP changes, a render samples this map instead of running the MLP per pixel."""
         tensors = (*self._parameters_of(self.background_mlp), frame_embed)
-        return self._baked_value("_baked_background", tensors, lambda: self._background_map(frame_embed))
+        return self._baked_value("background", tensors, lambda: self._background_map(frame_embed))
 
     def _background_map(self, frame_embed: Tensor) -> Tensor:
         rows, cols = self.BAKED_BACKGROUND_TEXELS
@@ -591,7 +533,10 @@ class WildThermalModel(SplatfactoModel):
             coarse.permute(2, 0, 1)[None], size=(height, width), mode="bilinear", align_corners=False
         )[0].permute(1, 2, 0)
 
-    def get_outputs(self, camera: Cameras) -> Dict[str, Union[Tensor, List]]:
+    def get_outputs(self, camera: Cameras, frame_embedding: Optional[Tensor] = None) -> Dict[str, Union[Tensor, List]]:
+        """The render of `camera`: in training, at its training frame's state; otherwise at the
+        photometric state whose `frame_embedding` [Df] the caller passes, else the viewer's
+        (`frame_embedding`)."""
         if not isinstance(camera, Cameras):
             raise TypeError(f"WildThermalModel.get_outputs needs a Cameras object, got {type(camera).__name__}")
         if self.training:
@@ -606,7 +551,7 @@ class WildThermalModel(SplatfactoModel):
         view = self._view(camera, self._get_downscale_factor(), cam_idx)
         viewmat, K, W, H = view.viewmat, view.K, view.width, view.height
         self.last_size = (H, W)
-        frame_embed = self.frame_embedding(camera)
+        frame_embed = self.frame_embedding(camera, frame_embedding)
         with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
             background = self.background(
                 K[0], view.camera_to_world[0], frame_embed, W, H, cam_idx, pinhole=view.pinhole
@@ -664,11 +609,14 @@ class WildThermalModel(SplatfactoModel):
         return self._outputs(thermal, alpha, background, depth)
 
     @torch.no_grad()
-    def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:
-        """Splatfacto's, without its copy of a camera already on the model's device (a new Cameras
-        object per frame, whose construction costs more host time than the splatting)."""
+    def get_outputs_for_camera(
+        self, camera: Cameras, obb_box=None, frame_embedding: Optional[Tensor] = None
+    ) -> Dict[str, Tensor]:
+        """Splatfacto's, at the state of `frame_embedding` (`get_outputs`), without its copy of a
+        camera already on the model's device (a new Cameras object per frame, whose construction
+        costs more host time than the splatting)."""
         self.set_crop(obb_box)
-        return self.get_outputs(camera if camera.device == self.device else camera.to(self.device))
+        return self.get_outputs(camera if camera.device == self.device else camera.to(self.device), frame_embedding)
 
     def _outputs(self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
         clipped = thermal.clamp(0.0, 1.0)
@@ -685,11 +633,12 @@ class WildThermalModel(SplatfactoModel):
         }
 
     def colormap_table(self, device) -> Tensor:
-        """The configured colormap's 256 colours [256, 3] in [0, 1] on `device`."""
+        """The viewer's colormap's (the configured one outside the viewer) 256 colours [256, 3] in
+        [0, 1] on `device`."""
         from thermal_wild_ns.data.palettes import palette_rgb
 
-        name = self.config.colormap
-        cached = getattr(self, "_colormap_table", None)
+        name = self.viewer_controls.colormap
+        cached = self._colormap_table
         if cached is None or cached[0] != (name, str(device)):
             table = torch.from_numpy(palette_rgb(name).astype("float32") / 255.0).to(device)
             self._colormap_table = cached = ((name, str(device)), table)
@@ -735,7 +684,20 @@ class WildThermalModel(SplatfactoModel):
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
         with record_function("thermal/loss"):
-            return self._loss_dict(outputs, batch)
+            losses = self._loss_dict(outputs, batch)
+        if self.training:
+            frame = int(batch["image_idx"]) if "image_idx" in batch else None
+            self._last_training_loss = (sum(losses.values()).detach(), frame)
+        return losses
+
+    # ------------------------------------------------- the trainer's interface (training/model_interface.py)
+    def last_training_loss(self) -> Tuple[Optional[Tensor], Optional[int]]:
+        """The last training step's total loss (detached) and its training image (the divergence guard's)."""
+        return self._last_training_loss
+
+    def discard_step_statistics(self) -> None:
+        """This step's gradients stay out of the densification statistics (a step the guard skipped)."""
+        self._discard_statistics = True
 
     def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
         """Training-space values of training image `image` taken back to the original space through
@@ -774,8 +736,6 @@ class WildThermalModel(SplatfactoModel):
             )
         if self.training:
             self.camera_optimizer.get_loss_dict(losses)
-            self.last_train_loss = sum(losses.values()).detach()  # read by the divergence guard
-            self.last_train_frame = int(batch["image_idx"]) if "image_idx" in batch else None
         return losses
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
@@ -818,8 +778,8 @@ class WildThermalModel(SplatfactoModel):
             torch.set_rng_state(state["torch_rng_state"])
 
     def step_post_backward(self, step):
-        if self.skip_densification_step:  # the guard skipped this step: no statistics from it
-            self.skip_densification_step = False
+        if self._discard_statistics:  # the guard skipped this step: no statistics from it
+            self._discard_statistics = False
             return
         with record_function("thermal/densify"):
             super().step_post_backward(step)

@@ -57,25 +57,18 @@ def parse_state(spec: str) -> Tuple[str, Optional[float]]:
 
 
 def _model_embedding(model, t: Optional[float]) -> Optional[Tensor]:
-    if not getattr(model, "uses_frame_embedding", False):
+    if not getattr(model, "uses_frame_embedding", False):  # a model without frame embeddings (splatfacto)
         return None
     with torch.no_grad():
         return (model.inference_embedding() if t is None else model.embedding_at(t)).detach()
 
 
 def canonical_state(pipeline) -> PhotometricState:
-    """The state every novel view renders with."""
+    """The state every novel view renders with (whatever the viewer shows)."""
     sequence = getattr(pipeline.datamanager, "preprocessed", None)
-    model = pipeline.model
-    viewer_time = getattr(model, "capture_time", None)  # the viewer's slider must not move the canonical state
-    if viewer_time is not None:
-        model.capture_time = None
-    try:
-        embedding = _model_embedding(model, None)
-    finally:
-        if viewer_time is not None:
-            model.capture_time = viewer_time
-    return PhotometricState("canonical", embedding, None if sequence is None else sequence.median_lut())
+    return PhotometricState(
+        "canonical", _model_embedding(pipeline.model, None), None if sequence is None else sequence.median_lut()
+    )
 
 
 def state_at(pipeline, t: float) -> PhotometricState:
@@ -117,21 +110,12 @@ def to_training_space(pipeline, values: np.ndarray, state: PhotometricState) -> 
     return pipeline.datamanager.preprocessed.to_processed_normalised(values, state.lut).astype(np.float32)
 
 
-class rendering_at:
-    """`with rendering_at(model, state):` renders outside training use the state's embedding."""
-
-    def __init__(self, model, state: PhotometricState):
-        self.model, self.embedding = model, state.embedding
-
-    def __enter__(self):
-        self.saved = getattr(self.model, "embedding_override", None)
-        if self.embedding is not None:
-            self.model.embedding_override = self.embedding
-        return self.model
-
-    def __exit__(self, *exc):
-        if self.embedding is not None:
-            self.model.embedding_override = self.saved
+def outputs_at(model, camera, state: PhotometricState, **kwargs) -> dict:
+    """`model.get_outputs_for_camera(camera)` at `state`: its frame embedding passed to a model that
+    has them (`WildThermalModel.get_outputs`), nothing to one that has none."""
+    if state.embedding is not None:
+        kwargs["frame_embedding"] = state.embedding
+    return model.get_outputs_for_camera(camera, **kwargs)
 
 
 def thermal_output(outputs: dict) -> Tensor:
@@ -162,8 +146,8 @@ def render_layers(pipeline, camera, state: PhotometricState) -> Dict[str, np.nda
     kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
     model.eval()
     try:
-        with rendering_at(model, state), torch.no_grad():
-            outputs = model.get_outputs_for_camera(camera)
+        with torch.no_grad():
+            outputs = outputs_at(model, camera, state)
             rendered = thermal_output(outputs)[..., 0].float().cpu().numpy()  # [H, W]
             alpha, depth = outputs.get("accumulation"), outputs.get("depth")
             coverage = np.ones_like(rendered) if alpha is None else alpha[..., 0].float().cpu().numpy()

@@ -68,10 +68,9 @@ class ThermalPipeline(VanillaPipeline):
             ) from None
         if config.checkpoint_dir is not None:
             self._record_or_check_data(Path(config.checkpoint_dir).parent / DATA_RECORD, loads_a_run)
-        if not loads_a_run:
-            self._give_inverse_luts()
-        if getattr(self.model, "viewer_colour_bar", None) is not None:
-            self.model.on_photometric_state_change = self.update_colour_bar
+        controls = getattr(self.model, "viewer_controls", None)  # a thermal model's (ThermalViewerControls)
+        if controls is not None:
+            controls.on_state_change(self.update_colour_bar)
             self.update_colour_bar()
 
     def _record_or_check_data(self, record: Path, loads_a_run: bool) -> None:
@@ -108,30 +107,15 @@ class ThermalPipeline(VanillaPipeline):
             f"{record})"
         )
 
-    INVERSE_LUT_SAMPLES = 4096
-    """Training-space values at which each training frame's inverse LUT is tabulated for a loss in
-    the original space (linear in between: far finer than any step of the equalization)."""
-
-    def _give_inverse_luts(self) -> None:
-        """The model's inverse LUT per training image, for a photometric loss in the original space."""
-        sequence = getattr(self.datamanager, "preprocessed", None)
-        if sequence is None or getattr(self.model.config, "loss_space", "training") != "original":
-            return
-        values = np.linspace(0.0, 1.0, self.INVERSE_LUT_SAMPLES)
-        frames = self.datamanager.train_dataset.metadata["frame_indices"]
-        tables = np.stack([sequence.to_original_normalised(values, sequence.lut(int(t))) for t in frames])
-        self.model.inverse_luts = torch.from_numpy(tables.astype(np.float32)).to(self.device)  # [images, S]
-
     def viewer_state(self) -> PhotometricState:
         """The state the viewer renders at: canonical, or its capture-time slider's."""
-        t = getattr(self.model, "capture_time", None)
+        t = self.model.viewer_controls.capture_time
         return canonical_state(self) if t is None else state_at(self, t)
 
     def update_colour_bar(self) -> None:
         state = self.viewer_state()
-        self.model.viewer_colour_bar.value = (
-            f"{self.model.config.colormap} 0->1 at {state.label}: {colour_bar(self, state)}"
-        )
+        controls = self.model.viewer_controls
+        controls.show_colour_bar(f"{controls.colormap} 0->1 at {state.label}: {colour_bar(self, state)}")
 
     @torch.no_grad()
     def get_eval_image_metrics_and_images(self, step: int):

@@ -101,9 +101,10 @@ class RadiometricFrameWriter:
 @contextlib.contextmanager
 def _radiometric_too(options: RadiometricOptions, output_path: Path):
     """While ns-render's command runs, every trajectory is rendered at the chosen photometric state
-    and, unless `--radiometric none`, every frame it renders also goes to a RadiometricFrameWriter."""
+    (its frame embedding passed to each render) and, unless `--radiometric none`, every frame it
+    renders also goes to a RadiometricFrameWriter."""
     from thermal_wild_ns._upstream import trajectory_render_hooks
-    from thermal_wild_ns.pipeline.photometric_state import parse_state, rendering_at, resolve_state
+    from thermal_wild_ns.pipeline.photometric_state import parse_state, resolve_state
     from thermal_wild_ns.pipeline.run_check import check_trained_run
 
     parse_state(options.photometric_state)  # a bad name fails before the model loads
@@ -117,8 +118,7 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
             frames = RadiometricFrameWriter(
                 pipeline, state, options.radiometric_folder(output_path), options.radiometric
             )
-        with rendering_at(pipeline.model, state):
-            yield None if frames is None else (lambda outputs: frames.write(outputs["thermal"]))
+        yield state.embedding, None if frames is None else (lambda outputs: frames.write(outputs["thermal"]))
         if frames is not None:
             frames.close()
 

@@ -25,6 +25,8 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 import torch
 
+from thermal_wild_ns.training.model_interface import GuardedModel
+
 
 @dataclass
 class AutoStopConfig:
@@ -99,14 +101,14 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, getattr(datamanager, "preprocessed", None)
     held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    fill = getattr(model, "interpolate_embeddings", None)
-    if fill is not None:
-        fill(images)
+    fill = isinstance(model, GuardedModel)
+    if fill:
+        model.interpolate_embeddings(images)
     values = []
     for image in images:
         t = dataset.frame_index(image)
         lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
-        embedding = model.frame_embed.weight[image].detach() if fill is not None else None
+        embedding = model.frame_embed.weight[image].detach() if fill else None
         camera = dataset.cameras[image : image + 1].to(model.device)
         _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
         truth = datamanager.held_back_truth(image)  # [H, W]

@@ -51,6 +51,7 @@ from thermal_wild_ns.pipeline.run_check import (
     write_text_atomically,
 )
 from thermal_wild_ns.training.auto_stop import AutoStopConfig, PlateauRule, held_back_images, held_back_score
+from thermal_wild_ns.training.model_interface import GuardedModel
 
 
 class TrainingDiverged(RuntimeError):
@@ -324,14 +325,12 @@ class GuardedTrainer(trainer_after_load_class()):
     def _accept_step(self, param_groups) -> bool:
         """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
         model = self.pipeline.model
+        guarded = isinstance(model, GuardedModel)
+        loss, frame = model.last_training_loss() if guarded else (None, None)
         with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
-            reason = self.guard.check_step(
-                getattr(model, "last_train_loss", None),
-                self.optimizers.parameters,
-                param_groups,
-                getattr(model, "last_train_frame", None),
-            )
-        model.skip_densification_step = reason is not None  # the strategy must not record this step's gradients either
+            reason = self.guard.check_step(loss, self.optimizers.parameters, param_groups, frame)
+        if reason is not None and guarded:
+            model.discard_step_statistics()  # the strategy must not record this step's gradients either
         self.guard.record(self._step, reason)
         return reason is None
 
@@ -365,7 +364,8 @@ class GuardedTrainer(trainer_after_load_class()):
     def _check_progress(self, step: int) -> None:
         """Score the held-back frames; stop training at a plateau. No score before the schedule's
         start-up is over (the model's `settled_step`: full resolution, first opacity reset)."""
-        if step < getattr(self.pipeline.model, "settled_step", 0):
+        model = self.pipeline.model
+        if isinstance(model, GuardedModel) and step < model.settled_step:
             return
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.auto_stop.keep_best:
@@ -450,8 +450,8 @@ class GuardedTrainer(trainer_after_load_class()):
     def _guarded_iteration(self, step: int):
         if not self.config.guard.enabled:
             return self._iteration(step)
-        moves_loss = getattr(self.pipeline.model, "schedule_moves_loss", None)
-        if moves_loss is not None and moves_loss(step):
+        model = self.pipeline.model
+        if isinstance(model, GuardedModel) and model.schedule_moves_loss(step):
             self.guard.rebaseline()
         try:
             result = self._iteration(step)
@@ -465,7 +465,8 @@ class GuardedTrainer(trainer_after_load_class()):
             self._restore(healthy)
             model = self.pipeline.model
             model.step = step  # splatfacto's load_state_dict sets it to 30000 (for its viewer)
-            model.skip_densification_step = True  # this step's statistics belong to the discarded state
+            if isinstance(model, GuardedModel):
+                model.discard_step_statistics()  # this step's statistics belong to the discarded state
             self.guard.rollbacks += 1
             self.guard.consecutive = 0
             CONSOLE.log(

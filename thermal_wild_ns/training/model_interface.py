@@ -1,0 +1,34 @@
+"""What passes between the trainer's parts (the divergence guard, the automatic stop) and a model:
+a declared interface, not attributes set from outside. `WildThermalModel` offers it; a model that
+does not (stock splatfacto, benchmarked through the same trainer) trains without these parts'
+model-side checks: no loss check per step, scores from step 0, no embeddings to interpolate."""
+
+from __future__ import annotations
+
+from typing import Optional, Protocol, Sequence, Tuple, runtime_checkable
+
+from torch import Tensor
+
+
+@runtime_checkable
+class GuardedModel(Protocol):
+    settled_step: int
+    """The first step past the schedule's start-up (full resolution, first opacity reset): the
+    automatic stop scores no earlier."""
+
+    def last_training_loss(self) -> Tuple[Optional[Tensor], Optional[int]]:
+        """The last training step's total loss (detached, on the device) and its training image."""
+        ...
+
+    def discard_step_statistics(self) -> None:
+        """This step's gradients must not enter the densification statistics (the guard skipped
+        the step, or rolled the model back)."""
+        ...
+
+    def schedule_moves_loss(self, step: int) -> bool:
+        """Whether the training schedule itself moves the loss at `step` (the guard rebaselines)."""
+        ...
+
+    def interpolate_embeddings(self, rows: Sequence[int]) -> None:
+        """Set the embeddings of held-back training images to the state their neighbours give."""
+        ...
