@@ -60,6 +60,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
     """Frames per second over the pipeline's test cameras: `baked`, `unbaked` and `splat_only` for
     this plugin's models (the first only for others), and the largest baked/unbaked difference."""
 
+    from thermal_wild_ns.model.camera_views import intrinsics
     from thermal_wild_ns.rendering import rasterization, world_to_camera
 
     model = pipeline.model
@@ -74,7 +75,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
         return outputs["thermal"] if ours else outputs["rgb"]
 
     def unbaked(i: int) -> torch.Tensor:
-        model._baked = None  # forget the cached emission: the MLP runs again for this frame
+        model.baked.slots.pop("emission", None)  # forget the cached emission: the MLP runs again for this frame
         return baked(i)
 
     ways: Dict[str, Callable[[int], torch.Tensor]] = {"baked": baked}
@@ -93,9 +94,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 opacities=torch.sigmoid(model.opacities).squeeze(-1),
                 colors=model.gaussian_emission(model.inference_embedding()),
             )
-            views = [
-                (world_to_camera(c.camera_to_worlds), model.intrinsics(c)) for c in cameras
-            ]  # [1, 4, 4], [1, 3, 3]
+            views = [(world_to_camera(c.camera_to_worlds), intrinsics(c)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
 
             def splat_only(i: int) -> torch.Tensor:
                 viewmat, K = views[i % len(views)]

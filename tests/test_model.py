@@ -5,6 +5,7 @@ import torch
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.scene_box import SceneBox
 
+from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 
 
@@ -170,28 +171,28 @@ def test_baked_emission_matches_and_is_invalidated():
         unbaked = model.get_outputs(camera)["thermal"].detach()
     with torch.no_grad():
         baked = model.get_outputs(camera)["thermal"]
-        first = model._baked["emission"][2]
-        assert model.get_outputs(camera)["thermal"].equal(baked) and model._baked["emission"][2] is first  # reused
+        first = model.baked.slots["emission"][2]
+        assert model.get_outputs(camera)["thermal"].equal(baked) and model.baked.slots["emission"][2] is first  # reused
     torch.testing.assert_close(baked, unbaked, atol=1e-5, rtol=0)
     with torch.no_grad():
         model.emission_mlp.net[0].weight.add_(0.01)  # an optimizer step changes parameters in place
         changed = model.get_outputs(camera)["thermal"]
-        assert model._baked["emission"][2] is not first and not changed.equal(baked)
-        second = model._baked["emission"][2]
+        assert model.baked.slots["emission"][2] is not first and not changed.equal(baked)
+        second = model.baked.slots["emission"][2]
         model.get_outputs(camera, frame_embedding=torch.ones_like(model.frame_embed.weight[0]))  # another state
-        assert model._baked["emission"][2] is not second
+        assert model.baked.slots["emission"][2] is not second
     # a training step with fused Adam (which leaves tensor versions alone) invalidates it too
     optimizer = torch.optim.Adam([*model.emission_mlp.parameters(), model.frame_embed.weight], lr=0.1, fused=True)
     with torch.no_grad():
         before_step = model.get_outputs(camera)["thermal"]
-        third = model._baked["emission"][2]
+        third = model.baked.slots["emission"][2]
     for param in [*model.emission_mlp.parameters(), model.frame_embed.weight]:
         param.grad = torch.ones_like(param)
     optimizer.step()
     model.step += 1  # what the trainer's step callback does
     with torch.no_grad():
         after_step = model.get_outputs(camera)["thermal"]
-    assert model._baked["emission"][2] is not third and not after_step.equal(before_step)
+    assert model.baked.slots["emission"][2] is not third and not after_step.equal(before_step)
 
 
 def test_mismatched_checkpoints_are_refused_with_the_reason():
@@ -445,16 +446,16 @@ def test_renders_outside_training_use_the_baked_background():
     with torch.enable_grad():
         exact = model.background(K, c2w, embed, 160, 128)  # under autograd: the MLP itself
     spread = float(exact.max() - exact.min())
-    assert "background" in model._baked
+    assert "background" in model.baked.slots
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
     # the view directions: the camera-frame directions of the intrinsics, kept once per intrinsics (given
     # on the host or read from K alike), then rotated: the directions of the full pixel grid
-    assert len(model._frame_directions) == 1
+    assert len(model._frame_directions.kept) == 1
     with torch.no_grad():
         given = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
-    assert len(model._frame_directions) == 1 and torch.equal(given, baked)
-    kept = next(iter(model._frame_directions.values())) @ c2w[:3, :3].T
-    reference = model.ray_directions(K, c2w, 160, 128, model.config.background_stride)
+    assert len(model._frame_directions.kept) == 1 and torch.equal(given, baked)
+    kept = next(iter(model._frame_directions.kept.values())) @ c2w[:3, :3].T
+    reference = ray_directions(K, c2w, 160, 128, model.config.background_stride)
     assert kept.shape == reference.shape and float((kept - reference).abs().max()) < 1e-6
     outputs = model.get_outputs_for_camera(camera)  # the same object, already on the model's device
     assert torch.equal(outputs["background"], baked)

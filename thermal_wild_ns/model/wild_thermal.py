@@ -14,9 +14,8 @@ Outside training the frame embedding is fixed (`inference_embedding`), so render
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, NamedTuple, Optional, Sequence, Tuple, Type, Union
+from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
 import numpy as np
 import torch
@@ -29,22 +28,14 @@ from torch.nn import Parameter
 from torch.profiler import record_function
 
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.model.background import CameraFrameDirections, background_map, sample_map, upsampled
+from thermal_wild_ns.model.bake import BakedValues
+from thermal_wild_ns.model.camera_views import View, make_view, ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
-from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
+from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls
-
-
-class View(NamedTuple):
-    """A render's camera, on the model's device, at the resolution it renders."""
-
-    camera_to_world: Tensor  # [1, 3, 4]
-    viewmat: Tensor  # [1, 4, 4], gsplat's world-to-camera
-    K: Tensor  # [1, 3, 3]
-    width: int
-    height: int
-    pinhole: Tuple[float, float, float, float]  # K's fx, fy, cx, cy, on the host
 
 
 @dataclass
@@ -178,13 +169,14 @@ class WildThermalModel(SplatfactoModel):
         self.crop_box = None
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
-        self._baked: Dict[str, tuple] = {}  # 'emission' / 'background' -> (inputs, versions, value): `_baked_value`
+        self.baked = (
+            BakedValues()
+        )  # 'emission', 'background' (outside training): `baked_emission`, `baked_background_map`
         self._colormap_table: Optional[tuple] = None  # ((colormap, device), [256, 3] table): `colormap_table`
         self._inference_embedding: Optional[tuple] = None  # (choice, step, version) -> embedding: `_cached_embedding`
         self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
         self._training_views: Dict[tuple, View] = {}  # (training camera, downscale) -> its `_view`
-        self._frame_directions: Dict[tuple, Tensor] = {}  # see `_camera_frame_directions`
-        self._parameter_lists: Dict[int, tuple] = {}  # see `_parameters_of`
+        self._frame_directions = CameraFrameDirections()  # what the baked background is sampled along
         self._frame_checks: Dict[tuple, tuple] = {}  # training image -> (all finite, contrast, original frame)
         self.register_buffer("inverse_luts", self._inverse_luts(), persistent=False)
         """[training images, S] each training frame's inverse LUT sampled at S evenly spaced training-space
@@ -359,61 +351,20 @@ class WildThermalModel(SplatfactoModel):
 
     def baked_emission(self, frame_embed: Tensor) -> Tensor:
         """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], kept until the
-        embedding or any parameter it depends on changes (`_baked_value`)."""
+        embedding or any parameter it depends on changes (`BakedValues`)."""
         embed = self.gauss_params["gauss_embed"]
-        tensors = (self.emission, embed, *self._parameters_of(self.emission_mlp), frame_embed)
-        return self._baked_value("emission", tensors, lambda: self.emission_mlp(self.emission, embed, frame_embed))
-
-    def _parameters_of(self, module: nn.Module) -> Tuple[Tensor, ...]:
-        """A module's parameters, listed once: they stay the same objects for the model's life
-        (loads copy into them, `.to()` moves their data), and a render checks them every frame."""
-        cached = self._parameter_lists.get(id(module))
-        if cached is None or cached[0] is not module:
-            cached = self._parameter_lists[id(module)] = (module, tuple(module.parameters()))
-        return cached[1]
-
-    def _baked_value(self, slot: str, tensors: Tuple[Tensor, ...], compute) -> Tensor:
-        """`compute()` (without autograd), kept as `_baked[slot]` until one of `tensors` changes: a
-        training step (`self.step`; fused Adam updates in place without bumping tensor versions),
-        an in-place edit or load (versions) or densification (identities). The check runs on the
-        host: no GPU round trip per frame. The cache holds the tensors themselves, so their
-        identities cannot be recycled."""
-        versions = (self.step, *(t._version for t in tensors))
-        cached = self._baked.get(slot)
-        if cached is not None and cached[1] == versions and all(a is b for a, b in zip(cached[0], tensors)):
-            return cached[2]
-        with torch.no_grad():
-            value = compute()
-        self._baked[slot] = (tensors, versions, value)
-        return value
-
-    BAKED_BACKGROUND_TEXELS = (129, 256)
-    """Latitude x longitude samples of the baked background map (about 1.4 degrees apart; the
-    background's direction encoding has spherical harmonics up to degree 3 only)."""
+        tensors = (self.emission, embed, *self.baked.parameters_of(self.emission_mlp), frame_embed)
+        return self.baked.get(
+            "emission", tensors, self.step, lambda: self.emission_mlp(self.emission, embed, frame_embed)
+        )
 
     def baked_background_map(self, frame_embed: Tensor) -> Tensor:
-        """The background MLP over every direction under `frame_embed`, as a latitude-longitude map
-        [1, 1, rows, cols + 1] for `grid_sample` (align_corners: row 0 is latitude -90 degrees, the
-        last +90; column 0 is longitude -180 degrees and the last column repeats it at +180, so
-        sampling wraps around). Kept like `baked_emission` (`_baked_value`): until the embedding or
-        a parameter of the MLP changes, a render samples this map instead of running the MLP per pixel."""
-        tensors = (*self._parameters_of(self.background_mlp), frame_embed)
-        return self._baked_value("background", tensors, lambda: self._background_map(frame_embed))
-
-    def _background_map(self, frame_embed: Tensor) -> Tensor:
-        rows, cols = self.BAKED_BACKGROUND_TEXELS
-        latitude = torch.linspace(-math.pi / 2, math.pi / 2, rows, device=frame_embed.device)  # [rows]
-        longitude = torch.arange(cols, device=frame_embed.device) * (2 * math.pi / cols) - math.pi  # [cols]
-        dirs = torch.stack(
-            [
-                torch.cos(latitude)[:, None] * torch.cos(longitude)[None, :],
-                torch.cos(latitude)[:, None] * torch.sin(longitude)[None, :],
-                torch.sin(latitude)[:, None].expand(-1, cols),
-            ],
-            dim=-1,
-        )  # [rows, cols, 3]
-        values = self.background_mlp(dirs, frame_embed)[..., 0]  # [rows, cols]
-        return torch.cat([values, values[:, :1]], dim=1)[None, None]  # [1, 1, rows, cols + 1]
+        """The background MLP over every direction under `frame_embed` (`background.background_map`),
+        kept like `baked_emission`: a render samples this map instead of running the MLP per pixel."""
+        tensors = (*self.baked.parameters_of(self.background_mlp), frame_embed)
+        return self.baked.get(
+            "background", tensors, self.step, lambda: background_map(self.background_mlp, frame_embed)
+        )
 
     def _view(self, camera: Cameras, scale: int, cam_idx: Optional[int]) -> View:
         """Where and how a render looks, at 1/`scale` of the camera's resolution (`View`). The camera
@@ -423,48 +374,10 @@ class WildThermalModel(SplatfactoModel):
         if cam_idx is not None and key in self._training_views:
             return self._training_views[key]
         camera_to_world = self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
-        camera_to_world = camera_to_world.to(self.device)
-        factor = 1.0 / scale  # as nerfstudio's Cameras.rescale_output_resolution: intrinsics times it, sizes floored
-        names = ("width", "height", "fx", "fy", "cx", "cy")
-        width, height, *pinhole = torch.cat([getattr(camera, n).reshape(-1) for n in names]).tolist()  # one read
-        view = View(
-            camera_to_world,
-            world_to_camera(camera_to_world),
-            self.intrinsics(camera, factor).to(self.device),
-            int(width * factor),
-            int(height * factor),
-            tuple(value * factor for value in pinhole),
-        )
+        view = make_view(camera, camera_to_world, scale, self.device)
         if cam_idx is not None:
             self._training_views[key] = view
         return view
-
-    @staticmethod
-    def intrinsics(camera: Cameras, factor: float = 1.0) -> Tensor:
-        """Pinhole intrinsics [C, 3, 3] of the camera's images resized by `factor`, built on the
-        camera's device (nerfstudio's `get_intrinsics_matrices` builds them on the host: one GPU
-        round trip per entry)."""
-        fx, fy, cx, cy = (getattr(camera, name).reshape(-1) for name in ("fx", "fy", "cx", "cy"))  # [C] each
-        if factor != 1.0:
-            fx, fy, cx, cy = fx * factor, fy * factor, cx * factor, cy * factor
-        zero, one = torch.zeros_like(fx), torch.ones_like(fx)
-        return torch.stack([fx, zero, cx, zero, fy, cy, zero, zero, one], dim=-1).reshape(-1, 3, 3)
-
-    @staticmethod
-    def ray_directions(K: Tensor, camera_to_world: Tensor, width: int, height: int, stride: int = 1) -> Tensor:
-        """Unit world-space view directions (nerfstudio/OpenGL axes) at the pixel centres of the
-        image downsampled by `stride` [ceil(H / stride), ceil(W / stride), 3]; K [3, 3] and
-        camera_to_world [3, 4] at full resolution."""
-        device = camera_to_world.device
-        h, w = -(-height // stride), -(-width // stride)
-        v, u = torch.meshgrid(
-            (torch.arange(h, device=device, dtype=torch.float32) + 0.5) * (height / h),
-            (torch.arange(w, device=device, dtype=torch.float32) + 0.5) * (width / w),
-            indexing="ij",
-        )
-        dirs = torch.stack([(u - K[0, 2]) / K[0, 0], -(v - K[1, 2]) / K[1, 1], -torch.ones_like(u)], -1)
-        dirs = dirs @ camera_to_world[:3, :3].T  # [h, w, 3]
-        return dirs / dirs.norm(dim=-1, keepdim=True)
 
     def background(
         self,
@@ -480,9 +393,8 @@ class WildThermalModel(SplatfactoModel):
         upsampled. In training (and under autograd) the MLP runs on every grid point; `cam_idx`
         names a training camera whose pose is fixed (no pose optimisation), whose encoded
         directions are computed once and reused. Every other render samples the baked map
-        (`baked_background_map`) along the camera-frame directions of `K` (kept per intrinsics:
-        `_camera_frame_directions`), rotated; `pinhole`: `K`'s fx, fy, cx, cy on the host, where the
-        caller has them (else they are read from `K`)."""
+        (`baked_background_map`) along the camera-frame directions of `K`, rotated; `pinhole`:
+        `K`'s fx, fy, cx, cy on the host, where the caller has them (else they are read from `K`)."""
         if self.background_mlp is None:
             if self.training and self.config.random_background:
                 return torch.rand(1, 1, 1, device=self.device).expand(height, width, 1)
@@ -491,47 +403,16 @@ class WildThermalModel(SplatfactoModel):
         if not self.training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
             if pinhole is None:
                 pinhole = tuple(K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())  # fx, fy, cx, cy
-            dirs = self._camera_frame_directions(K, pinhole, width, height) @ camera_to_world[:3, :3].T  # [h, w, 3]
-            longitude = torch.atan2(dirs[..., 1], dirs[..., 0]) / math.pi  # [h, w] in [-1, 1]
-            latitude = torch.asin(dirs[..., 2].clamp(-1.0, 1.0)) / (math.pi / 2)  # [h, w] in [-1, 1]
-            grid = torch.stack([longitude, latitude], dim=-1)  # [h, w, 2]
-            coarse = torch.nn.functional.grid_sample(
-                self.baked_background_map(frame_embed), grid[None], mode="bilinear", align_corners=True
-            )[0].permute(1, 2, 0)  # [h, w, 1]
-            return self._upsampled(coarse, width, height)
+            dirs = self._frame_directions(K, pinhole, width, height, stride) @ camera_to_world[:3, :3].T  # [h, w, 3]
+            return upsampled(sample_map(self.baked_background_map(frame_embed), dirs), width, height)
         key = (cam_idx, width, height)
         encoded = self._encoded_directions.get(key) if cam_idx is not None else None
         if encoded is None:
-            dirs = self.ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            dirs = ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
             encoded = self.background_mlp.encode(dirs)  # [h, w, E]
             if cam_idx is not None:
                 self._encoded_directions[key] = encoded
-        return self._upsampled(self.background_mlp.from_encoded(encoded, frame_embed), width, height)
-
-    def _camera_frame_directions(
-        self, K: Tensor, pinhole: Tuple[float, float, float, float], width: int, height: int
-    ) -> Tensor:
-        """`ray_directions` of intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on the host) for a
-        camera at the origin, unrotated [h, w, 3]; the last few (intrinsics, size) are kept, as a
-        viewer renders the same ones again."""
-        key = (pinhole, width, height, self.config.background_stride)
-        cached = self._frame_directions.pop(key, None)
-        if cached is None:
-            cached = self.ray_directions(K, torch.eye(3, 4, device=K.device), width, height, key[-1])
-        self._frame_directions[key] = cached  # the most recent last
-        while len(self._frame_directions) > 8:
-            self._frame_directions.pop(next(iter(self._frame_directions)))
-        return cached
-
-    @staticmethod
-    def _upsampled(coarse: Tensor, width: int, height: int) -> Tensor:
-        """The background on the `background_stride` grid [h, w, 1] at full resolution [H, W, 1]."""
-        if coarse.shape[:2] == (height, width):
-            return coarse
-        # align_corners=False: coarse samples sit at the centres of stride x stride pixel blocks
-        return torch.nn.functional.interpolate(
-            coarse.permute(2, 0, 1)[None], size=(height, width), mode="bilinear", align_corners=False
-        )[0].permute(1, 2, 0)
+        return upsampled(self.background_mlp.from_encoded(encoded, frame_embed), width, height)
 
     def get_outputs(self, camera: Cameras, frame_embedding: Optional[Tensor] = None) -> Dict[str, Union[Tensor, List]]:
         """The render of `camera`: in training, at its training frame's state; otherwise at the
