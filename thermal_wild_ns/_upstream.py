@@ -21,6 +21,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Callable, Dict, Optional
 
+from thermal_wild_ns.errors import EXPLAINERS, IncompleteConfig
+
 CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
 """The versions every patch here was written and tested against (pyproject.toml pins them)."""
 SKIP_VERSION_CHECK = "THERMAL_WILD_NS_SKIP_VERSION_CHECK"
@@ -384,8 +386,6 @@ def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
     "<unicode string>", or (cut short at a line end) with the plugin's `IncompleteConfig`, neither
     naming the file. Where `error` rose inside `eval_setup`, the one-line explanation naming its
     `config_path` (a local of that function); None for any other error."""
-    from thermal_wild_ns.errors import IncompleteConfig
-
     try:
         import yaml
     except ImportError:
@@ -402,6 +402,9 @@ def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
             )
         traceback = traceback.tb_next
     return None
+
+
+EXPLAINERS.append(explain_config_load_error)
 
 
 def trainer_checkpoint_state(trainer, step: int) -> dict:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Any, Callable, List, Optional
 
 DEBUG = "THERMAL_WILD_NS_DEBUG"
 
@@ -25,6 +26,11 @@ class IncompleteConfig(InputError):
     """A run's config.yml lacks settings it was saved with (cut short: a copy or a disk that failed)."""
 
 
+EXPLAINERS: List[Callable[[BaseException, Any], Optional[str]]] = []
+"""Functions that turn an uncaught error (and its traceback) into the one line a user reads, or
+None: `_upstream.py` adds the one for nerfstudio's config loading, which only it knows."""
+
+
 def report_input_errors_briefly() -> None:
     """Make this process print an uncaught `InputError` as one line (the plugin's commands and its
     method registration, which every `ns-*` command imports, call this; importing the package does
@@ -34,9 +40,7 @@ def report_input_errors_briefly() -> None:
         return
 
     def hook(kind, value, traceback):
-        from thermal_wild_ns._upstream import explain_config_load_error
-
-        message = explain_config_load_error(value, traceback)
+        message = next((m for m in (explain(value, traceback) for explain in EXPLAINERS) if m is not None), None)
         if message is None and isinstance(value, InputError):
             message = str(value)
         if message is not None and not os.environ.get(DEBUG):

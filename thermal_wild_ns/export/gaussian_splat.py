@@ -18,7 +18,6 @@ from typing import List
 
 import numpy as np
 import torch
-import tyro
 from nerfstudio.scripts import exporter as ns_export
 
 from thermal_wild_ns.data.rjpeg import DjiCalibration
@@ -98,25 +97,3 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
             lambda pipeline: loaded.update(pipeline=pipeline), add_thermal, lambda: header_comments(loaded["pipeline"])
         ):
             super().main()
-
-
-def entrypoint():
-    from thermal_wild_ns.errors import report_input_errors_briefly
-
-    report_input_errors_briefly()
-    # a subcommand even though there is one format (a one-member Union would collapse into none),
-    # so the command reads like ns-export's: wild-thermal-export gaussian-splat --load-config ...
-    from thermal_wild_ns.export.survey import ExportCelsiusPoints, ExportOrthomosaic
-
-    tyro.extras.subcommand_cli_from_dict(
-        {
-            "gaussian-splat": tyro.conf.FlagConversionOff[ExportThermalSplat],
-            "celsius-points": tyro.conf.FlagConversionOff[ExportCelsiusPoints],
-            "orthomosaic": tyro.conf.FlagConversionOff[ExportOrthomosaic],
-        },
-        description=__doc__.splitlines()[0],
-    ).main()
-
-
-if __name__ == "__main__":
-    entrypoint()

@@ -29,6 +29,7 @@ import torch
 
 from thermal_wild_ns.data.georeference import Georeference
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.export.gaussian_splat import canonical_emission
 from thermal_wild_ns.pipeline.run_check import write_atomically
 
 ORTHO_DISTANCE = 50.0
@@ -125,8 +126,6 @@ class ExportCelsiusPoints:
 
     def main(self) -> dict:
         from plyfile import PlyData, PlyElement
-
-        from thermal_wild_ns.export.gaussian_splat import canonical_emission
 
         pipeline = _load(self.load_config)
         rng = pipeline.datamanager.train_dataset.thermal_range

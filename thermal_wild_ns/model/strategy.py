@@ -37,6 +37,29 @@ class BudgetedDefaultStrategy(strategy_with_hooks_class()):
 
     max_gaussians: int = 1_000_000
 
+    @classmethod
+    def for_splatfacto(cls, cfg, num_train_data: int) -> "BudgetedDefaultStrategy":
+        """The strategy of a splatfacto model config (`SplatfactoModelConfig`'s densification fields,
+        as splatfacto maps them) with `cfg.max_gaussians` as the budget."""
+        return cls(
+            max_gaussians=cfg.max_gaussians,
+            prune_opa=cfg.cull_alpha_thresh,
+            grow_grad2d=cfg.densify_grad_thresh,
+            grow_scale3d=cfg.densify_size_thresh,
+            grow_scale2d=cfg.split_screen_size,
+            prune_scale3d=cfg.cull_scale_thresh,
+            prune_scale2d=cfg.cull_screen_size,
+            refine_scale2d_stop_iter=cfg.stop_screen_size_at,
+            refine_start_iter=cfg.warmup_length,
+            refine_stop_iter=cfg.stop_split_at,
+            reset_every=cfg.reset_alpha_every * cfg.refine_every,
+            refine_every=cfg.refine_every,
+            pause_refine_after_reset=num_train_data + cfg.refine_every,
+            absgrad=cfg.use_absgrad,
+            revised_opacity=False,
+            verbose=False,
+        )
+
     def before_growth(self, params, state, step) -> None:
         n = params["means"].shape[0]
         room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian

@@ -21,19 +21,22 @@ import numpy as np
 import torch
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig, random_quat_tensor
+from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
 from torch.nn import Parameter
 from torch.profiler import record_function
 
+from thermal_wild_ns.data.palettes import palette_rgb
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.background import CameraFrameDirections, background_map, sample_map, upsampled
 from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_views import View, make_view, ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
+from thermal_wild_ns.model.gaussians import initial_gaussians
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
+from thermal_wild_ns.preprocessing.photometric import time_weights
 from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls
 
@@ -111,33 +114,7 @@ class WildThermalModel(SplatfactoModel):
         # Own version rather than super(): splatfacto's builds SH colour features with a hard-coded
         # .cuda(), a 3-channel SSIM and LPIPS (which downloads AlexNet weights).
         cfg = self.config
-        if self.seed_points is not None and not cfg.random_init:
-            means = self.seed_points[0].float()
-            seed_values = self.seed_points[1].float()
-            if seed_values.shape[0] == means.shape[0] and seed_values.numel() > 0:
-                emission = (seed_values[:, :1] / 255.0).clone()  # [N, 1]
-            else:
-                emission = torch.full((means.shape[0], 1), 0.5)
-        else:
-            means = (torch.rand((cfg.num_random, 3)) - 0.5) * cfg.random_scale
-            emission = torch.full((cfg.num_random, 1), 0.5)
-        num_points = means.shape[0]
-        if num_points < 4:
-            raise ValueError(
-                f"WildThermalModel needs at least 4 seed points to initialise Gaussians, got {num_points}. "
-                "Provide sparse points or set random_init=True."
-            )
-        distances, _ = self.k_nearest_sklearn(means, 3)
-        avg_dist = torch.from_numpy(distances).mean(dim=-1, keepdim=True).clamp(min=1e-6)
-        params = {
-            "means": means,
-            "scales": torch.log(avg_dist.repeat(1, 3)),
-            "quats": random_quat_tensor(num_points),
-            "emission": emission,
-            "opacities": torch.logit(0.1 * torch.ones(num_points, 1)),
-        }
-        if cfg.use_emission_mlp:
-            params["gauss_embed"] = 0.1 * torch.randn(num_points, cfg.gaussian_embed_dim)
+        params = initial_gaussians(self.seed_points, cfg, self.k_nearest_sklearn)
         self.gauss_params = nn.ParameterDict({k: Parameter(v) for k, v in params.items()})
 
         num_frames = max(self.num_train_data, 1)
@@ -169,9 +146,7 @@ class WildThermalModel(SplatfactoModel):
         self.crop_box = None
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self._warned_nonfinite = False
-        self.baked = (
-            BakedValues()
-        )  # 'emission', 'background' (outside training): `baked_emission`, `baked_background_map`
+        self.baked = BakedValues()  # outside training: `baked_emission`, `baked_background_map`
         self._colormap_table: Optional[tuple] = None  # ((colormap, device), [256, 3] table): `colormap_table`
         self._inference_embedding: Optional[tuple] = None  # (choice, step, version) -> embedding: `_cached_embedding`
         self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
@@ -181,24 +156,7 @@ class WildThermalModel(SplatfactoModel):
         self.register_buffer("inverse_luts", self._inverse_luts(), persistent=False)
         """[training images, S] each training frame's inverse LUT sampled at S evenly spaced training-space
         values, for `loss_space` 'original' when the frames are preprocessed; else None."""
-        self.strategy = BudgetedDefaultStrategy(
-            max_gaussians=cfg.max_gaussians,
-            prune_opa=cfg.cull_alpha_thresh,
-            grow_grad2d=cfg.densify_grad_thresh,
-            grow_scale3d=cfg.densify_size_thresh,
-            grow_scale2d=cfg.split_screen_size,
-            prune_scale3d=cfg.cull_scale_thresh,
-            prune_scale2d=cfg.cull_screen_size,
-            refine_scale2d_stop_iter=cfg.stop_screen_size_at,
-            refine_start_iter=cfg.warmup_length,
-            refine_stop_iter=cfg.stop_split_at,
-            reset_every=cfg.reset_alpha_every * cfg.refine_every,
-            refine_every=cfg.refine_every,
-            pause_refine_after_reset=self.num_train_data + cfg.refine_every,
-            absgrad=cfg.use_absgrad,
-            revised_opacity=False,
-            verbose=False,
-        )
+        self.strategy = BudgetedDefaultStrategy.for_splatfacto(cfg, self.num_train_data)
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
@@ -288,8 +246,6 @@ class WildThermalModel(SplatfactoModel):
         """The frame embedding [Df] at capture position `t`: linear between the neighbouring
         training frames' embeddings, exactly a training frame's own at its position. `without`:
         rows of `frame_embed` not to interpolate from."""
-        from thermal_wild_ns.preprocessing.photometric import time_weights
-
         left_out = set(without)
         rows = [k for k in range(len(self.frame_times)) if k not in left_out]
         i, j, w = time_weights([self.frame_times[k] for k in rows], t)
@@ -516,8 +472,6 @@ class WildThermalModel(SplatfactoModel):
     def colormap_table(self, device) -> Tensor:
         """The viewer's colormap's (the configured one outside the viewer) 256 colours [256, 3] in
         [0, 1] on `device`."""
-        from thermal_wild_ns.data.palettes import palette_rgb
-
         name = self.viewer_controls.colormap
         cached = self._colormap_table
         if cached is None or cached[0] != (name, str(device)):
