@@ -5,8 +5,9 @@ import torch
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.scene_box import SceneBox
 
+from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.camera_views import ray_directions
-from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.model.wild_thermal import UNUSED_OPTIONS, WildThermalModelConfig
 
 
 def make_model(n=400, frames=5, **overrides):
@@ -477,3 +478,43 @@ def test_a_random_training_background_is_redrawn_each_step_and_only_in_training(
     assert torch.all(model.background(K, c2w, None, 48, 32) == 0.25)  # a render a user sees: the fixed value
     with pytest.raises(InputError, match="random_background needs use_background_mlp False"):
         make_model(random_background=True)
+
+
+def test_every_option_the_method_offers_is_read_and_the_unused_ones_are_refused(monkeypatch):
+    """`ns-train wild-thermal --help` offers a model option only if the model reads it: every field
+    of the config is read over a model's life (construction, training steps with densification,
+    renders and metrics outside training), or is one of the inherited options it does not use,
+    which are hidden from --help and refused by name when set."""
+    import dataclasses
+
+    read = set()
+    plain = WildThermalModelConfig.__getattribute__
+
+    def recording(config, name):
+        read.add(name)
+        return plain(config, name)
+
+    monkeypatch.setattr(WildThermalModelConfig, "__getattribute__", recording)
+    from types import SimpleNamespace
+
+    model = make_model(refine_every=2, warmup_length=1, stop_split_at=100, reset_alpha_every=2)
+    model.train()
+    groups = model.get_param_groups()
+    optimizers = SimpleNamespace(optimizers={name: torch.optim.Adam(p, lr=1e-3) for name, p in groups.items() if p})
+    assert len(model.get_training_callbacks(SimpleNamespace(optimizers=optimizers))) >= 2
+    for step in range(6):
+        model.step_cb(optimizers, step)  # splatfacto's step callback (what the trainer calls before a step)
+        outputs = model.get_outputs(make_camera(step % 5))
+        losses = model.get_loss_dict(outputs, {"image": torch.rand(32, 48, 1), "image_idx": step % 5})
+        sum(losses.values()).backward()
+        model.step_post_backward(step)
+        model.zero_grad(set_to_none=True)
+    model.eval()
+    outputs = model.get_outputs_for_camera(make_camera(0))
+    model.get_image_metrics_and_images(outputs, {"image": torch.rand(32, 48, 1)})
+    make_model(random_init=True, num_random=50)  # seeded at random: its count and spread
+    fields = {f.name for f in dataclasses.fields(WildThermalModelConfig)} - {"_target"}
+    assert fields - read - set(UNUSED_OPTIONS) == set()
+    monkeypatch.undo()
+    with pytest.raises(InputError, match="does not use use_bilateral_grid.*Remove it"):
+        make_model(use_bilateral_grid=True)

@@ -19,6 +19,7 @@ from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
 import numpy as np
 import torch
+import tyro
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig
@@ -95,13 +96,61 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     alpha_reg_tolerance: float = 0.02
     """Intensity difference (normalised units) under which a target pixel counts as 'explained by
     the background' for the alpha regulariser."""
-    background_color: str = "black"  # type: ignore[assignment]
-    """Unused by this model (see use_background_mlp); kept for splatfacto's code paths."""
-    sh_degree: int = 0
-    """No spherical harmonics: thermal emission is a scalar."""
+    # splatfacto's and nerfstudio's options this model does not use: hidden from `--help`, and a
+    # config that changes one is refused by name (`refuse_unused_options`)
+    background_color: tyro.conf.Suppress[str] = "black"  # type: ignore[assignment]
+    sh_degree: tyro.conf.Suppress[int] = 0
+    sh_degree_interval: tyro.conf.Suppress[int] = 1000
+    n_split_samples: tyro.conf.Suppress[int] = 2
+    use_scale_regularization: tyro.conf.Suppress[bool] = False
+    max_gauss_ratio: tyro.conf.Suppress[float] = 10.0
+    use_bilateral_grid: tyro.conf.Suppress[bool] = False
+    grid_shape: tyro.conf.Suppress[Tuple[int, int, int]] = (16, 16, 8)
+    color_corrected_metrics: tyro.conf.Suppress[bool] = False
+    enable_collider: tyro.conf.Suppress[bool] = True
+    collider_params: tyro.conf.Suppress[Optional[Dict[str, float]]] = field(
+        default_factory=lambda: {"near_plane": 2.0, "far_plane": 6.0}
+    )
+    loss_coefficients: tyro.conf.Suppress[Dict[str, float]] = field(
+        default_factory=lambda: {"rgb_loss_coarse": 1.0, "rgb_loss_fine": 1.0}
+    )
+    eval_num_rays_per_chunk: tyro.conf.Suppress[int] = 4096
+    prompt: tyro.conf.Suppress[Optional[str]] = None
     max_gaussians: int = 100_000
     """Densification never grows the model past this many Gaussians. The default is the knee of a
     budget sweep on DUNR (docs/results.md); raise it for captures with much more to see."""
+
+
+UNUSED_OPTIONS = {
+    "background_color": "the background is the background MLP, or background_value",
+    "sh_degree": "thermal emission is a scalar: no spherical harmonics",
+    "sh_degree_interval": "no spherical harmonics",
+    "n_split_samples": "gsplat's strategy splits each Gaussian in two",
+    "use_scale_regularization": "not implemented for thermal splats",
+    "max_gauss_ratio": "not implemented for thermal splats",
+    "use_bilateral_grid": "a colour-camera correction; thermal frames' drift is the frame embeddings' and the LUTs'",
+    "grid_shape": "no bilateral grid",
+    "color_corrected_metrics": "metrics are scored by the evaluation protocols in the original space",
+    "enable_collider": "splats have no ray sampling",
+    "collider_params": "splats have no ray sampling",
+    "loss_coefficients": "the loss weights are l1_lambda, ssim_lambda and alpha_lambda",
+    "eval_num_rays_per_chunk": "splats render whole images",
+    "prompt": "no text prompts",
+}
+"""Options `WildThermalModelConfig` inherits but the model does not use, and why."""
+
+
+def refuse_unused_options(config: WildThermalModelConfig) -> None:
+    """An `InputError` naming any option of `UNUSED_OPTIONS` set away from its default (a config
+    file edited by hand, or written for splatfacto): it would do nothing."""
+    defaults = WildThermalModelConfig()
+    changed = [name for name in UNUSED_OPTIONS if getattr(config, name) != getattr(defaults, name)]
+    if changed:
+        raise InputError(
+            "wild-thermal does not use "
+            + "; ".join(f"{name} (set to {getattr(config, name)!r}: {UNUSED_OPTIONS[name]})" for name in changed)
+            + ". Remove it from the config"
+        )
 
 
 class WildThermalModel(SplatfactoModel):
@@ -114,6 +163,7 @@ class WildThermalModel(SplatfactoModel):
         # Own version rather than super(): splatfacto's builds SH colour features with a hard-coded
         # .cuda(), a 3-channel SSIM and LPIPS (which downloads AlexNet weights).
         cfg = self.config
+        refuse_unused_options(cfg)
         params = initial_gaussians(self.seed_points, cfg, self.k_nearest_sklearn)
         self.gauss_params = nn.ParameterDict({k: Parameter(v) for k, v in params.items()})
 

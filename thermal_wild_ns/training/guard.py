@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Deque, Dict, List, Optional, Type
 
 import torch
+import tyro
 import yaml
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.decorators import check_main_thread
@@ -83,6 +84,8 @@ class DivergenceGuardConfig:
 @dataclass
 class GuardedTrainerConfig(TrainerConfig):
     _target: Type = field(default_factory=lambda: GuardedTrainer)
+    prompt: tyro.conf.Suppress[Optional[str]] = None
+    """nerfstudio's alias of the model's text prompt: thermal models take none."""
     guard: DivergenceGuardConfig = field(default_factory=DivergenceGuardConfig)
     """Divergence and collapse detection."""
     auto_stop: AutoStopConfig = field(default_factory=AutoStopConfig)
