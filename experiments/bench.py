@@ -41,6 +41,7 @@ from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, evaluate, evalu
 from thermal_wild_ns.data.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
+from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
 """How many runs share this run's GPU (set by `--runs-per-gpu`'s queues for their workers)."""
@@ -123,7 +124,8 @@ def scale_schedule(model_config, steps: int) -> None:
     model_config.refine_every = max(int(model_config.refine_every * f), 10)
     model_config.stop_split_at = int(model_config.stop_split_at * f)
     model_config.stop_screen_size_at = int(model_config.stop_screen_size_at * f)
-    model_config.sh_degree_interval = max(int(model_config.sh_degree_interval * f), 1)
+    if not isinstance(model_config, WildThermalModelConfig):  # splatfacto's; thermal models have no SH
+        model_config.sh_degree_interval = max(int(model_config.sh_degree_interval * f), 1)
     model_config.resolution_schedule = max(int(model_config.resolution_schedule * f), 1)
 
 
