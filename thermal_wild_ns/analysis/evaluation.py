@@ -43,6 +43,7 @@ from thermal_wild_ns.pipeline.photometric_state import (
     canonical_state,
     check_same_geometry,
     outputs_at,
+    preprocessed_sequence,
     render,
     state_at,
     thermal_output,
@@ -135,7 +136,7 @@ def oracle_state(
 ) -> PhotometricState:
     """The held-out frame's own state, fitted on ALL its pixels (an upper bound, never a headline):
     its own LUT, and the embedding optimised on the whole frame."""
-    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    sequence = preprocessed_sequence(pipeline)
     lut = None if sequence is None else sequence.oracle_lut(frame)
     state = PhotometricState(f"oracle:{frame}", start.embedding, lut)
     if state.embedding is not None and steps > 0:

@@ -17,13 +17,15 @@ States by name (`--photometric-state` of `wild-thermal-render`; `parse_state`):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, Optional, Tuple
+from typing import Dict, Optional, Protocol, Tuple, runtime_checkable
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from thermal_wild_ns.data.datamanager import ThermalDatamanager
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.preprocessing.stage import PreprocessedSequence
 
 
 @dataclass(frozen=True)
@@ -56,8 +58,26 @@ def parse_state(spec: str) -> Tuple[str, Optional[float]]:
     )
 
 
+@runtime_checkable
+class FrameEmbeddingModel(Protocol):
+    """A model whose renders depend on a frame embedding (`WildThermalModel`); any other (stock
+    splatfacto) renders the same at every state and only the LUT changes."""
+
+    uses_frame_embedding: bool
+
+    def inference_embedding(self) -> Tensor: ...
+
+    def embedding_at(self, t: float) -> Tensor: ...
+
+
+def preprocessed_sequence(pipeline) -> Optional[PreprocessedSequence]:
+    """The training frames' LUTs (`PreprocessedSequence`); None where they were not preprocessed."""
+    datamanager = pipeline.datamanager
+    return datamanager.preprocessed if isinstance(datamanager, ThermalDatamanager) else None
+
+
 def _model_embedding(model, t: Optional[float]) -> Optional[Tensor]:
-    if not getattr(model, "uses_frame_embedding", False):  # a model without frame embeddings (splatfacto)
+    if not (isinstance(model, FrameEmbeddingModel) and model.uses_frame_embedding):
         return None
     with torch.no_grad():
         return (model.inference_embedding() if t is None else model.embedding_at(t)).detach()
@@ -65,7 +85,7 @@ def _model_embedding(model, t: Optional[float]) -> Optional[Tensor]:
 
 def canonical_state(pipeline) -> PhotometricState:
     """The state every novel view renders with (whatever the viewer shows)."""
-    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    sequence = preprocessed_sequence(pipeline)
     return PhotometricState(
         "canonical", _model_embedding(pipeline.model, None), None if sequence is None else sequence.median_lut()
     )
@@ -73,7 +93,7 @@ def canonical_state(pipeline) -> PhotometricState:
 
 def state_at(pipeline, t: float) -> PhotometricState:
     """state(t) from the training frames around capture position `t`."""
-    sequence = getattr(pipeline.datamanager, "preprocessed", None)
+    sequence = preprocessed_sequence(pipeline)
     return PhotometricState(
         f"time:{t:g}", _model_embedding(pipeline.model, t), None if sequence is None else sequence.lut_at(t)
     )

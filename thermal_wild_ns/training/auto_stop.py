@@ -96,10 +96,15 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame."""
     from thermal_wild_ns.analysis.evaluation import fit_gain_offset
     from thermal_wild_ns.model.losses import psnr
-    from thermal_wild_ns.pipeline.photometric_state import PhotometricState, check_same_geometry, render
+    from thermal_wild_ns.pipeline.photometric_state import (
+        PhotometricState,
+        check_same_geometry,
+        preprocessed_sequence,
+        render,
+    )
 
     datamanager, model = pipeline.datamanager, pipeline.model
-    dataset, sequence = datamanager.train_dataset, getattr(datamanager, "preprocessed", None)
+    dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
     held_frames = [dataset.frame_index(image) for image in images]  # capture positions
     fill = isinstance(model, GuardedModel)
     if fill:
