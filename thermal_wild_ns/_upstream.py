@@ -19,9 +19,7 @@ import shutil
 import sys
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Dict, Optional
-
-from thermal_wild_ns.errors import EXPLAINERS, IncompleteConfig
+from typing import Callable, Dict, Optional, Tuple, Type
 
 CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
 """The versions every patch here was written and tested against (pyproject.toml pins them)."""
@@ -380,17 +378,20 @@ def undistorted_as_cached(camera, image):
     return np.asarray(undistorted).reshape(undistorted.shape[0], undistorted.shape[1])
 
 
-def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
+def explain_config_load_error(
+    error: BaseException, traceback, also: Tuple[Type[BaseException], ...] = ()
+) -> Optional[str]:
     """nerfstudio 1.1.5's `eval_setup` (ns-eval, ns-render, ns-viewer, ns-export) reads a run's config
     with `yaml.load(config_path.read_text())`: a damaged file fails there with a YAML error about
-    "<unicode string>", or (cut short at a line end) with the plugin's `IncompleteConfig`, neither
-    naming the file. Where `error` rose inside `eval_setup`, the one-line explanation naming its
-    `config_path` (a local of that function); None for any other error."""
+    "<unicode string>", or (cut short at a line end) with one of `also` (the plugin's
+    `IncompleteConfig`), neither naming the file. Where `error` rose inside `eval_setup`, the
+    one-line explanation naming its `config_path` (a local of that function); None for any other
+    error. (This file imports nothing of the package: a `.pth` file loads it on its own at start-up.)"""
     try:
         import yaml
     except ImportError:
         return None
-    if not isinstance(error, (yaml.YAMLError, IncompleteConfig)):
+    if not isinstance(error, (yaml.YAMLError, *also)):
         return None
     while traceback is not None:
         frame = traceback.tb_frame
@@ -402,9 +403,6 @@ def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
             )
         traceback = traceback.tb_next
     return None
-
-
-EXPLAINERS.append(explain_config_load_error)
 
 
 def trainer_checkpoint_state(trainer, step: int) -> dict:
