@@ -1,5 +1,5 @@
 """`python -m experiments.bench`: the methods (and stock splatfacto) on the same scenes, under
-the same schedule and the same leak-free evaluation protocols (`analysis/evaluation.py`), with
+the same schedule and the same leak-free evaluation protocols (`pipeline/evaluation.py`), with
 several seeds per configuration.
 
 Each run trains with nerfstudio's own `Trainer.train` (its loop, callbacks and logging, as
@@ -35,13 +35,14 @@ import torch
 import tyro
 
 from experiments import device_name, synchronize, train_with_hooks
+from experiments.camera_path import evaluate_path
 from experiments.render_fps import measure_fps
 from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
-from thermal_wild_ns.analysis.evaluation import CHEAP_PROTOCOLS, evaluate, evaluate_path
 from thermal_wild_ns.data.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.pipeline.evaluation import CHEAP_PROTOCOLS, evaluate
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
 """How many runs share this run's GPU (set by `--runs-per-gpu`'s queues for their workers)."""
@@ -428,7 +429,7 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
     seeds = sorted({r.get("seed", 0) for r in runs})
     lines = [
         f"Held-out views, original radiometric space; mean over seeds (min–max) where a configuration ran more than "
-        f"once (seeds here: {', '.join(map(str, seeds))}). Protocols: analysis/evaluation.py.",
+        f"once (seeds here: {', '.join(map(str, seeds))}). Protocols: pipeline/evaluation.py.",
         "",
     ]
     titles = {

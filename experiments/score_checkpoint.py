@@ -14,7 +14,7 @@ from pathlib import Path
 from nerfstudio.utils.eval_utils import eval_setup
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
-from thermal_wild_ns.analysis.evaluation import evaluate
+from thermal_wild_ns.pipeline.evaluation import evaluate
 
 
 def main() -> None:

@@ -123,7 +123,7 @@ def test_the_score_is_the_aligned_time_render_of_the_held_back_frame(tmp_path, d
     """PSNR in the original space, against the frame as captured, rendered with the embedding and
     LUT interpolated between its trained neighbours (never its own LUT, which its pixels made), after
     a gain + offset fit: a frame whose level jumped scores the same but for the gain's scale."""
-    from thermal_wild_ns.analysis.evaluation import fit_gain_offset
+    from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
     from thermal_wild_ns.pipeline.photometric_state import PhotometricState, render
     from thermal_wild_ns.preprocessing.photometric import blend_luts
 

@@ -72,7 +72,7 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
 
 
 def test_aligned_scores_an_affine_render_perfectly_and_half_never_reads_the_right_half():
-    from thermal_wild_ns.analysis.evaluation import fit_gain_offset, scores
+    from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, scores
 
     frame = np.random.default_rng(0).random((24, 32)).astype(np.float32)
     render = (frame - 0.3) / 1.7  # an exact affine map of the frame
@@ -204,7 +204,7 @@ def test_a_run_stopped_between_checkpoints_counts_its_training_time_to_the_last_
 
 def test_unknown_method_and_protocol_are_refused(tmp_path):
     from experiments.bench import BenchArgs, trainer_config
-    from thermal_wild_ns.analysis.evaluation import evaluate
+    from thermal_wild_ns.pipeline.evaluation import evaluate
 
     with pytest.raises(ValueError, match="unknown method 'nerfacto'"):
         trainer_config("nerfacto", "demo", BenchArgs(output_dir=tmp_path), tmp_path)
@@ -306,7 +306,7 @@ def _trained_demo_pipeline(tmp_path, demo_scene_dir, steps: int):
 def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, monkeypatch):
     """The NeRF-W prediction of a view is the same whatever the right halves of the held-out frames
     hold (noise here), while the score, which is of the right half, changes."""
-    import thermal_wild_ns.analysis.evaluation as evaluation
+    import thermal_wild_ns.pipeline.evaluation as evaluation
 
     pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=8)
     predictions = []
@@ -340,7 +340,7 @@ def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(t
     """On a generated scene the held-out view's truth is fault-free while the camera recorded it under
     its drifting sensor state: `novel` and `aligned` are scored against the truth, `time`, `half` and
     `oracle` (the frame's state) against the recorded frame."""
-    import thermal_wild_ns.analysis.evaluation as evaluation
+    import thermal_wild_ns.pipeline.evaluation as evaluation
 
     pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
     targets = []

@@ -233,7 +233,7 @@ def test_background_is_cached_per_training_camera_and_smooth_enough_for_its_grid
 def test_ssim_matches_pytorch_msssim():
     from pytorch_msssim import ssim as reference
 
-    from thermal_wild_ns.model.losses import ssim
+    from thermal_wild_ns.image_metrics import ssim
 
     g = torch.Generator().manual_seed(1)
     x = torch.rand(40, 56, 1, generator=g)

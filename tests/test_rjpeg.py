@@ -152,8 +152,8 @@ def test_a_damaged_rjpeg_names_the_file(tmp_path):
 
 @needs_shared
 def test_a_calibrated_range_scores_in_celsius():
-    from thermal_wild_ns.analysis.evaluation import scores
     from thermal_wild_ns.data.thermal_io import RadiometricRange
+    from thermal_wild_ns.pipeline.evaluation import scores
 
     thermal = read_rjpeg(FLIGHT2 / "rjpeg" / "DJI_0199.jpg")
     rng = RadiometricRange(2400.0, 3400.0, "uint16", planck=thermal.calibration)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from thermal_wild_ns.analysis.evaluation import evaluate
 from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.pipeline.evaluation import evaluate
 
 pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 

@@ -2,7 +2,7 @@
 
 The README's main command. On a CPU it uses the pure-torch rasterizer and a short schedule; with
 a GPU, gsplat and a longer one. Outputs (under --output-dir):
-  metrics.json                 held-out PSNR/SSIM under every protocol (analysis/evaluation.py: novel and
+  metrics.json                 held-out PSNR/SSIM under every protocol (pipeline/evaluation.py: novel and
                                aligned against the clean frames, the others the recorded); steps, wall time
   renders/test_XX.png          recorded frame | render at its time state | 5x error (inferno colormap)
   wild-thermal/<run>/          nerfstudio's config.yml and checkpoint (usable by ns-eval/ns-render/ns-viewer)
@@ -61,8 +61,8 @@ def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method
 def main(args: DemoArgs) -> dict:
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from thermal_wild_ns.analysis.evaluation import evaluate
     from thermal_wild_ns.data.demo_scene import generate_demo_scene
+    from thermal_wild_ns.pipeline.evaluation import evaluate
 
     device = "cuda" if torch.cuda.is_available() else "cpu"
     steps = args.steps or (10_000 if device == "cuda" else 800)

@@ -30,12 +30,13 @@ from torch.profiler import record_function
 
 from thermal_wild_ns.data.palettes import palette_rgb
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.image_metrics import psnr, ssim
 from thermal_wild_ns.model.background import CameraFrameDirections, background_map, sample_map, upsampled
 from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_views import View, make_view, ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.gaussians import initial_gaussians
-from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, psnr, ssim, thermal_contrast
+from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, thermal_contrast
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.preprocessing.photometric import time_weights
 from thermal_wild_ns.rendering import Backend, rasterization

@@ -1,5 +1,5 @@
 """VanillaPipeline whose evaluations (`ns-eval`, and nerfstudio's evaluations during training)
-follow the benchmark's protocols (`analysis/evaluation.py`): scores in the original radiometric
+follow the benchmark's protocols (`pipeline/evaluation.py`): scores in the original radiometric
 space, held-out frames at their predicted photometric state, never through their own pixels."""
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
 from thermal_wild_ns.errors import InputError, MissingInput, report_input_errors_briefly
+from thermal_wild_ns.pipeline.evaluation import evaluate, scores
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint, write_text_atomically
 
@@ -121,7 +122,6 @@ class ThermalPipeline(VanillaPipeline):
     def get_eval_image_metrics_and_images(self, step: int):
         """One held-out view during training (nerfstudio's eval image): scored at its `time` state
         in the original space, like `ns-eval`."""
-        from thermal_wild_ns.analysis.evaluation import scores
 
         self.eval()
         camera, batch = self.datamanager.next_eval_image(step)
@@ -137,7 +137,6 @@ class ThermalPipeline(VanillaPipeline):
     def get_average_eval_image_metrics(
         self, step: Optional[int] = None, output_path: Optional[Path] = None, get_std: bool = False
     ):
-        from thermal_wild_ns.analysis.evaluation import evaluate
 
         result = evaluate(self, out_dir=output_path, fit_steps=self.config.eval_fit_steps)
         rows = result["per_view"]

@@ -94,8 +94,8 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
     around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame."""
-    from thermal_wild_ns.analysis.evaluation import fit_gain_offset
-    from thermal_wild_ns.model.losses import psnr
+    from thermal_wild_ns.image_metrics import psnr
+    from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
     from thermal_wild_ns.pipeline.photometric_state import (
         PhotometricState,
         check_same_geometry,

@@ -1,0 +1,45 @@
+"""Image metrics of single-channel images ([H, W, 1] tensors): what training logs, the evaluation
+protocols score and the heat-aware SSIM builds on."""
+
+from __future__ import annotations
+
+import functools
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+
+@functools.lru_cache(maxsize=8)  # built once per device and dtype, not at every loss evaluation
+def _gaussian_window(size: int, sigma: float, device, dtype) -> Tensor:
+    """The normalised 1-D Gaussian [size]; the 2-D SSIM window is its outer product."""
+    x = torch.arange(size, device=device, dtype=dtype) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    return g / g.sum()
+
+
+def ssim(
+    pred: Tensor, target: Tensor, data_range: float | Tensor = 1.0, window: int = 11, sigma: float = 1.5
+) -> Tensor:
+    """Mean SSIM (Wang et al. 2004) of two single-channel images [H, W, 1], Gaussian 11x11 window,
+    K1 = 0.01, K2 = 0.03, 'valid' filtering (as pytorch_msssim, which nerfstudio reports)."""
+    x = pred.permute(2, 0, 1)[None]  # [1, 1, H, W]
+    y = target.permute(2, 0, 1)[None]
+    g = _gaussian_window(window, sigma, x.device, x.dtype)
+    c1 = (0.01 * data_range) ** 2
+    c2 = (0.03 * data_range) ** 2
+    # the five local moments in one grouped convolution per axis: the Gaussian window is separable,
+    # and two 1-D passes cost 2 x 11 instead of 121 multiply-adds per pixel
+    moments = torch.cat([x, y, x * x, y * y, x * y], dim=1)  # [1, 5, H, W]
+    moments = F.conv2d(moments, g.view(1, 1, -1, 1).expand(5, 1, -1, -1), groups=5)  # [1, 5, H', W]
+    moments = F.conv2d(moments, g.view(1, 1, 1, -1).expand(5, 1, -1, -1), groups=5)  # [1, 5, H', W']
+    mu_x, mu_y, exx, eyy, exy = moments[0]
+    mu_xy, mu_xx, mu_yy = mu_x * mu_y, mu_x * mu_x, mu_y * mu_y
+    ssim_map = ((2 * mu_xy + c1) * (2 * (exy - mu_xy) + c2)) / ((mu_xx + mu_yy + c1) * (exx - mu_xx + eyy - mu_yy + c2))
+    return ssim_map.mean()
+
+
+def psnr(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
+    """PSNR in dB for images with values in a range of `data_range`."""
+    mse = torch.mean((pred - target) ** 2).clamp(min=1e-12)
+    return 10 * torch.log10(data_range**2 / mse)
