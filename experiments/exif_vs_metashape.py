@@ -61,11 +61,10 @@ def compare(root: Path, lens_calibration: Optional[Path], cache_root: Optional[P
     scale, rotation, translation = similarity(a, b)
     registered = (scale * (rotation @ a.T)).T + translation
     to_local = reference.georeference.ecef_to_local()[:3, :3]
-    width, height = reference.frames[0].width, reference.frames[0].height
     ecef_to_exif_local = exif.georeference.ecef_to_local()
     gimbal = []
     for n in names:  # the gimbal prior's rotation, in ECEF, against Metashape's
-        prior = read_frame_prior(root / "rjpeg" / n, width, height).camera_to_enu(exif.georeference)
+        prior = read_frame_prior(root / "rjpeg" / n).camera_to_enu(exif.georeference)
         gimbal.append(angle_deg(np.linalg.inv(ecef_to_exif_local)[:3, :3] @ prior[:3, :3], theirs[n][:3, :3]))
     offset_local = (a - b) @ to_local.T
     return {

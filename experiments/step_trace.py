@@ -1,6 +1,7 @@
-"""The first training steps of the demo config, as (training image, total loss, render sum) per
-step, and a checksum of the Gaussians after them: run twice with the same code to see whether CPU
-training is bitwise repeatable (a refactor can only be held to identical numbers where it is).
+"""The first training steps of the demo config: per step the training image, the total loss and
+the float64 sums of the render and of its accumulated opacity; then the background MLP's last-layer
+weight sum. Run it twice with the same code to see whether CPU training is bitwise repeatable (a
+refactor can only be held to identical numbers where it is).
 
     PYTHONHASHSEED=0 OMP_NUM_THREADS=1 python -m experiments.step_trace SCENE_DIR OUT_DIR --steps 3
 """
@@ -9,10 +10,11 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import sys
 from pathlib import Path
 
 import torch
+
+from thermal_wild_ns.demo import demo_trainer_config
 
 
 def main() -> None:
@@ -21,25 +23,27 @@ def main() -> None:
     parser.add_argument("out", type=Path)
     parser.add_argument("--steps", type=int, default=3)
     args = parser.parse_args()
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from demo_trainers import demo_trainer  # the tests' set-up of the demo trainer
-
     shutil.rmtree(args.out, ignore_errors=True)
-    trainer = demo_trainer(args.out, args.scene, args.steps, "guard")
+    config = demo_trainer_config(args.out, steps=args.steps, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = args.scene
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
     model, steps = trainer.pipeline.model, []
     losses = model.get_loss_dict
 
     def recorded(outputs, batch, metrics_dict=None):
         values = losses(outputs, batch, metrics_dict)
-        steps.append((int(batch["image_idx"]), float(sum(values.values())), float(outputs["thermal"].sum())))
+        sums = [float(outputs[k].double().sum()) for k in ("thermal", "accumulation")]
+        steps.append((int(batch["image_idx"]), float(sum(values.values())), *sums))
         return values
 
     model.get_loss_dict = recorded
     trainer.train()
     print("torch threads", torch.get_num_threads())
+    print("step, image, loss, render sum, accumulation sum")
     for step, row in enumerate(steps):
-        print(step, row)
-    print("gaussians", model.num_points, "sum of means", float(model.means.sum()))
+        print(step, *row)
+    print("background MLP last-layer weight sum", float(model.background_mlp.net[-1].weight.double().sum()))
 
 
 if __name__ == "__main__":

@@ -37,12 +37,13 @@ def test_gimbal_angles_turn_into_a_camera_pose_as_drones_report_them():
 
 @needs_flight2
 def test_a_frames_own_metadata_gives_its_position_and_gimbal():
-    prior = read_frame_prior(FLIGHT2 / "rjpeg" / "DJI_0199.jpg", 640, 512)
+    prior = read_frame_prior(FLIGHT2 / "rjpeg" / "DJI_0199.jpg")
     # exiftool: GPS 46 deg 23' 51.61" N, 6 deg 14' 17.66" E, 398.3 m; GimbalYaw 119.9, Pitch -89.9, Roll 0
     assert prior.latitude == pytest.approx(46 + 23 / 60 + 51.6108 / 3600)
     assert prior.longitude == pytest.approx(6 + 14 / 60 + 17.6576 / 3600)
     assert (prior.altitude, prior.yaw, prior.pitch, prior.roll) == pytest.approx((398.3, 119.9, -89.9, 0.0), abs=1e-4)
-    assert prior.focal_px is None  # the XT writes its focal length in mm only, and no field of view
+    # the XT writes its focal length in mm only, and no field of view
+    assert focal_length_px(FLIGHT2 / "rjpeg" / "DJI_0199.jpg", 640, 512) == (None, "")
 
 
 @needs_samples
@@ -82,11 +83,12 @@ def test_a_frame_without_gps_is_named(tmp_path):
     folder = tmp_path / "survey" / "images"
     folder.mkdir(parents=True)
     Image.fromarray(np.zeros((8, 8), np.uint8)).save(folder / "plain.jpg")
-    with pytest.raises(InputError, match=r"plain.jpg: no GPS position in its EXIF"):
-        read_frame_prior(folder / "plain.jpg", 8, 8)
+    assert read_frame_prior(folder / "plain.jpg") is None
     with pytest.raises(InputError, match="exif-gps.*plain.jpg has no GPS position") as refused:
         layouts.detect_layout(tmp_path / "survey")
     assert "exif-gps" in str(refused.value)
+    with pytest.raises(InputError, match=r"images: none of its 1 frames has a GPS position in its EXIF"):
+        layouts.read_exif_gps(tmp_path / "survey", cache_root=tmp_path / "cache")
 
 
 @needs_flight2

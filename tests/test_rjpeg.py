@@ -217,11 +217,33 @@ def test_dji_files_read_in_celsius_through_djis_converter_where_it_is_installed(
 
 @needs_shared
 @pytest.mark.skipif(dji_converter() is None, reason="DJI's converter (dji-thermal-cli) is not installed")
-def test_djis_own_converter_gives_plausible_celsius_for_every_dji_camera():
-    for sample in sorted(SAMPLES.glob("*_R.jpg")):
+def test_djis_own_converter_gives_plausible_celsius_for_every_dji_camera(tmp_path):
+    """On every DJI-format camera: the converter's own raw raster is ours (x1, or x0.25 where DJI
+    stores 14-bit counts shifted by two bits), its °C is one value per raw count (so one table per
+    survey holds), our °C is its °C exactly, and warmer counts are warmer."""
+    import subprocess
+
+    samples = sorted(SAMPLES.glob("*_R.jpg"))
+    subprocess.run(
+        [dji_converter(), "process", "--input-dir", str(SAMPLES), "--output-dir", str(tmp_path)]
+        + ["--output", "temp_c:tiff,raw:tiff", "--distance", "embedded", "--quiet"],
+        check=True,
+        capture_output=True,
+    )
+    for sample in samples:
         thermal = read_rjpeg(sample)
+        theirs_raw = cv2.imread(str(tmp_path / f"{sample.stem}_raw.tiff"), cv2.IMREAD_UNCHANGED).astype(np.float64)
+        theirs_c = cv2.imread(str(tmp_path / f"{sample.stem}_temp_c.tiff"), cv2.IMREAD_UNCHANGED)
+        ours = thermal.raw.astype(np.float64)
+        assert np.array_equal(theirs_raw, ours) or np.array_equal(theirs_raw, ours * 0.25), sample.name
+        _, per_count = np.unique(thermal.raw.ravel(), return_inverse=True)
+        spread = np.zeros(per_count.max() + 1)
+        np.maximum.at(spread, per_count, theirs_c.ravel() - theirs_c.ravel().min())
+        low = np.full(per_count.max() + 1, np.inf)
+        np.minimum.at(low, per_count, theirs_c.ravel() - theirs_c.ravel().min())
+        assert np.allclose(spread, low), sample.name  # one °C per raw count
         celsius = thermal.celsius()
-        assert celsius.shape == thermal.raw.shape and np.isfinite(celsius).all()
+        assert np.array_equal(celsius, theirs_c), sample.name
         assert -40 < float(np.median(celsius)) < 120
         order = np.argsort(thermal.raw.ravel(), kind="stable")
         assert (np.diff(celsius.ravel()[order]) >= -1e-4).all()  # warmer counts, warmer °C

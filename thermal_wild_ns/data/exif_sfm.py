@@ -29,6 +29,7 @@ renamed into place, as the triangulation cache is.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -54,11 +55,11 @@ from thermal_wild_ns.data.thermal_io import (
     publish_cache_folder,
     read_raw_frame,
 )
-from thermal_wild_ns.data.triangulation import colmap_camera, prior_pairs
+from thermal_wild_ns.data.triangulation import colmap_camera, equalised_grey, prior_pairs
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.progress import track
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 """The diagonal the 35 mm equivalent focal length is defined on."""
 
@@ -82,9 +83,6 @@ class FramePrior:
     pitch: Optional[float]
     """Degrees above the horizon (-90: straight down)."""
     roll: Optional[float]
-    focal_px: Optional[float]
-    """Focal length in pixels of the thermal raster, where the file says enough to know it."""
-    focal_source: str
 
     def camera_to_enu(self, georeference: Georeference) -> np.ndarray:
         """[4, 4] camera (OpenCV axes) -> the georeference's east-north-up frame; a camera looking
@@ -157,9 +155,9 @@ def focal_length_px(path: Path, width: int, height: int) -> Tuple[Optional[float
     return None, ""
 
 
-def read_frame_prior(path: Path, width: int, height: int) -> FramePrior:
-    """The frame's GPS, gimbal angles and focal length (for a `width` x `height` thermal raster);
-    an error naming the file where it has no GPS position."""
+def read_frame_prior(path: Path) -> Optional[FramePrior]:
+    """The frame's GPS position and gimbal angles; None where its EXIF holds no GPS position (reads
+    the file's header only)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -169,7 +167,7 @@ def read_frame_prior(path: Path, width: int, height: int) -> FramePrior:
         raise InputError(f"{path}: unreadable ({err})") from None
     gps = exif.get_ifd(EXIF_GPS)
     if not gps or 2 not in gps or 4 not in gps:
-        raise InputError(f"{path}: no GPS position in its EXIF: the EXIF route needs a geotagged frame")
+        return None
     altitude = _rational(gps.get(6, 0.0)) * (-1.0 if gps.get(5) in (b"\x01", 1) else 1.0)
     text = xmp.decode("utf-8", "replace") if isinstance(xmp, bytes) else str(xmp)
     yaw = _xmp_angle(text, "drone-dji:GimbalYawDegree", "Camera:Yaw")
@@ -177,7 +175,6 @@ def read_frame_prior(path: Path, width: int, height: int) -> FramePrior:
     roll = _xmp_angle(text, "drone-dji:GimbalRollDegree", "Camera:Roll")
     if yaw is None or pitch is None:
         yaw = pitch = roll = None
-    focal, source = focal_length_px(path, width, height)
     return FramePrior(
         _degrees(gps[2], gps.get(1, "N")),
         _degrees(gps[4], gps.get(3, "E")),
@@ -185,21 +182,7 @@ def read_frame_prior(path: Path, width: int, height: int) -> FramePrior:
         yaw,
         pitch,
         roll or 0.0 if yaw is not None else None,
-        focal,
-        source,
     )
-
-
-def has_gps(path: Path) -> bool:
-    """Whether the file's EXIF holds a GPS position (reads its header only)."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as image:
-            gps = image.getexif().get_ifd(EXIF_GPS)
-    except (OSError, UnidentifiedImageError):
-        return False
-    return bool(gps) and 2 in gps and 4 in gps
 
 
 def survey_georeference(priors: Sequence[FramePrior], source: str) -> Georeference:
@@ -260,9 +243,10 @@ def _prior_frames(
 
 
 def initial_camera(
-    priors: Sequence[FramePrior], width: int, height: int, calibration: Optional[ThermalFrame], config: SfmConfig
+    focal: Tuple[Optional[float], str], width: int, height: int, calibration: Optional[ThermalFrame], config: SfmConfig
 ) -> Tuple[ThermalFrame, str]:
-    """The intrinsics SfM holds fixed, and where they came from."""
+    """The intrinsics SfM holds fixed, and where they came from: the lens calibration, else the
+    focal length the files record (`focal_length_px`: focal in pixels, its source), else a guess."""
     if calibration is not None:
         if (calibration.width, calibration.height) != (width, height):
             raise InputError(
@@ -270,12 +254,10 @@ def initial_camera(
                 f"these are {width}x{height}"
             )
         return calibration, "lens calibration"
-    focals = [p.focal_px for p in priors if p.focal_px]
-    if focals:
-        focal, source = float(np.median(focals)), next(p.focal_source for p in priors if p.focal_px)
-    else:
-        focal, source = config.fallback_focal_factor * max(width, height), "a guess (the files give no focal length)"
-    return ThermalFrame(Path(), np.eye(4), focal, focal, width / 2.0, height / 2.0, width, height), source
+    value, source = focal
+    if value is None:
+        value, source = config.fallback_focal_factor * max(width, height), "a guess (the files give no focal length)"
+    return ThermalFrame(Path(), np.eye(4), value, value, width / 2.0, height / 2.0, width, height), source
 
 
 def _rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -286,12 +268,14 @@ def structure_from_motion(
     images: Sequence[Path],
     priors: Sequence[FramePrior],
     georeference: Georeference,
+    focal: Tuple[Optional[float], str],
     calibration: Optional[ThermalFrame],
     work_dir: Path,
     config: SfmConfig,
 ) -> SfmResult:
     """The frames' poses in the georeference's east-north-up frame, from the frames and their
-    priors; intermediate files under `work_dir`."""
+    priors (`focal`: what the files say of the focal length, `initial_camera`); intermediate files
+    under `work_dir`."""
     import pycolmap
 
     pycolmap.set_random_seed(0)  # RANSAC and the mapper draw samples: the same frames give the same poses
@@ -300,15 +284,14 @@ def structure_from_motion(
     for path, raster in zip(images, rasters):
         if raster.shape != (height, width):
             raise InputError(f"{path}: {raster.shape[1]}x{raster.shape[0]}, the survey's first frame {width}x{height}")
-    camera, camera_source = initial_camera(priors, width, height, calibration, config)
+    camera, camera_source = initial_camera(focal, width, height, calibration, config)
     low, high = np.percentile(np.stack(rasters), [0.1, 99.9])
     clahe = cv2.createCLAHE(clipLimit=config.clahe_clip, tileGridSize=(8, 8))
     folder = work_dir / "frames"
     folder.mkdir()
     names = [f"{i:05d}_{path.stem}.png" for i, path in enumerate(images)]  # unique, whatever the folders
     for name, raster in zip(names, rasters):
-        grey = np.clip((raster - low) / max(high - low, 1e-6) * 255.0, 0, 255).astype(np.uint8)
-        cv2.imwrite(str(folder / name), clahe.apply(grey))
+        cv2.imwrite(str(folder / name), equalised_grey((raster - low) / max(high - low, 1e-6), clahe))
     del rasters
 
     database_path = work_dir / "database.db"
@@ -444,10 +427,10 @@ def _colmap_errors_only():
         pycolmap.logging.minloglevel = level
 
 
-def _cache_key(images: Sequence[Path], priors, calibration: Optional[ThermalFrame], config: SfmConfig) -> str:
-    import hashlib
-
-    h = hashlib.sha256(json.dumps({"version": CACHE_VERSION, "config": asdict(config)}, sort_keys=True).encode())
+def _cache_key(images: Sequence[Path], priors, focal, calibration: Optional[ThermalFrame], config: SfmConfig) -> str:
+    h = hashlib.sha256(
+        json.dumps({"version": CACHE_VERSION, "config": asdict(config), "focal": list(focal)}, sort_keys=True).encode()
+    )
     for image, prior in zip(images, priors):
         h.update(file_fingerprint(image) + json.dumps(asdict(prior), sort_keys=True).encode())
     if calibration is not None:
@@ -463,13 +446,14 @@ def cached_structure_from_motion(
     images: Sequence[Path],
     priors: Sequence[FramePrior],
     georeference: Georeference,
+    focal: Tuple[Optional[float], str],
     calibration: Optional[ThermalFrame],
     cache_root: Path,
     config: SfmConfig = SfmConfig(),
 ) -> SfmResult:
     """`structure_from_motion`, computed once per (frames, priors, calibration, parameters): the
     poses, camera, points and report are kept under `cache_root`, with the COLMAP model (sparse/)."""
-    final = Path(cache_root) / f"sfm-{_cache_key(images, priors, calibration, config)}"
+    final = Path(cache_root) / f"sfm-{_cache_key(images, priors, focal, calibration, config)}"
     if (final / "report.json").is_file():
         try:
             stored = json.loads((final / "poses.json").read_text())
@@ -497,7 +481,7 @@ def cached_structure_from_motion(
     try:
         start = time.perf_counter()
         with _colmap_errors_only():
-            result = structure_from_motion(images, priors, georeference, calibration, work, config)
+            result = structure_from_motion(images, priors, georeference, focal, calibration, work, config)
         result.report["seconds"] = round(time.perf_counter() - start, 1)
         shutil.rmtree(work / "frames")
         (work / "database.db").unlink()

@@ -538,7 +538,7 @@ def read_exif_gps(
     Frames without GPS are left out by name."""
     from thermal_wild_ns.data.exif_sfm import (
         cached_structure_from_motion,
-        has_gps,
+        focal_length_px,
         read_frame_prior,
         survey_georeference,
     )
@@ -546,22 +546,28 @@ def read_exif_gps(
 
     folder = _survey_frames_folder(root)
     images = _image_files(folder)
-    geotagged = [p for p in images if has_gps(p)]
+    read = [(p, read_frame_prior(p)) for p in images]
+    geotagged, priors = [p for p, prior in read if prior is not None], [prior for _, prior in read if prior is not None]
     if not geotagged:
         raise InputError(f"{folder}: none of its {len(images)} frames has a GPS position in its EXIF")
     if len(geotagged) < len(images):
-        missing = [p.name for p in images if p not in geotagged]
+        missing = [p.name for p, prior in read if prior is None]
         warnings.warn(
             f"{folder}: {len(missing)} frame(s) without GPS are left out: {', '.join(missing[:5])}", stacklevel=2
         )
     width, height = _frame_size(geotagged[0])  # SfM checks that every frame has this size
-    priors = [read_frame_prior(p, width, height) for p in geotagged]
+    focal = focal_length_px(geotagged[0], width, height)  # one camera: its first frame says it
     georeference = survey_georeference(
         priors, f"EXIF GPS of {folder} (altitudes above sea level, taken as ellipsoidal heights)"
     )
     calibration = read_lens_calibration(Path(lens_calibration)) if lens_calibration is not None else None
     result = cached_structure_from_motion(
-        geotagged, priors, georeference, calibration, Path(cache_root) if cache_root else root / ".thermal_wild_ns"
+        geotagged,
+        priors,
+        georeference,
+        focal,
+        calibration,
+        Path(cache_root) if cache_root else root / ".thermal_wild_ns",
     )
     camera = result.camera
     posed = [
@@ -579,13 +585,14 @@ def read_exif_gps(
 
 
 def _exif_gps_mismatch(root: Path) -> Optional[str]:
-    from thermal_wild_ns.data.exif_sfm import has_gps
+    from thermal_wild_ns.data.exif_sfm import read_frame_prior
 
-    folder = next((root / f for f in FRAME_FOLDERS if (root / f).is_dir() and _image_files(root / f)), None)
-    if folder is None:
-        return "no frames in rjpeg/, images/ or the folder"
-    if not has_gps(_image_files(folder)[0]):
-        return f"{_image_files(folder)[0].name} has no GPS position in its EXIF"
+    try:
+        first = _image_files(_survey_frames_folder(root))[0]
+        if read_frame_prior(first) is None:
+            return f"{first.name} has no GPS position in its EXIF"
+    except InputError as err:  # no frames, or an unreadable first one: not this layout
+        return str(err)
     return None
 
 

@@ -29,6 +29,7 @@ import shutil
 import struct
 import subprocess
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple, Union
@@ -137,7 +138,7 @@ class DjiCalibration:
         return out.astype(np.float32)
 
 
-CelsiusCalibration = Union["FlirCalibration", DjiCalibration]
+CelsiusCalibration = Union[FlirCalibration, DjiCalibration]
 """What turns a file's raw counts into °C (`.celsius(raw)`)."""
 
 
@@ -146,11 +147,12 @@ def dji_converter() -> Optional[str]:
     return shutil.which(os.environ.get(DJI_CONVERTER_ENV) or DJI_CONVERTER)
 
 
-def dji_calibration(paths: Sequence[Path]) -> DjiCalibration:
+def dji_calibration(paths: Sequence[Path], raws: Optional[Sequence[np.ndarray]] = None) -> DjiCalibration:
     """The raw -> °C table of DJI-format R-JPEGs, from DJI's converter run on them (their own
-    embedded measurement settings); `NoCelsiusDecoder` naming the first file where the converter is
-    not installed. Files whose settings differ (the same raw count, other °C) are named in the log;
-    the table takes each count's first file's value."""
+    embedded measurement settings); `raws`: their raw rasters where the caller has read them
+    already. `NoCelsiusDecoder` naming the first file where the converter is not installed. Files
+    whose settings differ (the same raw count, other °C) are named in the log; the table takes each
+    count's first file's value."""
     command = dji_converter()
     if command is None:
         camera = _exif_camera(jpeg_segments(_read_bytes(paths[0]), Path(paths[0])))
@@ -162,9 +164,7 @@ def dji_calibration(paths: Sequence[Path]) -> DjiCalibration:
         inputs.mkdir()
         names = [f"{i:05d}_{Path(p).stem}" for i, p in enumerate(paths)]
         for name, path in zip(names, paths):
-            shutil.copyfile(
-                path, inputs / f"{name}.jpg"
-            )  # unique names; the converter does not follow links everywhere
+            shutil.copyfile(path, inputs / f"{name}.jpg")  # unique names, whatever folders the files come from
         done = subprocess.run(
             [
                 command,
@@ -182,7 +182,7 @@ def dji_calibration(paths: Sequence[Path]) -> DjiCalibration:
             capture_output=True,
             text=True,
         )
-        for name, path in zip(names, paths):
+        for k, (name, path) in enumerate(zip(names, paths)):
             produced = outputs / f"{name}_temp_c.tiff"
             celsius = _read_float_tiff(produced) if produced.is_file() else None
             if celsius is None:
@@ -190,7 +190,7 @@ def dji_calibration(paths: Sequence[Path]) -> DjiCalibration:
                     f"{path}: DJI's converter ({command}) gave no °C for it "
                     f"(exit {done.returncode}: {(done.stderr or done.stdout).strip()[-300:]})"
                 )
-            raw = read_rjpeg(path).raw
+            raw = raws[k] if raws is not None else read_rjpeg(path).raw
             if celsius.shape != raw.shape:
                 raise NoCelsiusDecoder(
                     f"{path}: DJI's converter gave {celsius.shape[::-1]} °C for a {raw.shape[::-1]} raster"
@@ -202,8 +202,6 @@ def dji_calibration(paths: Sequence[Path]) -> DjiCalibration:
                 if abs(known - value) > 0.05 and Path(path).name not in differing:
                     differing.append(Path(path).name)
     if differing:
-        import warnings
-
         warnings.warn(
             f"{len(differing)} file(s) carry other measurement settings than the first ({', '.join(differing[:5])}); "
             f"°C use the first file's",
@@ -243,7 +241,7 @@ class RadiometricJpeg:
         """[H, W] float32 °C: the FLIR formula, or DJI's converter where it is installed; else
         `NoCelsiusDecoder` naming the file, the camera and how to install the converter."""
         if self.calibration is None:
-            return dji_calibration([self.path]).celsius(self.raw)
+            return dji_calibration([self.path], [self.raw]).celsius(self.raw)
         return self.calibration.celsius(self.raw)
 
 

@@ -75,9 +75,14 @@ def cache_key(frames: Sequence[ThermalFrame], radiometric_range: RadiometricRang
     return h.hexdigest()[:16]
 
 
+def equalised_grey(normalised: np.ndarray, clahe: cv2.CLAHE) -> np.ndarray:
+    """What SIFT sees of a thermal frame [H, W] on a 0..1 scale (one range for the whole capture,
+    never per frame): 8-bit grey, locally equalised (CLAHE) [H, W] uint8."""
+    return clahe.apply(np.clip(normalised * 255.0, 0, 255).astype(np.uint8))
+
+
 def _feature_image(frame: ThermalFrame, radiometric_range: RadiometricRange, clahe: cv2.CLAHE) -> np.ndarray:
-    grey = np.clip(radiometric_range.read(frame.image) * 255.0, 0, 255).astype(np.uint8)
-    return clahe.apply(grey)
+    return equalised_grey(radiometric_range.read(frame.image), clahe)
 
 
 def prior_pairs(frames: Sequence[ThermalFrame], neighbours: int, max_view_angle_deg: float) -> list:

@@ -199,7 +199,7 @@ class WildThermalModel(SplatfactoModel):
         self._warned_nonfinite = False
         self.baked = BakedValues()  # outside training: `baked_emission`, `baked_background_map`
         self._colormap_table: Optional[tuple] = None  # ((colormap, device), [256, 3] table): `colormap_table`
-        self._inference_embedding: Optional[tuple] = None  # (choice, step, version) -> embedding: `_cached_embedding`
+        self._embedding_cache: Optional[tuple] = None  # (choice, step, version) -> embedding: `_cached_embedding`
         self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
         self._training_views: Dict[tuple, View] = {}  # (training camera, downscale) -> its `_view`
         self._frame_directions = CameraFrameDirections()  # what the baked background is sampled along
@@ -320,9 +320,9 @@ class WildThermalModel(SplatfactoModel):
 
     def _cached_embedding(self, choice: str) -> Tensor:
         """The frame embedding [Df] `choice` names ('mean', 'zero', a training image's index, or
-        'time:T'), kept outside autograd until the embeddings change (`_inference_embedding`)."""
+        'time:T'), kept outside autograd until the embeddings change (`_embedding_cache`)."""
         weight = self.frame_embed.weight  # [F, Df]
-        cached = self._inference_embedding
+        cached = self._embedding_cache
         key = (choice, self.step, weight._version)  # the step: fused Adam does not bump tensor versions
         if cached is not None and cached[0] == key and cached[1] is weight:
             return cached[2]
@@ -340,7 +340,7 @@ class WildThermalModel(SplatfactoModel):
                 f"got {choice!r}"
             )
         if not torch.is_grad_enabled():
-            self._inference_embedding = (key, weight, value)
+            self._embedding_cache = (key, weight, value)
         return value
 
     def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
@@ -424,7 +424,7 @@ class WildThermalModel(SplatfactoModel):
     def get_outputs(self, camera: Cameras, frame_embedding: Optional[Tensor] = None) -> Dict[str, Union[Tensor, List]]:
         """The render of `camera`: in training, at its training frame's state; otherwise at the
         photometric state whose `frame_embedding` [Df] the caller passes, else the viewer's
-        (`frame_embedding`)."""
+        (`viewer_embedding`)."""
         if not isinstance(camera, Cameras):
             raise TypeError(f"WildThermalModel.get_outputs needs a Cameras object, got {type(camera).__name__}")
         if self.training:

@@ -225,6 +225,8 @@ class GuardedTrainer(trainer_after_load_class()):
                 raise SystemExit(f"--load-dir: {err}") from None
         super().setup(test_mode=test_mode)
         self.guard = DivergenceGuard(self.config.guard)
+        # once, not per step: a runtime protocol check is slow, and the model's class does not change
+        self.guarded_model = isinstance(self.pipeline.model, GuardedModel)
         self._step = 0
         unsupported = self._lean_step_unsupported() if self.config.lean_step else None
         self.lean = self.config.lean_step and unsupported is None
@@ -328,7 +330,7 @@ class GuardedTrainer(trainer_after_load_class()):
     def _accept_step(self, param_groups) -> bool:
         """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
         model = self.pipeline.model
-        guarded = isinstance(model, GuardedModel)
+        guarded = self.guarded_model
         loss, frame = model.last_training_loss() if guarded else (None, None)
         with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
             reason = self.guard.check_step(loss, self.optimizers.parameters, param_groups, frame)
@@ -367,8 +369,7 @@ class GuardedTrainer(trainer_after_load_class()):
     def _check_progress(self, step: int) -> None:
         """Score the held-back frames; stop training at a plateau. No score before the schedule's
         start-up is over (the model's `settled_step`: full resolution, first opacity reset)."""
-        model = self.pipeline.model
-        if isinstance(model, GuardedModel) and step < model.settled_step:
+        if self.guarded_model and step < self.pipeline.model.settled_step:
             return
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.auto_stop.keep_best:
@@ -453,8 +454,7 @@ class GuardedTrainer(trainer_after_load_class()):
     def _guarded_iteration(self, step: int):
         if not self.config.guard.enabled:
             return self._iteration(step)
-        model = self.pipeline.model
-        if isinstance(model, GuardedModel) and model.schedule_moves_loss(step):
+        if self.guarded_model and self.pipeline.model.schedule_moves_loss(step):
             self.guard.rebaseline()
         try:
             result = self._iteration(step)
@@ -468,7 +468,7 @@ class GuardedTrainer(trainer_after_load_class()):
             self._restore(healthy)
             model = self.pipeline.model
             model.step = step  # splatfacto's load_state_dict sets it to 30000 (for its viewer)
-            if isinstance(model, GuardedModel):
+            if self.guarded_model:
                 model.discard_step_statistics()  # this step's statistics belong to the discarded state
             self.guard.rollbacks += 1
             self.guard.consecutive = 0
