@@ -38,10 +38,10 @@ from experiments import device_name, synchronize, train_with_hooks
 from experiments.camera_path import evaluate_path
 from experiments.render_fps import measure_fps
 from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
-from thermal_wild_ns.data.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.pipeline.evaluation import CHEAP_PROTOCOLS, evaluate
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
@@ -135,7 +135,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     (default: `args.seed`) for torch and for the order the training frames are visited in."""
     from nerfstudio.configs.method_configs import method_configs
 
-    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     seed = args.seed if seed is None else seed

@@ -36,7 +36,7 @@ class RuleArgs:
 
 
 def measure(scene: str, work_dir: Path, cache_dir: Path) -> dict:
-    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     datamanager = ThermalDatamanagerConfig(

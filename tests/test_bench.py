@@ -14,7 +14,7 @@ pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 def test_bench_runs_end_to_end_on_cpu(tmp_path):
     from experiments.bench import BenchArgs, main
-    from thermal_wild_ns.data.datamanager import NOT_PREPROCESSED
+    from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 
     out = tmp_path / "bench"
     main(

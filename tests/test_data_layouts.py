@@ -77,7 +77,7 @@ def test_thermalnerf_uses_thermal_frames_only(tmp_path):
 
 
 def test_msx_iron_jpgs_decode_to_levels(tmp_path):
-    from thermal_wild_ns.data.datamanager import ThermalDataset
+    from thermal_wild_ns.pipeline.datamanager import ThermalDataset
 
     fx.write_msx(tmp_path / "s")
     outputs = (
@@ -116,7 +116,7 @@ def test_colmap_text_model_and_sfm_seeds(tmp_path):
 def test_layouts_train_through_the_datamanager(tmp_path):
     """What `ns-train wild-thermal <parser> --data X` does before the first step: the datamanager
     caches every frame as float [H, W, 1]."""
-    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
 
     for layout, (writer, folder, _) in CASES.items():
         root = tmp_path / layout / folder
@@ -137,7 +137,7 @@ def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
     frames must stay [H, W, 1] (OpenCV returns 1-channel images as [H, W])."""
     import json
 
-    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     fx.write_thermalnerf(tmp_path / "s")

@@ -195,8 +195,8 @@ def test_stage_caches_and_rebuilds_when_parameters_change(demo_scene_dir, tmp_pa
 
 
 def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_dir, tmp_path):
-    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
 
     images = {}
     for variant in ("none", "stab+bbhe"):
@@ -218,9 +218,9 @@ def test_datamanager_applies_the_variant_and_exposes_frame_indices(demo_scene_di
 def test_the_full_method_preprocesses_a_capture_whose_contrast_varies_and_trains_the_others_raw(
     demo_scene_dir, tmp_path
 ):
-    from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
     from thermal_wild_ns.data.demo_scene import DemoSceneConfig, generate_demo_scene, stress_scene_config
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
     from thermal_wild_ns.preprocessing.stage import (
         CONTRAST_QUANTILES,
         frame_contrast_spread,

@@ -174,8 +174,8 @@ def test_dunr_loads_with_dataset_level_normalisation():
 
     import pytest
 
-    from thermal_wild_ns.data.datamanager import ThermalDataset
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+    from thermal_wild_ns.pipeline.datamanager import ThermalDataset
 
     dunr = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dunr"
     if not dunr.is_dir():

@@ -1,14 +1,14 @@
-"""Every place this plugin reaches into nerfstudio, gsplat, torchmetrics, torchvision or torch
-internals, in one module.
+"""Every place this plugin reaches into nerfstudio, gsplat, torchmetrics or torch internals, in
+one module.
 
 Each patch or adapter below says what upstream does, why the plugin needs something else, and the
-upstream version it was checked against (`CHECKED`). Nothing here runs when this module is
-imported: the callers apply each piece where a command or a method needs it. The one exception in
-time is the torchvision shim, which the CPU install's `.pth` file runs at interpreter start (it has
-to act before anything imports torchvision); this module imports only the standard library at its
-top so that the `.pth` file can load it on its own.
-
-Upstream imports are inside the functions and classes' factories, for the same reason.
+upstream version it was checked against (`CHECKED`, verified when this module is imported). Nothing
+here changes upstream behaviour when this module is imported: the subclasses are used by name, and
+the callers apply each patch where a command or a method needs it. nerfstudio's command scripts
+(`nerfstudio.scripts.*`) are imported inside the hooks of their commands: the exporter needs open3d,
+which the light install leaves out, and neither is needed to train. The CPU torchvision trap is
+handled apart, in `install/torchvision_shim.py`: it must act at interpreter start, before anything
+imports torchvision (and so before this module could).
 """
 
 from __future__ import annotations
@@ -16,10 +16,21 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import sys
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Dict, Optional, Tuple, Type
+from typing import Callable, Dict, Optional
+
+import numpy as np
+import torch
+import torchmetrics.image.lpip as lpip
+import yaml
+from gsplat.strategy import DefaultStrategy
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, _undistort_image
+from nerfstudio.engine.trainer import Trainer
+from nerfstudio.viewer.viewer_elements import ViewerControl
+
+from thermal_wild_ns.errors import EXPLAINERS, IncompleteConfig
 
 CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
 """The versions every patch here was written and tested against (pyproject.toml pins them)."""
@@ -47,7 +58,10 @@ def check_versions() -> None:
         )
 
 
-# --------------------------------------------------------------------------- torch / torchvision
+check_versions()
+
+
+# --------------------------------------------------------------------------- torch
 def allow_nerfstudio_checkpoints() -> None:
     """torch >= 2.6: `torch.load` defaults to `weights_only=True`, and nerfstudio 1.1.5's loaders
     (ns-eval, ns-render, ns-viewer, ns-train --load-dir) call it without the argument on
@@ -55,8 +69,6 @@ def allow_nerfstudio_checkpoints() -> None:
     Instead of turning the safe loader off, allow-list exactly the numpy types such checkpoints
     contain. Checked on torch 2.11 and 2.13; idempotent. Applied when a pipeline of this plugin
     is built (every command that loads a checkpoint builds one first) and by the experiments."""
-    import numpy as np
-    import torch
 
     add = getattr(torch.serialization, "add_safe_globals", None)
     if add is None:  # torch < 2.4 loads everything anyway
@@ -67,94 +79,9 @@ def allow_nerfstudio_checkpoints() -> None:
     add([scalar, _reconstruct, np.dtype, np.ndarray, *dtypes])
 
 
-_TORCHVISION_SCHEMAS = (
-    "nms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor",
-    "qnms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor",
-    "roi_align(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width, "
-    "int sampling_ratio, bool aligned) -> Tensor",
-    "qroi_align(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width, "
-    "int sampling_ratio, bool aligned) -> Tensor",
-    "_roi_align_backward(Tensor grad, Tensor rois, float spatial_scale, SymInt pooled_height, "
-    "SymInt pooled_width, SymInt batch_size, SymInt channels, SymInt height, SymInt width, int sampling_ratio, "
-    "bool aligned) -> Tensor",
-    "ps_roi_align(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width, "
-    "int sampling_ratio) -> (Tensor, Tensor)",
-    "_ps_roi_align_backward(Tensor grad, Tensor rois, Tensor channel_mapping, float spatial_scale, "
-    "SymInt pooled_height, SymInt pooled_width, int sampling_ratio, SymInt batch_size, SymInt channels, "
-    "SymInt height, SymInt width) -> Tensor",
-    "roi_pool(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width) "
-    "-> (Tensor, Tensor)",
-    "_roi_pool_backward(Tensor grad, Tensor rois, Tensor argmax, float spatial_scale, SymInt pooled_height, "
-    "SymInt pooled_width, SymInt batch_size, SymInt channels, SymInt height, SymInt width) -> Tensor",
-    "ps_roi_pool(Tensor input, Tensor rois, float spatial_scale, SymInt pooled_height, SymInt pooled_width) "
-    "-> (Tensor, Tensor)",
-    "_ps_roi_pool_backward(Tensor grad, Tensor rois, Tensor channel_mapping, float spatial_scale, "
-    "SymInt pooled_height, SymInt pooled_width, SymInt batch_size, SymInt channels, SymInt height, "
-    "SymInt width) -> Tensor",
-    "deform_conv2d(Tensor input, Tensor weight, Tensor offset, Tensor mask, Tensor bias, SymInt stride_h, "
-    "SymInt stride_w, SymInt pad_h, SymInt pad_w, SymInt dilation_h, SymInt dilation_w, SymInt groups, "
-    "SymInt offset_groups, bool use_mask) -> Tensor",
-    "_deform_conv2d_backward(Tensor grad, Tensor input, Tensor weight, Tensor offset, Tensor mask, "
-    "Tensor bias, SymInt stride_h, SymInt stride_w, SymInt pad_h, SymInt pad_w, SymInt dilation_h, "
-    "SymInt dilation_w, SymInt groups, SymInt offset_groups, bool use_mask) -> "
-    "(Tensor, Tensor, Tensor, Tensor, Tensor)",
-)
-"""torchvision's op schemas as its C++ registers them (torchvision/csrc/ops/*.cpp, 0.2x)."""
-_torchvision_library = None  # keeps the torch.library.Library alive
-
-
-def define_torchvision_ops(package_dir: str) -> bool:
-    """PyPI's torchvision wheel is a CUDA build: on a CPU-only torch its `_C` extension fails to
-    load, and `import torchvision` then dies in `_meta_registrations` ("operator torchvision::nms
-    does not exist"). nerfstudio imports torchvision for image utilities, never its CUDA ops. Where
-    `_C` cannot load, define the schemas of the operators torchvision registers meta kernels for:
-    they exist but have no kernel (torchvision.ops.nms raises NotImplementedError); the rest of
-    torchvision works. Returns True if it defined them. Checked with torchvision 0.24-0.29."""
-    global _torchvision_library
-    import glob
-
-    import torch
-
-    for lib in glob.glob(os.path.join(package_dir, "_C*.so")):
-        try:
-            torch.ops.load_library(lib)
-            return False  # a working extension defines the ops itself
-        except (OSError, RuntimeError):
-            pass
-    if _torchvision_library is None:
-        _torchvision_library = torch.library.Library("torchvision", "DEF")
-        for schema in _TORCHVISION_SCHEMAS:
-            _torchvision_library.define(schema)
-    return True
-
-
-def install_torchvision_cpu_shim() -> None:
-    """Run `define_torchvision_ops` when torchvision is first imported (a one-shot import hook;
-    costs nothing until then). Called by the CPU install's `.pth` file at interpreter start."""
-    import importlib.abc
-    import importlib.machinery
-
-    class TorchvisionFinder(importlib.abc.MetaPathFinder):
-        def find_spec(self, fullname, path, target=None):
-            if fullname != "torchvision":
-                return None
-            sys.meta_path.remove(self)  # once, then the normal finders do the import
-            spec = importlib.machinery.PathFinder.find_spec(fullname, path)
-            if spec is not None and spec.submodule_search_locations:
-                try:
-                    define_torchvision_ops(list(spec.submodule_search_locations)[0])
-                except Exception as err:  # never break interpreter start-up over this shim
-                    print(f"thermal_wild_ns: torchvision CPU shim failed: {err}", file=sys.stderr)
-            return None
-
-    if "torchvision" not in sys.modules and not any(type(f).__name__ == "TorchvisionFinder" for f in sys.meta_path):
-        sys.meta_path.insert(0, TorchvisionFinder())
-
-
 def fused_adam_ready(optimizer) -> bool:
     """Whether `fused_adam_step` can step this optimizer: a torch Adam built with fused=True and
     none of the options that function leaves out (amsgrad, maximize, capturable, differentiable)."""
-    import torch
 
     return type(optimizer) is torch.optim.Adam and all(
         group["fused"] and not (group["amsgrad"] or group["maximize"] or group["capturable"] or group["differentiable"])
@@ -172,7 +99,6 @@ def fused_adam_step(optimizers) -> None:
     Checked against torch 2.11 (the GPU machines) and 2.13 (CPU): tests/test_upstream.py compares
     the parameters and optimizer states with `Optimizer.step`'s, bit for bit, and
     tests/test_resume.py a training run with nerfstudio's."""
-    import torch
 
     work = []
     for optimizer in optimizers:
@@ -252,8 +178,6 @@ def no_lpips_download():
     constructor downloads AlexNet weights: offline, the model cannot be built. While this context
     is open, the class is a stub that returns NaN (the experiments never read LPIPS). Checked with
     torchmetrics 1.4-1.9."""
-    import torch
-    import torchmetrics.image.lpip as lpip
 
     class NoLPIPS(torch.nn.Module):
         def __init__(self, *args, **kwargs):
@@ -303,62 +227,50 @@ def repoint_optimizers(optimizers, param_groups: Dict[str, list]) -> None:
         optimizers.parameters[name] = param_groups[name]
 
 
-def viewer_control_class():
+class ViewerControlOnConnect(ViewerControl):
     """nerfstudio 1.1.5's `ViewerControl` is handed the viewer through its private `_setup` when
     the viewer starts; it has no public hook for a browser connecting. This subclass calls
     `on_connect(client)` for every browser that connects (to open the view through a camera)."""
-    from nerfstudio.viewer.viewer_elements import ViewerControl
 
-    class ViewerControlOnConnect(ViewerControl):
-        def __init__(self, on_connect):
-            self.on_connect = on_connect
+    def __init__(self, on_connect):
+        self.on_connect = on_connect
 
-        def _setup(self, viewer) -> None:
-            super()._setup(viewer)
-            viewer.viser_server.on_client_connect(self.on_connect)
-
-    return ViewerControlOnConnect
+    def _setup(self, viewer) -> None:
+        super()._setup(viewer)
+        viewer.viser_server.on_client_connect(self.on_connect)
 
 
-def strategy_with_hooks_class():
+class DefaultStrategyWithHooks(DefaultStrategy):
     """gsplat 1.4.0's `DefaultStrategy` grows and accounts Gaussians in its private `_grow_gs` and
     `_update_state`, with no public hook. This subclass calls `before_growth(params, state, step)`
     before gsplat grows (to leave candidates out) and `update_statistics(params, state, info, packed)`
     in place of `_update_state` (return False to let gsplat's own run)."""
-    from gsplat.strategy import DefaultStrategy
 
-    class DefaultStrategyWithHooks(DefaultStrategy):
-        def before_growth(self, params, state, step) -> None:
-            pass
+    def before_growth(self, params, state, step) -> None:
+        pass
 
-        def update_statistics(self, params, state, info, packed: bool) -> bool:
-            return False
+    def update_statistics(self, params, state, info, packed: bool) -> bool:
+        return False
 
-        def _grow_gs(self, params, optimizers, state, step):
-            self.before_growth(params, state, step)
-            return super()._grow_gs(params, optimizers, state, step)
+    def _grow_gs(self, params, optimizers, state, step):
+        self.before_growth(params, state, step)
+        return super()._grow_gs(params, optimizers, state, step)
 
-        def _update_state(self, params, state, info, packed: bool = False):
-            if not self.update_statistics(params, state, info, packed):
-                super()._update_state(params, state, info, packed=packed)
-
-    return DefaultStrategyWithHooks
+    def _update_state(self, params, state, info, packed: bool = False):
+        if not self.update_statistics(params, state, info, packed):
+            super()._update_state(params, state, info, packed=packed)
 
 
-def single_channel_datamanager_class():
+class SingleChannelFullImageDatamanager(FullImageDatamanager):
     """nerfstudio 1.1.5's `FullImageDatamanager._load_images` (private) caches undistorted images;
     OpenCV's undistortion returns a 1-channel image as [H, W]. This subclass restores [H, W, 1]."""
-    from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager
 
-    class SingleChannelFullImageDatamanager(FullImageDatamanager):
-        def _load_images(self, split, cache_images_device):
-            images = super()._load_images(split, cache_images_device)
-            for cache in images:
-                if cache["image"].ndim == 2:
-                    cache["image"] = cache["image"][..., None]
-            return images
-
-    return SingleChannelFullImageDatamanager
+    def _load_images(self, split, cache_images_device):
+        images = super()._load_images(split, cache_images_device)
+        for cache in images:
+            if cache["image"].ndim == 2:
+                cache["image"] = cache["image"][..., None]
+        return images
 
 
 def undistorted_as_cached(camera, image):
@@ -367,9 +279,6 @@ def undistorted_as_cached(camera, image):
     reads from disk later (the raw frame behind a preprocessed or ground-truth image) must go the same
     way to line up with the cameras the model renders: this is that step, for one camera (shape [])
     and its frame [H, W] (float32), returned [H, W] (the frame itself where there is no distortion)."""
-    import numpy as np
-    import torch
-    from nerfstudio.data.datamanagers.full_images_datamanager import _undistort_image
 
     if camera.distortion_params is None or torch.all(camera.distortion_params == 0):
         return image
@@ -378,20 +287,13 @@ def undistorted_as_cached(camera, image):
     return np.asarray(undistorted).reshape(undistorted.shape[0], undistorted.shape[1])
 
 
-def explain_config_load_error(
-    error: BaseException, traceback, also: Tuple[Type[BaseException], ...] = ()
-) -> Optional[str]:
+def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
     """nerfstudio 1.1.5's `eval_setup` (ns-eval, ns-render, ns-viewer, ns-export) reads a run's config
     with `yaml.load(config_path.read_text())`: a damaged file fails there with a YAML error about
-    "<unicode string>", or (cut short at a line end) with one of `also` (the plugin's
-    `IncompleteConfig`), neither naming the file. Where `error` rose inside `eval_setup`, the
-    one-line explanation naming its `config_path` (a local of that function); None for any other
-    error. (This file imports nothing of the package: a `.pth` file loads it on its own at start-up.)"""
-    try:
-        import yaml
-    except ImportError:
-        return None
-    if not isinstance(error, (yaml.YAMLError, *also)):
+    "<unicode string>", or (cut short at a line end) with the plugin's `IncompleteConfig`, neither
+    naming the file. Where `error` rose inside `eval_setup`, the one-line explanation naming its
+    `config_path` (a local of that function); None for any other error. One of `errors.EXPLAINERS`."""
+    if not isinstance(error, (yaml.YAMLError, IncompleteConfig)):
         return None
     while traceback is not None:
         frame = traceback.tb_frame
@@ -418,29 +320,25 @@ def trainer_checkpoint_state(trainer, step: int) -> dict:
     }
 
 
-def trainer_after_load_class():
+class TrainerAfterLoad(Trainer):
     """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
     state arrives, and `Trainer._after_train` (private) saves the final checkpoint with no hook
     before it. This subclass calls `after_checkpoint_load()` right after the first and
     `before_final_checkpoint()` right before the second."""
-    from nerfstudio.engine.trainer import Trainer
 
-    class TrainerAfterLoad(Trainer):
-        def after_checkpoint_load(self) -> None:
-            pass
+    def after_checkpoint_load(self) -> None:
+        pass
 
-        def before_final_checkpoint(self) -> None:
-            pass
+    def before_final_checkpoint(self) -> None:
+        pass
 
-        def _load_checkpoint(self) -> None:
-            super()._load_checkpoint()
-            self.after_checkpoint_load()
+    def _load_checkpoint(self) -> None:
+        super()._load_checkpoint()
+        self.after_checkpoint_load()
 
-        def _after_train(self) -> None:
-            self.before_final_checkpoint()
-            super()._after_train()
-
-    return TrainerAfterLoad
+    def _after_train(self) -> None:
+        self.before_final_checkpoint()
+        super()._after_train()
 
 
 @contextlib.contextmanager
@@ -488,7 +386,6 @@ def interpolation_over_one_pose():
     stack") where its pose source holds one camera (a small capture's one held-out view): there is
     no pair to interpolate between. While this context is open, such a path is that one pose, so
     the command renders it."""
-    from nerfstudio.cameras.cameras import Cameras
     from nerfstudio.scripts import render as ns_render
 
     original = ns_render.get_interpolated_camera_path
@@ -550,3 +447,6 @@ def trajectory_render_hooks(per_trajectory: Callable):
         yield
     finally:
         ns_render._render_trajectory_video = original
+
+
+EXPLAINERS.append(explain_config_load_error)  # a damaged run config, as nerfstudio's loader meets it

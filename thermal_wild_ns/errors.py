@@ -28,7 +28,8 @@ class IncompleteConfig(InputError):
 
 EXPLAINERS: List[Callable[[BaseException, Any], Optional[str]]] = []
 """Functions that turn an uncaught error (and its traceback) into the one line a user reads, or
-None: `_upstream.py` adds the one for nerfstudio's config loading, which only it knows."""
+None: `_upstream.py` adds the one for nerfstudio's config loading when it is imported (every command
+that loads a run imports it), as only it knows that loader."""
 
 
 def report_input_errors_briefly() -> None:

@@ -9,9 +9,9 @@ import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
-from thermal_wild_ns.data.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.errors import report_input_errors_briefly
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.training.guard import GuardedTrainerConfig

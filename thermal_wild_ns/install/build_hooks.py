@@ -1,7 +1,7 @@
 """setuptools hook (see [tool.setuptools.cmdclass] in pyproject.toml): ships
 `thermal_wild_ns_torchvision_cpu.pth` into the root of site-packages. At interpreter start it
-loads `thermal_wild_ns/_upstream.py` on its own (not the package) and installs the torchvision
-CPU shim there (`install_torchvision_cpu_shim`), which must act before anything imports torchvision."""
+loads `thermal_wild_ns/install/torchvision_shim.py` on its own (not the package) and installs the
+torchvision CPU shim (`install_torchvision_cpu_shim`), which must act before anything imports torchvision."""
 
 from pathlib import Path
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
-from thermal_wild_ns._upstream import strategy_with_hooks_class
+from thermal_wild_ns._upstream import DefaultStrategyWithHooks
 
 MIN_SCREEN_RADIUS_PX = 2.0
 """The smallest screen radius gsplat's unpacked projection (splatfacto's) gives a visible Gaussian:
@@ -26,7 +26,7 @@ def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bo
 
 
 @dataclass
-class BudgetedDefaultStrategy(strategy_with_hooks_class()):
+class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """DefaultStrategy whose growth step keeps only the strongest candidates within `max_gaussians`.
 
     Candidates are ranked by how far they exceed their growth rule (mean 2D gradient over

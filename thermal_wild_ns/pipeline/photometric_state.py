@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from thermal_wild_ns.data.datamanager import ThermalDatamanager
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence
 
 

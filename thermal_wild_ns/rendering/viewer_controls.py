@@ -16,7 +16,7 @@ from typing import Callable, List, Optional, Sequence
 import numpy as np
 from torch import nn
 
-from thermal_wild_ns._upstream import viewer_control_class
+from thermal_wild_ns._upstream import ViewerControlOnConnect
 
 COLORMAPS = ("iron", "inferno", "grey")
 
@@ -55,7 +55,7 @@ class ThermalViewerControls(nn.Module):
             "Colour bar", "set by the pipeline", disabled=True, hint="values at 0, 25, 50, 75, 100 % of the colormap"
         )
         # the viewer opens looking at the scene, not from an arbitrary pose
-        self.viewer_control = viewer_control_class()(
+        self.viewer_control = ViewerControlOnConnect(
             lambda client: self._look_through_training_camera(self.nearest_training_image(), client)
         )
         self.viewer_go_to_frame = ViewerButton(

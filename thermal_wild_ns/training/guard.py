@@ -35,11 +35,11 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import (
+    TrainerAfterLoad,
     fused_adam_ready,
     fused_adam_step,
     guard_optimizer_steps,
     repoint_optimizers,
-    trainer_after_load_class,
     trainer_checkpoint_state,
 )
 from thermal_wild_ns.errors import IncompleteConfig, InputError
@@ -205,7 +205,7 @@ SAVES_PER_RUN = 10
 `--steps-per-save`: a short run killed part-way leaves something to resume from."""
 
 
-class GuardedTrainer(trainer_after_load_class()):
+class GuardedTrainer(TrainerAfterLoad):
     """nerfstudio's Trainer with `DivergenceGuard` between backward and the optimizer step, where
     `--max-num-iterations` is the run's total step count, resumed or not."""
 

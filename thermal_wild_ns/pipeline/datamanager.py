@@ -17,7 +17,7 @@ from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.datasets.base_dataset import InputDataset
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from thermal_wild_ns._upstream import single_channel_datamanager_class, undistorted_as_cached
+from thermal_wild_ns._upstream import SingleChannelFullImageDatamanager, undistorted_as_cached
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError
@@ -125,7 +125,7 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     number): the order is a function of the step, so a resumed run sees what the uninterrupted one would."""
 
 
-class ThermalDatamanager(single_channel_datamanager_class()):
+class ThermalDatamanager(SingleChannelFullImageDatamanager):
     """nerfstudio's full-image datamanager over `ThermalDataset`, with the preprocessing stage:
     the chosen variant runs once over the whole capture (capture order) before caching images."""
 
