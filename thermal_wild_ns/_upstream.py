@@ -73,7 +73,7 @@ def allow_nerfstudio_checkpoints() -> None:
     add = getattr(torch.serialization, "add_safe_globals", None)
     if add is None:  # torch < 2.4 loads everything anyway
         return
-    from numpy.core.multiarray import _reconstruct, scalar
+    from numpy.core.multiarray import _reconstruct, scalar  # private numpy names, wanted only here
 
     dtypes = [type(np.dtype(t)) for t in ("float32", "float64", "int32", "int64", "uint8", "bool")]
     add([scalar, _reconstruct, np.dtype, np.ndarray, *dtypes])
@@ -150,7 +150,7 @@ def provide_ffmpeg() -> None:
     if shutil.which("ffmpeg") is not None:
         return
     try:
-        import imageio_ffmpeg
+        import imageio_ffmpeg  # optional: where it is missing, nerfstudio says ffmpeg is
 
         executable = Path(imageio_ffmpeg.get_ffmpeg_exe())
         folder = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "thermal_wild_ns" / "bin"
@@ -351,7 +351,7 @@ def gaussian_splat_export_hooks(
     loaded pipeline; `extra_properties(map_to_tensors)` may add vertex properties before writing;
     `header_comments()` lines are inserted after nerfstudio's "comment Vertical Axis: z" header
     line. The PLY is written under a temporary name and renamed into place."""
-    from nerfstudio.scripts import exporter as ns_export
+    from nerfstudio.scripts import exporter as ns_export  # a command script: see the module docstring
 
     original_setup, original_write = ns_export.eval_setup, ns_export.ExportGaussianSplat.write_ply
 
@@ -386,7 +386,7 @@ def interpolation_over_one_pose():
     stack") where its pose source holds one camera (a small capture's one held-out view): there is
     no pair to interpolate between. While this context is open, such a path is that one pose, so
     the command renders it."""
-    from nerfstudio.scripts import render as ns_render
+    from nerfstudio.scripts import render as ns_render  # a command script: see the module docstring
 
     original = ns_render.get_interpolated_camera_path
 
@@ -418,7 +418,7 @@ def trajectory_render_hooks(per_trajectory: Callable):
     manager `per_trajectory(pipeline)`, which yields `(frame_embedding, on_outputs)`: every frame is
     rendered with `frame_embedding=` that embedding (where not None), and `on_outputs`, if not None,
     is called with every frame's outputs (the same renders as the video, not a second pass)."""
-    from nerfstudio.scripts import render as ns_render
+    from nerfstudio.scripts import render as ns_render  # a command script: see the module docstring
 
     original = ns_render._render_trajectory_video
 

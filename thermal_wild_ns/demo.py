@@ -18,6 +18,13 @@ from typing import Optional
 
 import torch
 import tyro
+from nerfstudio.utils.eval_utils import eval_setup
+
+from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+from thermal_wild_ns.data.demo_scene import generate_demo_scene
+from thermal_wild_ns.errors import report_input_errors_briefly
+from thermal_wild_ns.method_configs import method_trainer
+from thermal_wild_ns.pipeline.evaluation import evaluate
 
 
 @dataclass
@@ -32,8 +39,6 @@ class DemoArgs:
 
 def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method: str = "wild-thermal"):
     """A registered method's config (`wild-thermal` or one of its ablations), scheduled for the small demo scene."""
-    from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
-    from thermal_wild_ns.method_configs import method_trainer
 
     config = method_trainer(method)
     config.output_dir = output_dir
@@ -59,10 +64,6 @@ def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method
 
 
 def main(args: DemoArgs) -> dict:
-    from nerfstudio.utils.eval_utils import eval_setup
-
-    from thermal_wild_ns.data.demo_scene import generate_demo_scene
-    from thermal_wild_ns.pipeline.evaluation import evaluate
 
     device = "cuda" if torch.cuda.is_available() else "cpu"
     steps = args.steps or (10_000 if device == "cuda" else 800)
@@ -111,7 +112,6 @@ def main(args: DemoArgs) -> dict:
 
 
 def entrypoint():
-    from thermal_wild_ns.errors import report_input_errors_briefly
 
     report_input_errors_briefly()
     main(tyro.cli(DemoArgs))

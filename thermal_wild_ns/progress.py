@@ -11,6 +11,7 @@ import time
 from typing import Iterable, Iterator, Optional, TypeVar
 
 from nerfstudio.utils.rich_utils import CONSOLE
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 T = TypeVar("T")
 
@@ -27,8 +28,6 @@ def track(items: Iterable[T], description: str, total: Optional[int] = None, min
         yield from items
         return
     if CONSOLE.is_terminal:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
         columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
         with Progress(*columns, console=CONSOLE, transient=True) as bar:
             task = bar.add_task(description, total=total)

@@ -19,6 +19,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Dict, List
 
+import cv2
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import tyro
 
@@ -34,6 +37,7 @@ from thermal_wild_ns.analysis.diagnostics import (
 )
 from thermal_wild_ns.data.dataparsers import LayoutName, ThermalDataParserConfig
 from thermal_wild_ns.data.palettes import false_colour
+from thermal_wild_ns.errors import report_input_errors_briefly
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 from thermal_wild_ns.progress import track
@@ -94,10 +98,8 @@ def preprocessing_advice(sequence: PreprocessedSequence) -> str:
 
 
 def _plot(result: Dict, path: Path, title: str) -> None:
-    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     before, after = result["before"], result["after"]
     label_b, label_a = "raw", f"after {result['preprocessing']['variant']}"
@@ -140,7 +142,6 @@ def _frames_png(
     raw: List[np.ndarray], processed: List[np.ndarray], path: Path, count: int = 4, tile_width: int = 256
 ) -> None:
     """Top row raw, bottom row processed, `count` evenly spaced frames, inferno on [0, 1]."""
-    import cv2
 
     picks = np.unique(np.linspace(0, len(raw) - 1, min(count, len(raw))).astype(int))
 
@@ -220,7 +221,6 @@ def diagnose(args: DiagnoseArgs) -> Dict:
 
 
 def entrypoint():
-    from thermal_wild_ns.errors import report_input_errors_briefly
 
     report_input_errors_briefly()
     diagnose(tyro.cli(DiagnoseArgs))

@@ -20,8 +20,10 @@ import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import tyro
+from websockets.sync.client import connect
 
 
 @dataclass
@@ -55,7 +57,6 @@ def _wait_http(url: str, deadline: float, process: subprocess.Popen, what: str) 
 
 def _drawn(png: bytes, width: int) -> bool:
     """Whether the 3D view (left of the control panel) shows an image: many distinct colours."""
-    import cv2
 
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
     view = image[80:-80, : int(width * 0.6)]
@@ -68,7 +69,6 @@ def screenshot(args: ScreenshotArgs) -> Path:
         raise RuntimeError("no chromium on PATH: install Debian's package (apt-get install chromium)")
     if not args.load_config.is_file():
         raise FileNotFoundError(f"{args.load_config}: no such run config")
-    from websockets.sync.client import connect
 
     deadline = time.time() + args.timeout
     port, debug_port = _free_port(), _free_port()

@@ -26,6 +26,7 @@ from typing import Dict, Tuple
 
 import cv2
 import numpy as np
+from plyfile import PlyData, PlyElement
 
 from thermal_wild_ns.data.thermal_io import make_work_folder
 from thermal_wild_ns.errors import InputError
@@ -348,7 +349,6 @@ def _surface_points(c2w: np.ndarray, cfg: DemoSceneConfig, rng: np.random.Genera
 
 
 def _write_points_ply(path: Path, points: np.ndarray) -> None:
-    from plyfile import PlyData, PlyElement
 
     vertex = np.empty(len(points), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("thermal", "f4")])
     for i, name in enumerate(("x", "y", "z", "thermal")):

@@ -43,6 +43,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 from nerfstudio.utils.rich_utils import CONSOLE
+from PIL import Image, UnidentifiedImageError
 
 from thermal_wild_ns.data.capture import ThermalFrame
 from thermal_wild_ns.data.georeference import Georeference, geodetic_to_ecef
@@ -134,7 +135,6 @@ def focal_length_px(path: Path, width: int, height: int) -> Tuple[Optional[float
     the EXIF 35 mm equivalent (on the frame's diagonal, as CIPA defines it), a FLIR record's field
     of view, or the EXIF focal length with the focal-plane resolution; (None, "") where none is
     recorded."""
-    from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as image:
@@ -158,7 +158,6 @@ def focal_length_px(path: Path, width: int, height: int) -> Tuple[Optional[float
 def read_frame_prior(path: Path) -> Optional[FramePrior]:
     """The frame's GPS position and gimbal angles; None where its EXIF holds no GPS position (reads
     the file's header only)."""
-    from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as image:
@@ -276,7 +275,7 @@ def structure_from_motion(
     """The frames' poses in the georeference's east-north-up frame, from the frames and their
     priors (`focal`: what the files say of the focal length, `initial_camera`); intermediate files
     under `work_dir`."""
-    import pycolmap
+    import pycolmap  # here, not at the top: the light GPU install has none (SfM runs where it is installed)
 
     pycolmap.set_random_seed(0)  # RANSAC and the mapper draw samples: the same frames give the same poses
     rasters = [read_raw_frame(path).astype(np.float32) for path in track(images, "Reading frames for SfM")]
@@ -417,7 +416,7 @@ def structure_from_motion(
 @contextmanager
 def _colmap_errors_only():
     """COLMAP logs every step of SfM on stderr: the user gets our summary, and COLMAP's errors."""
-    import pycolmap
+    import pycolmap  # here, not at the top: the light GPU install has none (SfM runs where it is installed)
 
     level = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = int(pycolmap.logging.ERROR)

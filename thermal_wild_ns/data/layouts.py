@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
+from plyfile import PlyData
 
 from thermal_wild_ns.data.capture import (
     SeedPoints,
@@ -25,7 +26,16 @@ from thermal_wild_ns.data.capture import (
     interval_split,
     opencv_to_opengl,
 )
-from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange, load_npy
+from thermal_wild_ns.data.exif_sfm import (
+    cached_structure_from_motion,
+    focal_length_px,
+    read_frame_prior,
+    survey_georeference,
+)
+from thermal_wild_ns.data.metashape import read_lens_calibration, read_metashape_xml
+from thermal_wild_ns.data.opensfm import read_reconstruction
+from thermal_wild_ns.data.rjpeg import DJI_CONVERTER_INSTALL, dji_calibration, dji_converter, read_calibration
+from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange, load_npy, read_raw_frame
 from thermal_wild_ns.errors import InputError, MissingInput
 
 THERMALMIX_CELSIUS = {
@@ -57,7 +67,6 @@ def _declared_range(meta: dict) -> Optional[RadiometricRange]:
 
 
 def _read_ply_points(path: Path) -> Optional[SeedPoints]:
-    from plyfile import PlyData
 
     try:
         vertex = PlyData.read(str(path))["vertex"]
@@ -158,7 +167,7 @@ def read_thermalnerf(root: Path) -> ThermalCapture:
 
 # --------------------------------------------------------------------------- COLMAP based
 def _read_colmap_model(folder: Path):
-    import pycolmap
+    import pycolmap  # here, not at the top: the light GPU install has none (SfM runs where it is installed)
 
     if not folder.is_dir() or not any((folder / f"images{ext}").is_file() for ext in (".bin", ".txt")):
         raise MissingInput(f"{folder}: no COLMAP model (images.bin/.txt, cameras.bin/.txt)")
@@ -375,7 +384,6 @@ def _read_matrix(path: Path) -> np.ndarray:
 
 def _frame_size(path: Path) -> Tuple[int, int]:
     """(width, height) of a frame file."""
-    from thermal_wild_ns.data.thermal_io import read_raw_frame
 
     h, w = read_raw_frame(path).shape
     return w, h
@@ -456,7 +464,6 @@ def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligne
     in file-name order, which is capture order for drone files (DJI_0001, ...); every 8th held out.
     Radiometric JPEGs must carry their thermal data (never their colour preview) and give the °C
     calibration. `facts`: the capture's georeference and points."""
-    from thermal_wild_ns.data.rjpeg import read_calibration
 
     folder = _survey_frames_folder(root)
     images = {p.stem: p for p in _image_files(folder)}
@@ -500,7 +507,6 @@ def read_metashape(root: Path) -> ThermalCapture:
     looked for) and the frames as the camera wrote them (radiometric JPEGs, or 16-bit frames) in
     the first of `FRAME_FOLDERS` that holds images. Poses in a local east-north-up frame in metres
     where the chunk is georeferenced (`metashape.py`)."""
-    from thermal_wild_ns.data.metashape import read_metashape_xml
 
     xml = _metashape_xml(root)
     if xml is None:
@@ -517,7 +523,6 @@ def read_odm(root: Path) -> ThermalCapture:
     """A drone survey reconstructed by OpenDroneMap or OpenSfM (`opensfm.py`): the reconstruction's
     shots, cameras and points in its east-north-up frame around `reference_lla`, and the frames as
     the camera wrote them in the first of `FRAME_FOLDERS` that holds images (ODM: `images/`)."""
-    from thermal_wild_ns.data.opensfm import read_reconstruction
 
     path = next((root / f for f in OPENSFM_FILES if (root / f).is_file()), None)
     if path is None:
@@ -536,13 +541,6 @@ def read_exif_gps(
     `<root>/.thermal_wild_ns`). `lens_calibration`: a Metashape / Agisoft Lens calibration XML,
     held fixed (without it the focal length comes from the files and distortion is taken as none).
     Frames without GPS are left out by name."""
-    from thermal_wild_ns.data.exif_sfm import (
-        cached_structure_from_motion,
-        focal_length_px,
-        read_frame_prior,
-        survey_georeference,
-    )
-    from thermal_wild_ns.data.metashape import read_lens_calibration
 
     folder = _survey_frames_folder(root)
     images = _image_files(folder)
@@ -585,7 +583,6 @@ def read_exif_gps(
 
 
 def _exif_gps_mismatch(root: Path) -> Optional[str]:
-    from thermal_wild_ns.data.exif_sfm import read_frame_prior
 
     try:
         first = _image_files(_survey_frames_folder(root))[0]
@@ -601,7 +598,6 @@ def _one_calibration(calibrations: Dict[Path, object], folder: Path):
     the FLIR records' (where the settings differ, emissivity or distance changed mid-flight, the
     first frame's, said in the log: the model has one radiometric scale), or DJI's converter's
     table over all the frames (DJI's format: None, said in the log, where it is not installed)."""
-    from thermal_wild_ns.data.rjpeg import DJI_CONVERTER_INSTALL, dji_calibration, dji_converter
 
     found = list(calibrations.values())
     if not found:

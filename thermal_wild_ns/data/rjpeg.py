@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
+import cv2
 import numpy as np
 
 from thermal_wild_ns.errors import InputError
@@ -216,7 +217,6 @@ def dji_calibration(paths: Sequence[Path], raws: Optional[Sequence[np.ndarray]] 
 
 
 def _read_float_tiff(path: Path) -> Optional[np.ndarray]:
-    import cv2
 
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     return None if image is None else image.astype(np.float32)
@@ -347,7 +347,6 @@ _CAMERA_INFO = {  # field: (byte offset, struct format), ExifTool FLIR::CameraIn
 
 
 def _flir_raw(record: bytes, path: Path) -> np.ndarray:
-    import cv2
 
     order = _record_order(record)
     width, height = struct.unpack(order + "HH", record[2:6])

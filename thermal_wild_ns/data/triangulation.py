@@ -117,7 +117,7 @@ def _sampson(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
 
 def colmap_camera(frame: ThermalFrame):
     """The frame's intrinsics and distortion as a pycolmap camera (OPENCV, or FULL_OPENCV with k3/k4)."""
-    import pycolmap
+    import pycolmap  # here, not at the top: the light GPU install has none (SfM runs where it is installed)
 
     k1, k2, k3, k4, p1, p2 = frame.distortion
     if k3 or k4:
@@ -131,7 +131,7 @@ def triangulate(
     frames: Sequence[ThermalFrame], radiometric_range: RadiometricRange, work_dir: Path, config: TriangulationConfig
 ) -> Tuple[np.ndarray, np.ndarray, Dict]:
     """Points [N, 3] (world), their mean reprojection errors [N] (px) and a report, written under work_dir."""
-    import pycolmap
+    import pycolmap  # here, not at the top: the light GPU install has none (SfM runs where it is installed)
 
     sift = cv2.SIFT_create(nfeatures=config.max_features, contrastThreshold=config.contrast_threshold)
     clahe = cv2.createCLAHE(clipLimit=config.clahe_clip, tileGridSize=(8, 8))

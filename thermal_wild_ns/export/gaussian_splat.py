@@ -20,7 +20,10 @@ import numpy as np
 import torch
 from nerfstudio.scripts import exporter as ns_export
 
+from thermal_wild_ns._upstream import gaussian_splat_export_hooks
 from thermal_wild_ns.data.rjpeg import DjiCalibration
+from thermal_wild_ns.pipeline.photometric_state import canonical_state, to_original
+from thermal_wild_ns.pipeline.run_check import check_trained_run
 
 
 def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
@@ -35,7 +38,6 @@ def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
 
 def canonical_emission(pipeline) -> np.ndarray:
     """Baked emission of every Gaussian at the canonical state, dataset-normalised original space [N]."""
-    from thermal_wild_ns.pipeline.photometric_state import canonical_state, to_original
 
     model = pipeline.model
     state = canonical_state(pipeline)
@@ -78,8 +80,6 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
     """ns-export gaussian-splat, plus a `thermal` property and header comments."""
 
     def main(self) -> None:
-        from thermal_wild_ns._upstream import gaussian_splat_export_hooks
-        from thermal_wild_ns.pipeline.run_check import check_trained_run
 
         check_trained_run(self.load_config)  # before ns-export creates the output folder
 

@@ -25,12 +25,21 @@ from pathlib import Path
 from typing import Optional, Tuple
 
 import numpy as np
+import rasterio
 import torch
+from nerfstudio.cameras.cameras import Cameras, CameraType
+from nerfstudio.utils.eval_utils import eval_setup
+from plyfile import PlyData, PlyElement
+from rasterio.crs import CRS
+from rasterio.transform import Affine
+from rasterio.warp import transform
 
 from thermal_wild_ns.data.georeference import Georeference
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.export.gaussian_splat import canonical_emission
-from thermal_wild_ns.pipeline.run_check import write_atomically
+from thermal_wild_ns.pipeline.photometric_state import canonical_state, render_layers
+from thermal_wild_ns.pipeline.run_check import check_trained_run, write_atomically
+from thermal_wild_ns.pipeline.thermal_pipeline import DATA_RECORD
 
 ORTHO_DISTANCE = 50.0
 """The orthomosaic's camera stands this many site sizes above the ground."""
@@ -48,7 +57,6 @@ def world_from_model(pipeline) -> np.ndarray:
 
 def run_georeference(load_config: Path) -> Optional[Georeference]:
     """The georeference the run recorded at training (None: a capture with no place on the Earth)."""
-    from thermal_wild_ns.pipeline.thermal_pipeline import DATA_RECORD
 
     record = Path(load_config).parent / DATA_RECORD
     found = json.loads(record.read_text()).get("georeference") if record.is_file() else None
@@ -61,7 +69,6 @@ class SurveyFrame:
     """Local east-north-up metres -> the project's CRS (easting, northing, ellipsoidal height)."""
 
     def __init__(self, georeference: Georeference):
-        from rasterio.crs import CRS
 
         self.georeference = georeference
         # no project CRS (OpenDroneMap gives a GPS origin only): the site's UTM zone, metres like a project's
@@ -78,7 +85,6 @@ class SurveyFrame:
 
     def to_crs(self, xyz: np.ndarray) -> np.ndarray:
         """[N, 3] local -> [N, 3] CRS coordinates (float64)."""
-        from rasterio.warp import transform
 
         ecef = xyz @ self.ecef_from_local[:3, :3].T + self.ecef_from_local[:3, 3]  # [N, 3]
         x, y, z = transform("EPSG:4978", self.crs, ecef[:, 0], ecef[:, 1], ecef[:, 2])
@@ -103,9 +109,6 @@ def celsius_or_native(rng, original: np.ndarray) -> Tuple[np.ndarray, str]:
 
 
 def _load(load_config: Path):
-    from nerfstudio.utils.eval_utils import eval_setup
-
-    from thermal_wild_ns.pipeline.run_check import check_trained_run
 
     check_trained_run(load_config)
     _, pipeline, _, _ = eval_setup(Path(load_config), test_mode="inference")
@@ -125,7 +128,6 @@ class ExportCelsiusPoints:
     """Gaussians less opaque than this are left out (faint floaters)."""
 
     def main(self) -> dict:
-        from plyfile import PlyData, PlyElement
 
         pipeline = _load(self.load_config)
         rng = pipeline.datamanager.train_dataset.thermal_range
@@ -172,11 +174,6 @@ class ExportOrthomosaic:
     """Largest side of the raster; a finer resolution over a large site stops with what would fit."""
 
     def main(self) -> dict:
-        import rasterio
-        from nerfstudio.cameras.cameras import Cameras, CameraType
-        from rasterio.transform import Affine
-
-        from thermal_wild_ns.pipeline.photometric_state import canonical_state, render_layers
 
         georeference = run_georeference(self.load_config)
         if georeference is None:

@@ -8,6 +8,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple, Type
 
+import cv2
 import numpy as np
 import torch
 from nerfstudio.cameras.cameras import Cameras
@@ -82,7 +83,6 @@ class ThermalDataset(InputDataset):
     def _scaled(self, image: np.ndarray) -> np.ndarray:
         if self.scale_factor == 1.0:
             return image
-        import cv2
 
         h, w = image.shape
         return cv2.resize(image, (int(w * self.scale_factor), int(h * self.scale_factor)), interpolation=cv2.INTER_AREA)

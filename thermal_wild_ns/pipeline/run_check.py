@@ -22,6 +22,8 @@ import zipfile
 from pathlib import Path
 from typing import Callable, List, Optional
 
+import yaml
+
 from thermal_wild_ns.data.thermal_io import process_alive
 from thermal_wild_ns.errors import IncompleteConfig, InputError
 
@@ -116,7 +118,6 @@ def check_checkpoint(folder: Path, step: Optional[int] = None) -> Path:
 def check_trained_run(load_config: Path) -> None:
     """`load_config` is a `wild-thermal*` run's config.yml with at least one checkpoint; otherwise
     exit with one line (a user's input error, not a bug: no traceback)."""
-    import yaml
 
     path = Path(load_config)
     if not path.is_file():

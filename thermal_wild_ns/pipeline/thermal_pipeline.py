@@ -16,7 +16,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
 from thermal_wild_ns.errors import InputError, MissingInput, report_input_errors_briefly
 from thermal_wild_ns.pipeline.evaluation import evaluate, scores
-from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at
+from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at, to_original
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint, write_text_atomically
 
 DATA_RECORD = "data.json"
@@ -38,7 +38,6 @@ def colour_bar(pipeline, state: PhotometricState, ticks: int = 5) -> str:
     """The data values at evenly spaced points of the colormap: the model's [0, 1] training space
     mapped back through `state`'s LUT to the dataset's range, in degC where the dataset documents
     its temperature bounds, else in native units."""
-    from thermal_wild_ns.pipeline.photometric_state import to_original
 
     rng = pipeline.datamanager.train_dataset.thermal_range
     levels = to_original(pipeline, np.linspace(0.0, 1.0, ticks, dtype=np.float32), state)

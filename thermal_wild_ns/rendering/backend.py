@@ -5,7 +5,10 @@ from __future__ import annotations
 from typing import Dict, Literal, Tuple
 
 import torch
+from gsplat.rendering import rasterization as gsplat_rasterization
 from torch import Tensor
+
+from thermal_wild_ns.rendering.torch_rasterizer import rasterization as torch_rasterization
 
 Backend = Literal["auto", "gsplat", "torch"]
 
@@ -26,10 +29,7 @@ def rasterization(*args, backend: Backend = "auto", **kwargs) -> Tuple[Tensor, T
     """
     means = kwargs["means"] if "means" in kwargs else args[0]
     if resolve_backend(backend, means.device) == "gsplat":
-        from gsplat.rendering import rasterization as gsplat_rasterization
-
         return gsplat_rasterization(*args, **kwargs)
-    from thermal_wild_ns.rendering.torch_rasterizer import rasterization as torch_rasterization
 
     return torch_rasterization(*args, **kwargs)
 

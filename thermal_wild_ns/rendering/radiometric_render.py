@@ -23,11 +23,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Optional, Union
 
+import cv2
 import numpy as np
 import torch
 import tyro
 from nerfstudio.scripts import render as ns_render
 from typing_extensions import Annotated
+
+from thermal_wild_ns._upstream import interpolation_over_one_pose, trajectory_render_hooks
+from thermal_wild_ns.errors import report_input_errors_briefly
+from thermal_wild_ns.pipeline.photometric_state import parse_state, resolve_state, to_original
+from thermal_wild_ns.pipeline.run_check import check_trained_run
 
 
 @dataclass
@@ -64,9 +70,6 @@ class RadiometricFrameWriter:
 
     def write(self, thermal: torch.Tensor) -> None:
         """thermal [H, W, 1], the model's training space -> the next frame file."""
-        import cv2
-
-        from thermal_wild_ns.pipeline.photometric_state import to_original
 
         normalised = np.clip(to_original(self.pipeline, thermal[..., 0].float().cpu().numpy(), self.state), 0.0, 1.0)
         if self.mode == "uint16":
@@ -103,9 +106,6 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
     """While ns-render's command runs, every trajectory is rendered at the chosen photometric state
     (its frame embedding passed to each render) and, unless `--radiometric none`, every frame it
     renders also goes to a RadiometricFrameWriter."""
-    from thermal_wild_ns._upstream import trajectory_render_hooks
-    from thermal_wild_ns.pipeline.photometric_state import parse_state, resolve_state
-    from thermal_wild_ns.pipeline.run_check import check_trained_run
 
     parse_state(options.photometric_state)  # a bad name fails before the model loads
     check_trained_run(options.load_config)
@@ -140,7 +140,6 @@ class RenderInterpolated(RadiometricOptions, ns_render.RenderInterpolated):
     """ns-render interpolate, plus radiometric frames; a pose source of one camera renders that pose."""
 
     def main(self) -> None:
-        from thermal_wild_ns._upstream import interpolation_over_one_pose
 
         with _radiometric_too(self, self.output_path), interpolation_over_one_pose():
             super().main()
@@ -165,7 +164,6 @@ Commands = tyro.conf.FlagConversionOff[
 
 
 def entrypoint():
-    from thermal_wild_ns.errors import report_input_errors_briefly
 
     report_input_errors_briefly()
     tyro.cli(Commands).main()

@@ -14,6 +14,8 @@ from __future__ import annotations
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
+import viser.transforms as vtf
+from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerSlider, ViewerText
 from torch import nn
 
 from thermal_wild_ns._upstream import ViewerControlOnConnect
@@ -26,7 +28,6 @@ class ThermalViewerControls(nn.Module):
 
     def __init__(self, frame_times: Sequence[float], colormap: str):
         super().__init__()
-        from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerSlider, ViewerText
 
         self.frame_times: List[float] = list(frame_times)
         self._listeners: List[Callable[[], None]] = []
@@ -98,7 +99,6 @@ class ThermalViewerControls(nn.Module):
         if not handles:
             return
         handle = handles.get(image) or handles[min(handles)]
-        import viser.transforms as vtf  # the viewer's own library: imported where a viewer runs
 
         # just past the frustum's image plane, which would otherwise cover the view (viser cameras look along +z)
         forward = vtf.SO3(np.asarray(handle.wxyz)).as_matrix()[:, 2]

@@ -25,6 +25,14 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 import torch
 
+from thermal_wild_ns.image_metrics import psnr
+from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
+from thermal_wild_ns.pipeline.photometric_state import (
+    PhotometricState,
+    check_same_geometry,
+    preprocessed_sequence,
+    render,
+)
 from thermal_wild_ns.training.model_interface import GuardedModel
 
 
@@ -94,14 +102,6 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
     around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame."""
-    from thermal_wild_ns.image_metrics import psnr
-    from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
-    from thermal_wild_ns.pipeline.photometric_state import (
-        PhotometricState,
-        check_same_geometry,
-        preprocessed_sequence,
-        render,
-    )
 
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)

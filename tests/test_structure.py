@@ -1,0 +1,108 @@
+"""The house's rules (docs/design.md): no import circles, no import up the floors, no import hidden
+inside a function except the few that must wait (each says why)."""
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "thermal_wild_ns"
+FLOORS = [
+    ["errors", "progress", "image_metrics", "install"],
+    ["_upstream"],
+    ["data"],
+    ["preprocessing"],
+    ["pipeline", "analysis"],
+    ["rendering", "export", "training"],
+    ["model"],
+    ["method_configs"],
+    ["demo"],
+]
+"""Rooms bottom up, as docs/design.md draws them: a module may import its own floor's and lower ones."""
+FUNCTION_LOCAL_IMPORTS = {
+    "pycolmap": "the light GPU install has no pycolmap",
+    "nerfstudio.scripts": "command scripts (the exporter needs open3d, absent from the light install)",
+    "numpy.core.multiarray": "private numpy names, only for the checkpoint allow-list",
+    "imageio_ffmpeg": "optional",
+    "torch": "the torchvision shim loads at interpreter start, before torch is wanted",
+}
+"""The only imports allowed inside functions, and why."""
+
+
+def modules():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        yield name.removesuffix(".__init__"), ast.parse(path.read_text())
+
+
+def imported(node):
+    if isinstance(node, ast.Import):
+        return [alias.name for alias in node.names]
+    return [node.module] if node.level == 0 and node.module else []
+
+
+def floor(module: str) -> int:
+    room = module.split(".")[1] if "." in module else ""
+    return next(i for i, rooms in enumerate(FLOORS) if room in rooms)
+
+
+def package_imports():
+    graph = {}
+    for name, tree in modules():
+        graph[name] = {
+            target
+            for node in tree.body
+            if isinstance(node, (ast.Import, ast.ImportFrom))
+            for target in imported(node)
+            if target.startswith("thermal_wild_ns.")
+        }
+    return graph
+
+
+def test_no_import_inside_a_function_but_the_listed_ones():
+    found = []
+    for name, tree in modules():
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                for sub in ast.walk(node):
+                    if isinstance(sub, (ast.Import, ast.ImportFrom)):
+                        for target in imported(sub) or ["(relative)"]:
+                            if not any(target == m or target.startswith(m + ".") for m in FUNCTION_LOCAL_IMPORTS):
+                                found.append(f"{name}:{sub.lineno} imports {target}")
+    assert not found, "\n".join(sorted(set(found)))
+
+
+def test_no_import_runs_up_a_floor():
+    upward = [
+        f"{name} (floor {floor(name)}) -> {target} (floor {floor(target)})"
+        for name, targets in package_imports().items()
+        if name != "thermal_wild_ns"
+        for target in targets
+        if floor(target) > floor(name)
+    ]
+    assert not upward, "\n".join(upward)
+
+
+def test_no_import_circles():
+    graph = package_imports()
+    state, circles = {}, []
+
+    def visit(node, path):
+        state[node] = "open"
+        for target in graph.get(node, ()):
+            if state.get(target) == "open":
+                circles.append(" -> ".join(path[path.index(target) :] + [target]))
+            elif target not in state:
+                visit(target, path + [target])
+        state[node] = "done"
+
+    for node in graph:
+        if node not in state:
+            visit(node, [node])
+    assert not circles, "\n".join(circles)
+
+
+def test_the_rules_can_fail():
+    """The checks above see what they look for: a made-up upward import and circle are found."""
+    assert floor("thermal_wild_ns.data.layouts") < floor("thermal_wild_ns.model.wild_thermal")
+    graph = package_imports()
+    assert "thermal_wild_ns.preprocessing.stage" in graph["thermal_wild_ns.pipeline.datamanager"]
