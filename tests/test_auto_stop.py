@@ -47,14 +47,14 @@ def _scores(monkeypatch, values):
     """Make the held-back score follow `values`, one per call (the rule's input, decided here), from
     step 0 on (the schedule's own start-up has a test of its own)."""
     calls = iter(values)
-    monkeypatch.setattr("thermal_wild_ns.training.guard.held_back_score", lambda pipeline, images: next(calls))
+    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", lambda pipeline, images: next(calls))
     monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))
 
 
 def test_no_check_before_the_schedules_start_up_is_over(tmp_path, demo_scene_dir, monkeypatch):
     calls = []
     monkeypatch.setattr(
-        "thermal_wild_ns.training.guard.held_back_score",
+        "thermal_wild_ns.training.auto_stop.held_back_score",
         lambda pipeline, images: calls.append(pipeline.model.step) or 20.0,
     )
     trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=1)
@@ -72,13 +72,13 @@ def test_no_check_before_the_schedules_start_up_is_over(tmp_path, demo_scene_dir
 def test_a_plateaued_run_stops_says_why_and_keeps_its_best_model(tmp_path, demo_scene_dir, monkeypatch):
     trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=2)
     kept = {}
-    snapshot = trainer._snapshot
+    snapshot = auto_stop.snapshot
 
-    def remember(step):
-        kept[step] = {k: v.detach().clone() for k, v in trainer.pipeline.model.named_parameters()}
-        return snapshot(step)
+    def remember(pipeline, optimizers, step):
+        kept[step] = {k: v.detach().clone() for k, v in pipeline.model.named_parameters()}
+        return snapshot(pipeline, optimizers, step)
 
-    trainer._snapshot = remember
+    monkeypatch.setattr(auto_stop, "snapshot", remember)  # what the automatic stop keeps
     _scores(monkeypatch, [20.0, 25.0, 24.0, 24.5, 23.0])  # best at the 2nd check (step 7), then two without a rise
     trainer.train()
     record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())

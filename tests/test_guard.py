@@ -5,7 +5,7 @@ import pytest
 import torch
 from demo_trainers import demo_trainer
 
-from thermal_wild_ns.training.guard import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
+from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
 
 
 def _trainer(tmp_path, demo_scene_dir, steps, **guard):

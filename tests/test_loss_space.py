@@ -23,10 +23,10 @@ def original_space_trainer(tmp_path_factory, demo_scene_dir):
 def test_the_frames_go_back_to_their_captured_values(original_space_trainer):
     pipeline = original_space_trainer.pipeline
     model, dataset = pipeline.model, pipeline.datamanager.train_dataset
-    assert model.inverse_luts is not None and model.inverse_luts.shape[0] == len(dataset)
+    assert model.thermal_loss.inverse_luts is not None and model.thermal_loss.inverse_luts.shape[0] == len(dataset)
     for image in (0, len(dataset) // 2):
         processed = pipeline.datamanager.cached_train[image]["image"].float()  # [H, W, 1]
-        back = model.to_original_space(processed, image)[..., 0].numpy()
+        back = model.thermal_loss.to_original_space(processed, image)[..., 0].numpy()
         raw = dataset.original_image(image)
         assert np.abs(back - raw).max() < 2e-3 * (raw.max() - raw.min())  # the LUT's own rounding, no more
 
@@ -37,7 +37,7 @@ def test_the_inverse_is_the_sequences_and_carries_gradients(original_space_train
     image = 3
     t = int(pipeline.datamanager.train_dataset.metadata["frame_indices"][image])
     values = torch.rand(500, generator=torch.Generator().manual_seed(0), requires_grad=True)
-    mapped = model.to_original_space(values, image)
+    mapped = model.thermal_loss.to_original_space(values, image)
     expected = sequence.to_original_normalised(values.detach().numpy().astype(np.float64), sequence.lut(t))
     assert np.abs(mapped.detach().numpy() - expected).max() < 1e-4
     mapped.sum().backward()
@@ -52,8 +52,8 @@ def test_the_loss_is_measured_in_the_original_space(original_space_trainer):
     outputs = model.get_outputs(camera)
     losses = model.get_loss_dict(outputs, batch)
     image = int(batch["image_idx"])
-    pred = model.to_original_space(outputs["thermal"], image)
-    gt = model.to_original_space(batch["image"].float(), image)
+    pred = model.thermal_loss.to_original_space(outputs["thermal"], image)
+    gt = model.thermal_loss.to_original_space(batch["image"].float(), image)
     _, contrast = model._ground_truth(outputs, batch)
     expected = model.config.l1_lambda * float((gt - pred).abs().mean() / contrast)
     assert float(losses["l1_loss"]) == pytest.approx(expected, rel=1e-4)

@@ -7,7 +7,13 @@ from nerfstudio.data.scene_box import SceneBox
 
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.camera_views import ray_directions
-from thermal_wild_ns.model.wild_thermal import UNUSED_OPTIONS, WildThermalModelConfig
+from thermal_wild_ns.model.config_checks import UNUSED_OPTIONS
+from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+
+def background(model, *args, **kwargs):
+    """The model's background as its own renders ask for it (training or not, at its step)."""
+    return model.background_field(*args, training=model.training, step=model.step, **kwargs)
 
 
 def make_model(n=400, frames=5, **overrides):
@@ -218,12 +224,12 @@ def test_background_is_cached_per_training_camera_and_smooth_enough_for_its_grid
     K, c2w = camera.get_intrinsics_matrices()[0], camera.camera_to_worlds[0]
     embed = model.frame_embed.weight[2]
     with torch.no_grad():
-        fresh = model.background(K, c2w, embed, 160, 128)
-        cached = model.background(K, c2w, embed, 160, 128, cam_idx=2)
-        assert (2, 160, 128) in model._encoded_directions
-        again = model.background(K, c2w, embed, 160, 128, cam_idx=2)
+        fresh = background(model, K, c2w, embed, 160, 128)
+        cached = background(model, K, c2w, embed, 160, 128, cam_idx=2)
+        assert (2, 160, 128) in model.background_field._encoded_directions
+        again = background(model, K, c2w, embed, 160, 128, cam_idx=2)
         model.config.background_stride = 1
-        full = model.background(K, c2w, embed, 160, 128)
+        full = background(model, K, c2w, embed, 160, 128)
     assert torch.equal(fresh, cached) and torch.equal(cached, again)
     assert fresh.shape == full.shape == (128, 160, 1)
     spread = float(full.max() - full.min())
@@ -385,13 +391,14 @@ def test_a_training_view_is_nerfstudios_rescaled_camera_and_leaves_the_camera_al
     `rescale_output_resolution` (sizes floored: 93 -> 23 at 1/4), the camera object is not
     changed (the datamanager hands the same one again), and a fixed-pose training camera's view
     is computed once per resolution."""
+    from thermal_wild_ns.model.camera_views import TrainingViews
     from thermal_wild_ns.rendering import world_to_camera
 
-    model = make_model()
-    model.train()
+    views = TrainingViews()
     camera = make_camera(3, width=93, height=61)
+    pose = lambda: camera.camera_to_worlds
     before = {name: getattr(camera, name).clone() for name in ("fx", "fy", "cx", "cy", "width", "height")}
-    c2w, viewmat, K, W, H, pinhole = model._view(camera, 4, cam_idx=3)
+    c2w, viewmat, K, W, H, pinhole = views.get(camera, pose, 4, "cpu", cam_idx=3)
     reference = make_camera(3, width=93, height=61)
     reference.rescale_output_resolution(1 / 4)
     assert (W, H) == (int(reference.width), int(reference.height)) == (23, 15)
@@ -401,9 +408,9 @@ def test_a_training_view_is_nerfstudios_rescaled_camera_and_leaves_the_camera_al
     )
     assert torch.equal(viewmat, world_to_camera(camera.camera_to_worlds))
     assert all(torch.equal(getattr(camera, name), value) for name, value in before.items())
-    assert model._view(camera, 4, cam_idx=3)[1] is viewmat  # kept for this training camera ...
-    assert model._view(camera, 1, cam_idx=3)[3:5] == (93, 61)  # ... per resolution
-    assert model._view(camera, 4, cam_idx=None)[1] is not viewmat  # a camera without a fixed pose: computed
+    assert views.get(camera, pose, 4, "cpu", cam_idx=3)[1] is viewmat  # kept for this training camera ...
+    assert views.get(camera, pose, 1, "cpu", cam_idx=3)[3:5] == (93, 61)  # ... per resolution
+    assert views.get(camera, pose, 4, "cpu", cam_idx=None)[1] is not viewmat  # a camera without a fixed pose: computed
 
 
 def test_baked_background_map_matches_the_mlp_and_is_invalidated():
@@ -419,18 +426,20 @@ def test_baked_background_map_matches_the_mlp_and_is_invalidated():
     dirs = dirs / dirs.norm(dim=-1, keepdim=True)  # [P, 3], the seam at longitude +-180 included
     with torch.no_grad():
         exact = model.background_mlp(dirs, embed)[:, 0]  # [P]
-        background_map = model.baked_background_map(embed)
+        background_map = model.background_field.baked_map(embed, model.step)
         longitude = torch.atan2(dirs[:, 1], dirs[:, 0]) / torch.pi
         latitude = torch.asin(dirs[:, 2]) / (torch.pi / 2)
         grid = torch.stack([longitude, latitude], dim=-1)[None, None]  # [1, 1, P, 2]
         baked = torch.nn.functional.grid_sample(background_map, grid, align_corners=True)[0, 0, 0]  # [P]
     spread = float(exact.max() - exact.min())
     assert spread > 0 and float((baked - exact).abs().max()) < 0.01 * spread
-    assert model.baked_background_map(embed) is background_map  # cached
+    assert model.background_field.baked_map(embed, model.step) is background_map  # cached
     with torch.no_grad():
         model.background_mlp.offset += 0.5  # an in-place edit (a load, an optimizer step) ...
-    assert model.baked_background_map(embed) is not background_map  # ... rebuilds it
-    assert model.baked_background_map(model.frame_embed.weight[2].detach()) is not model.baked_background_map(embed)
+    assert model.background_field.baked_map(embed, model.step) is not background_map  # ... rebuilds it
+    assert model.background_field.baked_map(
+        model.frame_embed.weight[2].detach(), model.step
+    ) is not model.background_field.baked_map(embed, model.step)
 
 
 def test_renders_outside_training_use_the_baked_background():
@@ -443,19 +452,21 @@ def test_renders_outside_training_use_the_baked_background():
     embed = model.frame_embed.weight[1].detach()
     model.eval()
     with torch.no_grad():
-        baked = model.background(K, c2w, embed, 160, 128)
+        baked = background(model, K, c2w, embed, 160, 128)
     with torch.enable_grad():
-        exact = model.background(K, c2w, embed, 160, 128)  # under autograd: the MLP itself
+        exact = model.background_field(
+            K, c2w, embed, 160, 128, training=model.training, step=model.step
+        )  # under autograd: the MLP itself
     spread = float(exact.max() - exact.min())
-    assert "background" in model.baked.slots
+    assert "background" in model.background_field.baked.slots
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
     # the view directions: the camera-frame directions of the intrinsics, kept once per intrinsics (given
     # on the host or read from K alike), then rotated: the directions of the full pixel grid
-    assert len(model._frame_directions.kept) == 1
+    assert len(model.background_field._frame_directions.kept) == 1
     with torch.no_grad():
-        given = model.background(K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
-    assert len(model._frame_directions.kept) == 1 and torch.equal(given, baked)
-    kept = next(iter(model._frame_directions.kept.values())) @ c2w[:3, :3].T
+        given = background(model, K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
+    assert len(model.background_field._frame_directions.kept) == 1 and torch.equal(given, baked)
+    kept = next(iter(model.background_field._frame_directions.kept.values())) @ c2w[:3, :3].T
     reference = ray_directions(K, c2w, 160, 128, model.config.background_stride)
     assert kept.shape == reference.shape and float((kept - reference).abs().max()) < 1e-6
     outputs = model.get_outputs_for_camera(camera)  # the same object, already on the model's device
@@ -469,13 +480,13 @@ def test_a_random_training_background_is_redrawn_each_step_and_only_in_training(
     camera = make_camera(1)
     K, c2w = camera.get_intrinsics_matrices()[0], camera.camera_to_worlds[0]
     model.train()
-    first, second = (model.background(K, c2w, None, 48, 32) for _ in range(2))
+    first, second = (background(model, K, c2w, None, 48, 32) for _ in range(2))
     assert first.shape == (32, 48, 1) and torch.all(first == first[0, 0])  # one value over the frame ...
     assert float(first[0, 0]) != float(second[0, 0]) and 0.0 <= float(first[0, 0]) <= 1.0  # ... drawn per step
     outputs = model.get_outputs(camera)  # and what training composites over
     assert torch.isfinite(outputs["rgb"]).all()
     model.eval()
-    assert torch.all(model.background(K, c2w, None, 48, 32) == 0.25)  # a render a user sees: the fixed value
+    assert torch.all(background(model, K, c2w, None, 48, 32) == 0.25)  # a render a user sees: the fixed value
     with pytest.raises(InputError, match="random_background needs use_background_mlp False"):
         make_model(random_background=True)
 

@@ -80,7 +80,7 @@ def test_resume_continues_the_automatic_stop(tmp_path, demo_scene_dir, monkeypat
     ends as the uninterrupted run does: stopped at step 39, the model of step 19 kept."""
     scores = {9: 20.0, 19: 25.0, 29: 24.0, 39: 24.5}  # best at 19; 29 and 39 bring no rise: stop at 39
     monkeypatch.setattr(
-        "thermal_wild_ns.training.guard.held_back_score", lambda pipeline, images: scores[pipeline.model.step]
+        "thermal_wild_ns.training.auto_stop.held_back_score", lambda pipeline, images: scores[pipeline.model.step]
     )
     monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))  # checks from step 0
 

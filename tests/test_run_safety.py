@@ -69,11 +69,11 @@ KILLED_CHILD = """
 import sys, time
 from pathlib import Path
 sys.path[:0] = {paths!r}
-import thermal_wild_ns.training.guard as guard
+import thermal_wild_ns.training.checkpoints as checkpoints
 from ns_runs import ns_train, run_args
 
 marker, saves = Path({marker!r}), []
-original = guard.write_atomically
+original = checkpoints.write_atomically
 
 def slow_second_checkpoint(path, write, partial_dir=None):
     def writing(tmp):
@@ -85,7 +85,7 @@ def slow_second_checkpoint(path, write, partial_dir=None):
                 time.sleep(600)
     original(path, writing, partial_dir)
 
-guard.write_atomically = slow_second_checkpoint
+checkpoints.write_atomically = slow_second_checkpoint
 ns_train([*run_args(Path({out!r}), 20), "--steps-per-save", "4", "thermal-demo-data", "--data", {data!r}])
 """
 

@@ -9,7 +9,10 @@ import importlib.abc
 import importlib.util
 import sys
 
-MOVED_MODULES = {"thermal_wild_ns.data.datamanager": "thermal_wild_ns.pipeline.datamanager"}
+MOVED_MODULES = {
+    "thermal_wild_ns.data.datamanager": "thermal_wild_ns.pipeline.datamanager",
+    "thermal_wild_ns.training.guard": "thermal_wild_ns.training.trainer",
+}
 """Modules that moved, old name -> new: a run's config.yml names its classes by module path, and
 runs trained before a move must still load in ns-viewer, ns-render and ns-eval."""
 

@@ -14,8 +14,8 @@ from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
-from thermal_wild_ns.training.guard import GuardedTrainerConfig
 from thermal_wild_ns.training.optimizers import FusedAdamOptimizerConfig
+from thermal_wild_ns.training.trainer import GuardedTrainerConfig
 
 # every ns-* command imports this registration: its input errors (a damaged run, a bad dataset) print as one line
 report_input_errors_briefly()

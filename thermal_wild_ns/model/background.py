@@ -5,11 +5,12 @@ upsampled from the `background_stride` grid."""
 from __future__ import annotations
 
 import math
-from typing import Dict, Tuple
+from typing import Dict, Optional, Tuple
 
 import torch
 from torch import Tensor
 
+from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP
 
@@ -79,3 +80,60 @@ class CameraFrameDirections:
         while len(self.kept) > self.KEPT:
             self.kept.pop(next(iter(self.kept)))
         return cached
+
+
+class ThermalBackground:
+    """The background behind the Gaussians, per pixel [H, W, 1]: the background MLP `mlp` (None: the
+    constant `config.background_value`, or with `config.random_background` a uniform value drawn
+    afresh at each training render), evaluated on the `config.background_stride` grid and upsampled.
+    In training (and under autograd) the MLP runs on every grid point; a training camera whose pose
+    is fixed (`cam_idx`) has its encoded directions computed once. Every other render samples the
+    baked map (`baked_map`) along the camera-frame directions of its intrinsics, rotated."""
+
+    def __init__(self, mlp: Optional[BackgroundMLP], config):
+        self.mlp = mlp
+        self.config = config
+        self.baked = BakedValues()
+        self._encoded_directions: Dict[tuple, Tensor] = {}  # (training camera, width, height) -> encoded grid
+        self._frame_directions = CameraFrameDirections()
+
+    def baked_map(self, frame_embed: Tensor, step: int) -> Tensor:
+        """The MLP over every direction under `frame_embed` (`background_map`), kept until the
+        embedding or the MLP's parameters change (`BakedValues`; `step`: the training step)."""
+        tensors = (*self.baked.parameters_of(self.mlp), frame_embed)
+        return self.baked.get("background", tensors, step, lambda: background_map(self.mlp, frame_embed))
+
+    def __call__(
+        self,
+        K: Tensor,
+        camera_to_world: Tensor,
+        frame_embed: Tensor,
+        width: int,
+        height: int,
+        cam_idx: Optional[int] = None,
+        pinhole: Optional[Tuple[float, float, float, float]] = None,
+        *,
+        training: bool,
+        step: int,
+    ) -> Tensor:
+        """[H, W, 1] for intrinsics `K` [3, 3] and pose `camera_to_world` [3, 4]; `pinhole`: `K`'s fx,
+        fy, cx, cy on the host, where the caller has them (else they are read from `K`)."""
+        device = K.device
+        if self.mlp is None:
+            if training and self.config.random_background:
+                return torch.rand(1, 1, 1, device=device).expand(height, width, 1)
+            return torch.full((height, width, 1), self.config.background_value, device=device)
+        stride = self.config.background_stride
+        if not training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
+            if pinhole is None:
+                pinhole = tuple(K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())  # fx, fy, cx, cy
+            dirs = self._frame_directions(K, pinhole, width, height, stride) @ camera_to_world[:3, :3].T  # [h, w, 3]
+            return upsampled(sample_map(self.baked_map(frame_embed, step), dirs), width, height)
+        key = (cam_idx, width, height)
+        encoded = self._encoded_directions.get(key) if cam_idx is not None else None
+        if encoded is None:
+            dirs = ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            encoded = self.mlp.encode(dirs)  # [h, w, E]
+            if cam_idx is not None:
+                self._encoded_directions[key] = encoded
+        return upsampled(self.mlp.from_encoded(encoded, frame_embed), width, height)

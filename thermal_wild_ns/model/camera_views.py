@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple, Tuple
+from typing import Callable, Dict, NamedTuple, Optional, Tuple
 
 import torch
 from nerfstudio.cameras.cameras import Cameras
@@ -64,3 +64,24 @@ def ray_directions(K: Tensor, camera_to_world: Tensor, width: int, height: int, 
     dirs = torch.stack([(u - K[0, 2]) / K[0, 0], -(v - K[1, 2]) / K[1, 1], -torch.ones_like(u)], -1)
     dirs = dirs @ camera_to_world[:3, :3].T  # [h, w, 3]
     return dirs / dirs.norm(dim=-1, keepdim=True)
+
+
+class TrainingViews:
+    """`make_view` of each render, kept for a training camera whose pose is fixed (`cam_idx`) per
+    downscale: its view never changes. The camera object is left as it is (a datamanager may hand the
+    same one again)."""
+
+    def __init__(self) -> None:
+        self.kept: Dict[tuple, View] = {}  # (training camera, downscale) -> its view
+
+    def get(
+        self, camera: Cameras, camera_to_world: Callable[[], Tensor], scale: int, device, cam_idx: Optional[int]
+    ) -> View:
+        """The view of `camera` at 1/`scale` of its resolution; `camera_to_world()` gives its pose [1, 3, 4]."""
+        key = (cam_idx, scale)
+        if cam_idx is not None and key in self.kept:
+            return self.kept[key]
+        view = make_view(camera, camera_to_world(), scale, device)
+        if cam_idx is not None:
+            self.kept[key] = view
+        return view

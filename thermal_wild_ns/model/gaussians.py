@@ -8,7 +8,7 @@ from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 import torch
-from nerfstudio.models.splatfacto import random_quat_tensor
+from nerfstudio.models.splatfacto import RGB2SH, random_quat_tensor
 from torch import Tensor
 
 
@@ -48,3 +48,33 @@ def initial_gaussians(
     if config.use_emission_mlp:
         params["gauss_embed"] = 0.1 * torch.randn(num_points, config.gaussian_embed_dim)
     return params
+
+
+class GreyColourAccessors:
+    """splatfacto's colour accessors, which nerfstudio's viewer and exporters read, for a model of
+    scalar emission (`emission` [N, 1], `gaussian_emission`, `inference_embedding`, `num_points`):
+    grey RGB as rendered outside training, as the DC band, and no higher bands."""
+
+    @property
+    def colors(self) -> Tensor:
+        """Grey RGB in [0, 1] per Gaussian [N, 3]: the emission as rendered outside training (MLP
+        included, under the inference embedding)."""
+        with torch.no_grad():
+            emission = self.gaussian_emission(self.inference_embedding())
+        return emission.clamp(0.0, 1.0).expand(-1, 3)
+
+    @property
+    def features_dc(self) -> Tensor:
+        return RGB2SH(self.colors)
+
+    @property
+    def features_rest(self) -> Tensor:
+        return self.emission.new_zeros(self.num_points, 0, 3)
+
+    @property
+    def shs_0(self) -> Tensor:
+        return self.features_dc
+
+    @property
+    def shs_rest(self) -> Tensor:
+        return self.features_rest

@@ -17,30 +17,30 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
-import numpy as np
 import torch
 import tyro
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.models.splatfacto import RGB2SH, SplatfactoModel, SplatfactoModelConfig
+from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
 from torch.nn import Parameter
 from torch.profiler import record_function
 
-from thermal_wild_ns.data.palettes import palette_rgb
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import psnr, ssim
-from thermal_wild_ns.model.background import CameraFrameDirections, background_map, sample_map, upsampled
+from thermal_wild_ns.model.background import ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
-from thermal_wild_ns.model.camera_views import View, make_view, ray_directions
+from thermal_wild_ns.model.camera_views import TrainingViews
+from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
-from thermal_wild_ns.model.gaussians import initial_gaussians
-from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, thermal_contrast
+from thermal_wild_ns.model.frame_states import FrameStates
+from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
+from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
-from thermal_wild_ns.preprocessing.photometric import time_weights
+from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.rendering import Backend, rasterization
-from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls
+from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, colormap_table
 
 
 @dataclass
@@ -122,39 +122,7 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     budget sweep on DUNR (docs/results.md); raise it for captures with much more to see."""
 
 
-UNUSED_OPTIONS = {
-    "background_color": "the background is the background MLP, or background_value",
-    "sh_degree": "thermal emission is a scalar: no spherical harmonics",
-    "sh_degree_interval": "no spherical harmonics",
-    "n_split_samples": "gsplat's strategy splits each Gaussian in two",
-    "use_scale_regularization": "not implemented for thermal splats",
-    "max_gauss_ratio": "not implemented for thermal splats",
-    "use_bilateral_grid": "a colour-camera correction; thermal frames' drift is the frame embeddings' and the LUTs'",
-    "grid_shape": "no bilateral grid",
-    "color_corrected_metrics": "metrics are scored by the evaluation protocols in the original space",
-    "enable_collider": "splats have no ray sampling",
-    "collider_params": "splats have no ray sampling",
-    "loss_coefficients": "the loss weights are l1_lambda, ssim_lambda and alpha_lambda",
-    "eval_num_rays_per_chunk": "splats render whole images",
-    "prompt": "no text prompts",
-}
-"""Options `WildThermalModelConfig` inherits but the model does not use, and why."""
-
-
-def refuse_unused_options(config: WildThermalModelConfig) -> None:
-    """An `InputError` naming any option of `UNUSED_OPTIONS` set away from its default (a config
-    file edited by hand, or written for splatfacto): it would do nothing."""
-    defaults = WildThermalModelConfig()
-    changed = [name for name in UNUSED_OPTIONS if getattr(config, name) != getattr(defaults, name)]
-    if changed:
-        raise InputError(
-            "wild-thermal does not use "
-            + "; ".join(f"{name} (set to {getattr(config, name)!r}: {UNUSED_OPTIONS[name]})" for name in changed)
-            + ". Remove it from the config"
-        )
-
-
-class WildThermalModel(SplatfactoModel):
+class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     """Splatfacto with scalar thermal emission, appearance embeddings and a background MLP."""
 
     config: WildThermalModelConfig
@@ -171,11 +139,8 @@ class WildThermalModel(SplatfactoModel):
         num_frames = max(self.num_train_data, 1)
         self.frame_embed = nn.Embedding(num_frames, cfg.frame_embed_dim)
         indices = self.kwargs.get("metadata", {}).get("frame_indices")
-        self.frame_times: List[float] = (
-            [float(t) for t in indices] if indices is not None else [float(k) for k in range(num_frames)]
-        )
-        """Capture position (capture-order frame index) of each training image, i.e. of each row of
-        `frame_embed`: the time axis along which the photometric state is interpolated."""
+        # each training image's capture position (capture-order frame index): the photometric states' time axis
+        self.frame_states = FrameStates(self.frame_embed, indices if indices is not None else range(num_frames))
         self._last_training_loss: Tuple[Optional[Tensor], Optional[int]] = (None, None)  # `last_training_loss`
         self._discard_statistics = False  # `discard_step_statistics`
         nn.init.zeros_(self.frame_embed.weight)
@@ -189,6 +154,7 @@ class WildThermalModel(SplatfactoModel):
         self.background_mlp = (
             BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
         )
+        self.background_field = ThermalBackground(self.background_mlp, cfg)
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -196,66 +162,24 @@ class WildThermalModel(SplatfactoModel):
         self.optimizers = {}  # set by splatfacto's step_cb once training starts
         self.crop_box = None
         self.background_color = torch.tensor([cfg.background_value] * 3)
-        self._warned_nonfinite = False
-        self.baked = BakedValues()  # outside training: `baked_emission`, `baked_background_map`
-        self._colormap_table: Optional[tuple] = None  # ((colormap, device), [256, 3] table): `colormap_table`
-        self._embedding_cache: Optional[tuple] = None  # (choice, step, version) -> embedding: `_cached_embedding`
-        self._encoded_directions: Dict[tuple, Tensor] = {}  # training camera -> encoded background directions
-        self._training_views: Dict[tuple, View] = {}  # (training camera, downscale) -> its `_view`
-        self._frame_directions = CameraFrameDirections()  # what the baked background is sampled along
-        self._frame_checks: Dict[tuple, tuple] = {}  # training image -> (all finite, contrast, original frame)
-        self.register_buffer("inverse_luts", self._inverse_luts(), persistent=False)
-        """[training images, S] each training frame's inverse LUT sampled at S evenly spaced training-space
-        values, for `loss_space` 'original' when the frames are preprocessed; else None."""
+        self.baked = BakedValues()  # outside training: `baked_emission`
+        self.training_views = TrainingViews()
+        sequence = (self.kwargs.get("metadata") or {}).get("preprocessed")  # the training frames' LUTs
+        use_luts = sequence is not None and cfg.loss_space == "original"
+        self.thermal_loss = ThermalLoss(cfg, inverse_lut_table(sequence, self.frame_times) if use_luts else None)
         self.strategy = BudgetedDefaultStrategy.for_splatfacto(cfg, self.num_train_data)
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
 
-    INVERSE_LUT_SAMPLES = 4096
-    """Training-space values at which each training frame's inverse LUT is tabulated for a loss in
-    the original space (linear in between: far finer than any step of the equalization)."""
-
-    def _inverse_luts(self) -> Optional[Tensor]:
-        """The training frames' inverse LUTs [images, S], from what the model is built with (the
-        training data's `preprocessed` sequence and capture positions); None where unused."""
-        metadata = self.kwargs.get("metadata") or {}
-        sequence = metadata.get("preprocessed")
-        if sequence is None or self.config.loss_space != "original":
-            return None
-        values = np.linspace(0.0, 1.0, self.INVERSE_LUT_SAMPLES)
-        tables = np.stack([sequence.to_original_normalised(values, sequence.lut(int(t))) for t in self.frame_times])
-        return torch.from_numpy(tables.astype(np.float32))  # [images, S]
+    @property
+    def frame_times(self) -> List[float]:
+        """Capture position of each training image (each row of `frame_embed`)."""
+        return self.frame_states.frame_times
 
     @property
     def emission(self) -> Tensor:
         return self.gauss_params["emission"]
-
-    @property
-    def colors(self) -> Tensor:
-        """Grey RGB in [0, 1] per Gaussian, for nerfstudio's exporters and viewers: the emission as
-        rendered outside training (MLP included, under the inference embedding)."""
-        with torch.no_grad():
-            emission = self.gaussian_emission(self.inference_embedding())
-        return emission.clamp(0.0, 1.0).expand(-1, 3)
-
-    # splatfacto's SH accessors, which nerfstudio's viewer and exporters read: the grey emission
-    # as the DC band and no higher bands (the model has no spherical harmonics)
-    @property
-    def features_dc(self) -> Tensor:
-        return RGB2SH(self.colors)
-
-    @property
-    def features_rest(self) -> Tensor:
-        return self.emission.new_zeros(self.num_points, 0, 3)
-
-    @property
-    def shs_0(self) -> Tensor:
-        return self.features_dc
-
-    @property
-    def shs_rest(self) -> Tensor:
-        return self.features_rest
 
     def get_gaussian_param_groups(self) -> Dict[str, List[Parameter]]:
         # every tensor in gauss_params needs its own group: gsplat's strategies look optimizers
@@ -286,62 +210,29 @@ class WildThermalModel(SplatfactoModel):
         """The frame embedding [Df] of a render that names no state (ns-viewer): the state at the
         viewer's capture time where its user chose one, else the canonical `inference_embedding`."""
         t = self.viewer_controls.capture_time
-        return self.inference_embedding() if t is None else self._cached_embedding(f"time:{t}")
+        return self.inference_embedding() if t is None else self.frame_states.named(f"time:{t}", self.step)
 
     @property
     def uses_frame_embedding(self) -> bool:
         """Whether renders depend on the frame embedding (through either MLP)."""
         return self.emission_mlp is not None or self.background_mlp is not None
 
-    def embedding_at(self, t: float, without: Sequence[int] = ()) -> Tensor:
-        """The frame embedding [Df] at capture position `t`: linear between the neighbouring
-        training frames' embeddings, exactly a training frame's own at its position. `without`:
-        rows of `frame_embed` not to interpolate from."""
-        left_out = set(without)
-        rows = [k for k in range(len(self.frame_times)) if k not in left_out]
-        i, j, w = time_weights([self.frame_times[k] for k in rows], t)
-        weight = self.frame_embed.weight  # [F, Df]
-        return weight[rows[i]] if w == 0.0 else (1.0 - w) * weight[rows[i]] + w * weight[rows[j]]
+    def embedding_at(self, t: float) -> Tensor:
+        """The frame embedding [Df] at capture position `t` (`FrameStates.at`)."""
+        return self.frame_states.at(t)
 
     def interpolate_embeddings(self, rows: Sequence[int]) -> None:
         """Set the embeddings of training images that take no gradient (held back to score the
         run, `training/auto_stop.py`) to the state interpolated from the other training frames
         around them, so that every use of the embeddings (their mean, `embedding_at`) sees
         states the data shaped."""
-        with torch.no_grad():
-            for row in rows:
-                self.frame_embed.weight[row] = self.embedding_at(self.frame_times[row], without=rows)
+        self.frame_states.fill_from_neighbours(rows)
 
     def inference_embedding(self) -> Tensor:
         """The canonical frame embedding [Df]: the configured `inference_embedding` (the training
         frames' mean by default). Outside autograd the same tensor is returned until the embeddings
         change, so the baked emission keyed on it stays valid."""
-        return self._cached_embedding(self.config.inference_embedding)
-
-    def _cached_embedding(self, choice: str) -> Tensor:
-        """The frame embedding [Df] `choice` names ('mean', 'zero', a training image's index, or
-        'time:T'), kept outside autograd until the embeddings change (`_embedding_cache`)."""
-        weight = self.frame_embed.weight  # [F, Df]
-        cached = self._embedding_cache
-        key = (choice, self.step, weight._version)  # the step: fused Adam does not bump tensor versions
-        if cached is not None and cached[0] == key and cached[1] is weight:
-            return cached[2]
-        if choice.startswith("time:"):
-            value = self.embedding_at(float(choice[5:]))
-        elif choice == "mean":
-            value = weight.mean(dim=0)
-        elif choice == "zero":
-            value = torch.zeros_like(weight[0])
-        elif choice.isdigit() and int(choice) < weight.shape[0]:
-            value = weight[int(choice)]
-        else:
-            raise ValueError(
-                f"inference_embedding must be 'mean', 'zero' or a training-frame index below {weight.shape[0]}, "
-                f"got {choice!r}"
-            )
-        if not torch.is_grad_enabled():
-            self._embedding_cache = (key, weight, value)
-        return value
+        return self.frame_states.named(self.config.inference_embedding, self.step)
 
     def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
         """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]. Outside
@@ -365,62 +256,6 @@ class WildThermalModel(SplatfactoModel):
             "emission", tensors, self.step, lambda: self.emission_mlp(self.emission, embed, frame_embed)
         )
 
-    def baked_background_map(self, frame_embed: Tensor) -> Tensor:
-        """The background MLP over every direction under `frame_embed` (`background.background_map`),
-        kept like `baked_emission`: a render samples this map instead of running the MLP per pixel."""
-        tensors = (*self.baked.parameters_of(self.background_mlp), frame_embed)
-        return self.baked.get(
-            "background", tensors, self.step, lambda: background_map(self.background_mlp, frame_embed)
-        )
-
-    def _view(self, camera: Cameras, scale: int, cam_idx: Optional[int]) -> View:
-        """Where and how a render looks, at 1/`scale` of the camera's resolution (`View`). The camera
-        object is left as it is (a datamanager may hand the same one again). `cam_idx` names a
-        training camera whose pose is fixed: its view is computed once per scale."""
-        key = (cam_idx, scale)
-        if cam_idx is not None and key in self._training_views:
-            return self._training_views[key]
-        camera_to_world = self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
-        view = make_view(camera, camera_to_world, scale, self.device)
-        if cam_idx is not None:
-            self._training_views[key] = view
-        return view
-
-    def background(
-        self,
-        K: Tensor,
-        camera_to_world: Tensor,
-        frame_embed: Tensor,
-        width: int,
-        height: int,
-        cam_idx: Optional[int] = None,
-        pinhole: Optional[Tuple[float, float, float, float]] = None,
-    ) -> Tensor:
-        """Background radiance per pixel [H, W, 1], evaluated on the `background_stride` grid and
-        upsampled. In training (and under autograd) the MLP runs on every grid point; `cam_idx`
-        names a training camera whose pose is fixed (no pose optimisation), whose encoded
-        directions are computed once and reused. Every other render samples the baked map
-        (`baked_background_map`) along the camera-frame directions of `K`, rotated; `pinhole`:
-        `K`'s fx, fy, cx, cy on the host, where the caller has them (else they are read from `K`)."""
-        if self.background_mlp is None:
-            if self.training and self.config.random_background:
-                return torch.rand(1, 1, 1, device=self.device).expand(height, width, 1)
-            return torch.full((height, width, 1), self.config.background_value, device=self.device)
-        stride = self.config.background_stride
-        if not self.training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
-            if pinhole is None:
-                pinhole = tuple(K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())  # fx, fy, cx, cy
-            dirs = self._frame_directions(K, pinhole, width, height, stride) @ camera_to_world[:3, :3].T  # [h, w, 3]
-            return upsampled(sample_map(self.baked_background_map(frame_embed), dirs), width, height)
-        key = (cam_idx, width, height)
-        encoded = self._encoded_directions.get(key) if cam_idx is not None else None
-        if encoded is None:
-            dirs = ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
-            encoded = self.background_mlp.encode(dirs)  # [h, w, E]
-            if cam_idx is not None:
-                self._encoded_directions[key] = encoded
-        return upsampled(self.background_mlp.from_encoded(encoded, frame_embed), width, height)
-
     def get_outputs(self, camera: Cameras, frame_embedding: Optional[Tensor] = None) -> Dict[str, Union[Tensor, List]]:
         """The render of `camera`: in training, at its training frame's state; otherwise at the
         photometric state whose `frame_embedding` [Df] the caller passes, else the viewer's
@@ -436,13 +271,22 @@ class WildThermalModel(SplatfactoModel):
             and "cam_idx" in camera.metadata
         )
         cam_idx = int(camera.metadata["cam_idx"]) if fixed_pose else None
-        view = self._view(camera, self._get_downscale_factor(), cam_idx)
+        pose = lambda: self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
+        view = self.training_views.get(camera, pose, self._get_downscale_factor(), self.device, cam_idx)
         viewmat, K, W, H = view.viewmat, view.K, view.width, view.height
         self.last_size = (H, W)
         frame_embed = self.frame_embedding(camera, frame_embedding)
         with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
-            background = self.background(
-                K[0], view.camera_to_world[0], frame_embed, W, H, cam_idx, pinhole=view.pinhole
+            background = self.background_field(
+                K[0],
+                view.camera_to_world[0],
+                frame_embed,
+                W,
+                H,
+                cam_idx,
+                view.pinhole,
+                training=self.training,
+                step=self.step,
             )  # [H, W, 1]
 
         ids = None
@@ -511,7 +355,8 @@ class WildThermalModel(SplatfactoModel):
         if self.training:  # nothing reads rgb while training: the cheapest grey view
             rgb = clipped.expand(-1, -1, 3)
         else:  # the thermal colormap (viewer, ns-render)
-            rgb = self.colormap_table(clipped.device)[(clipped[..., 0] * 255).round().long()]  # [H, W, 3]
+            table = colormap_table(self.viewer_controls.colormap, str(clipped.device))  # [256, 3]
+            rgb = table[(clipped[..., 0] * 255).round().long()]  # [H, W, 3]
         return {  # rgb first: the viewer shows the first output by default
             "rgb": rgb,
             "thermal": thermal,  # [H, W, 1], normalised dataset units (training space)
@@ -520,49 +365,12 @@ class WildThermalModel(SplatfactoModel):
             "depth": depth,
         }
 
-    def colormap_table(self, device) -> Tensor:
-        """The viewer's colormap's (the configured one outside the viewer) 256 colours [256, 3] in
-        [0, 1] on `device`."""
-        name = self.viewer_controls.colormap
-        cached = self._colormap_table
-        if cached is None or cached[0] != (name, str(device)):
-            table = torch.from_numpy(palette_rgb(name).astype("float32") / 255.0).to(device)
-            self._colormap_table = cached = ((name, str(device)), table)
-        return cached[1]
-
     # ----------------------------------------------------------------- losses
     def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Optional[Tensor]]:
-        """Ground-truth thermal image at the render's resolution (non-finite pixels replaced by the
-        render, so they add nothing to losses and metrics) and, for a training frame without
-        such pixels, its thermal contrast (for the heat-aware SSIM). Both checks run once per
-        training frame and resolution: the frames never change."""
-        image = batch["image"]
-        if image.dim() != 3 or image.shape[-1] != 1:
-            raise ValueError(
-                f"WildThermalModel expects single-channel thermal images [H, W, 1]; image {batch.get('image_idx')} "
-                f"has shape {tuple(image.shape)}. Use the thermal datamanager/dataparsers of thermal_wild_ns."
-            )
-        gt = self.get_gt_img(image)
-        key = (int(batch["image_idx"]), tuple(gt.shape)) if self.training and "image_idx" in batch else None
-        checked = self._frame_checks.get(key) if key is not None else None
-        if checked is None:
-            all_finite = bool(torch.isfinite(gt).all())
-            original = self.to_original_space(gt, key[0]) if key is not None and all_finite else None
-            reference = gt if original is None else original
-            checked = (all_finite, thermal_contrast(reference) if all_finite else None, original)
-            if key is not None:
-                self._frame_checks[key] = checked
-        all_finite, contrast, _ = checked
-        if not all_finite:
-            finite = torch.isfinite(gt)
-            if not self._warned_nonfinite:
-                CONSOLE.log(
-                    f"[yellow]Image {batch.get('image_idx')} has {int((~finite).sum())} non-finite pixels; "
-                    "they are left out of the loss and metrics."
-                )
-                self._warned_nonfinite = True
-            gt = torch.where(finite, gt, outputs["thermal"].detach())
-        return gt, contrast
+        """The frame at the render's resolution and its contrast (`ThermalLoss.ground_truth`)."""
+        gt = self.get_gt_img(checked_thermal_image(batch))
+        image = int(batch["image_idx"]) if self.training and "image_idx" in batch else None
+        return self.thermal_loss.ground_truth(gt, outputs["thermal"], image)
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
         gt, _ = self._ground_truth(outputs, batch)
@@ -570,7 +378,11 @@ class WildThermalModel(SplatfactoModel):
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
         with record_function("thermal/loss"):
-            losses = self._loss_dict(outputs, batch)
+            gt, contrast = self._ground_truth(outputs, batch)
+            image = int(batch["image_idx"]) if self.training and "image_idx" in batch else None
+            losses = self.thermal_loss(outputs, gt, contrast, image)
+            if self.training:
+                self.camera_optimizer.get_loss_dict(losses)
         if self.training:
             frame = int(batch["image_idx"]) if "image_idx" in batch else None
             self._last_training_loss = (sum(losses.values()).detach(), frame)
@@ -585,68 +397,10 @@ class WildThermalModel(SplatfactoModel):
         """This step's gradients stay out of the densification statistics (a step the guard skipped)."""
         self._discard_statistics = True
 
-    def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
-        """Training-space values of training image `image` taken back to the original space through
-        its inverse LUT (piecewise linear, differentiable); None without inverse LUTs."""
-        if self.inverse_luts is None or self.config.loss_space != "original":
-            return None
-        table = self.inverse_luts[image]  # [S]
-        position = values.clamp(0.0, 1.0) * (table.shape[0] - 1)
-        lower = position.detach().floor().clamp(max=table.shape[0] - 2)
-        weight = position - lower
-        lower = lower.long()
-        return table[lower] * (1.0 - weight) + table[lower + 1] * weight
-
-    def _loss_dict(self, outputs, batch) -> Dict[str, Tensor]:
-        gt, contrast = self._ground_truth(outputs, batch)
-        pred = outputs["thermal"]
-        cfg = self.config
-        compared_pred, compared_gt, l1_scale = pred, gt, 1.0
-        if self.training and "image_idx" in batch and cfg.loss_space == "original":
-            key = (int(batch["image_idx"]), tuple(gt.shape))
-            original = self._frame_checks.get(key, (None, None, None))[2]
-            if original is not None:
-                # L1 in units of the frame's own contrast, so that its weight against the
-                # (contrast-relative) SSIM and the alpha term stays what it is in training space
-                compared_pred, compared_gt = self.to_original_space(pred, key[0]), original
-                l1_scale = 1.0 / contrast
-        plain_ssim = lambda: ssim(compared_pred, compared_gt, data_range=1.0)
-        losses = {
-            "l1_loss": cfg.l1_lambda * l1_scale * (compared_gt - compared_pred).abs().mean(),
-            "ssim_loss": cfg.ssim_lambda
-            * (1.0 - (heat_aware_ssim(compared_pred, compared_gt, contrast) if cfg.heat_aware_ssim else plain_ssim())),
-        }
-        if cfg.alpha_lambda > 0:
-            losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(
-                outputs["accumulation"], gt, outputs["background"], cfg.alpha_reg_tolerance
-            )
-        if self.training:
-            self.camera_optimizer.get_loss_dict(losses)
-        return losses
-
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
-        """Refuse checkpoints that do not fit this config, with the reason, before nerfstudio's
-        loader falls back to a non-strict load that would silently drop the MLPs or embeddings."""
-        parts = {
-            "emission MLP (use_emission_mlp)": ("emission_mlp.", self.emission_mlp is not None),
-            "per-Gaussian embeddings (use_emission_mlp)": ("gauss_params.gauss_embed", self.emission_mlp is not None),
-            "background MLP (use_background_mlp)": ("background_mlp.", self.background_mlp is not None),
-        }
-        for what, (prefix, wanted) in parts.items():
-            present = any(k.startswith(prefix) for k in state_dict)
-            if present != wanted:
-                raise ValueError(
-                    f"checkpoint {'has' if present else 'lacks'} the {what} but this config "
-                    f"{'disables' if present else 'enables'} it: "
-                    "load it with the config it was trained with (its config.yml)"
-                )
-        frames = state_dict.get("frame_embed.weight")
-        if frames is not None and tuple(frames.shape) != tuple(self.frame_embed.weight.shape):
-            raise ValueError(
-                f"checkpoint has {frames.shape[0]} frame embeddings of size {frames.shape[1]}, this config "
-                f"{self.frame_embed.weight.shape[0]} of size {self.frame_embed.weight.shape[1]}: it was trained on "
-                f"other data or settings"
-            )
+        """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
+        has_mlps = (self.emission_mlp is not None, self.background_mlp is not None)
+        refuse_mismatched_checkpoint(state_dict, *has_mlps, tuple(self.frame_embed.weight.shape))
         return super().load_state_dict(state_dict, strict=strict, **kwargs)
 
     # The densification statistics and the global torch RNG (gsplat's splits sample from it) go into
@@ -672,21 +426,14 @@ class WildThermalModel(SplatfactoModel):
 
     @property
     def settled_step(self) -> int:
-        """The first step past the schedule's start-up: training at full resolution (splatfacto's
-        warm-up halves the downscale factor every `resolution_schedule` steps, from
-        2^num_downscales) and past the first opacity reset. Before it, each of these moves every
-        score by itself (the automatic stop does not score before it)."""
-        return max(self.config.num_downscales * self.config.resolution_schedule, self.strategy.reset_every)
+        """The first step past the schedule's start-up (`schedule.settled_step`): the automatic stop
+        does not score before it."""
+        return settled_step(self.config, self.strategy)
 
     def schedule_moves_loss(self, step: int) -> bool:
-        """Whether the training schedule itself moves the loss at `step`: the first step after an
-        opacity reset, or the first at a finer training resolution. The divergence guard takes a
-        new baseline there rather than skipping each frame's jump as a spike."""
-        reset_every, stop = self.strategy.reset_every, self.strategy.refine_stop_iter
-        after_reset = 1 < step <= stop and (step - 1) % reset_every == 0  # gsplat resets at step % reset_every == 0
-        r = self.config.resolution_schedule
-        finer = step % r == 0 and 0 < step // r <= self.config.num_downscales  # splatfacto halves the downscale here
-        return after_reset or finer
+        """Whether the schedule itself moves the loss at `step` (`schedule.schedule_moves_loss`): the
+        divergence guard takes a new baseline there rather than skipping each frame's jump as a spike."""
+        return schedule_moves_loss(self.config, self.strategy, step)
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         gt, _ = self._ground_truth(outputs, batch)

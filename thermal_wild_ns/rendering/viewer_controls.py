@@ -11,16 +11,25 @@ canonical state, the configured colormap.
 
 from __future__ import annotations
 
+import functools
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
+import torch
 import viser.transforms as vtf
 from nerfstudio.viewer.viewer_elements import ViewerButton, ViewerDropdown, ViewerSlider, ViewerText
-from torch import nn
+from torch import Tensor, nn
 
 from thermal_wild_ns._upstream import ViewerControlOnConnect
+from thermal_wild_ns.data.palettes import palette_rgb
 
 COLORMAPS = ("iron", "inferno", "grey")
+
+
+@functools.lru_cache(maxsize=8)
+def colormap_table(name: str, device: str) -> Tensor:
+    """Colormap `name`'s 256 colours [256, 3] in [0, 1] on `device`: made once, looked up per render."""
+    return torch.from_numpy(palette_rgb(name).astype("float32") / 255.0).to(device)
 
 
 class ThermalViewerControls(nn.Module):

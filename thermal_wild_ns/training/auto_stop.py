@@ -13,17 +13,21 @@ When the score has not risen by `min_improvement` dB in `patience` checks in a r
 and the best-scoring model is kept. Quality on new views can fall after an early peak; the
 held-back frames see that fall, which no measure of the frames being fitted can.
 
-`PlateauRule` is the decision alone; `held_back_images` picks the frames; `held_back_score` scores.
+`PlateauRule` is the decision alone; `held_back_images` picks the frames; `held_back_score` scores;
+`AutoStopRun` is all of it for one run, as the trainer drives it.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.image_metrics import psnr
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
@@ -33,6 +37,8 @@ from thermal_wild_ns.pipeline.photometric_state import (
     preprocessed_sequence,
     render,
 )
+from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
+from thermal_wild_ns.training.checkpoints import restore, snapshot
 from thermal_wild_ns.training.model_interface import GuardedModel
 
 
@@ -122,3 +128,137 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
         a, b = fit_gain_offset(pred[finite], truth[finite])
         values.append(float(psnr(torch.from_numpy(a * pred[finite] + b), torch.from_numpy(truth[finite]))))
     return float(np.mean(values))
+
+
+class AutoStopRun:
+    """The automatic stop of one training run, as the trainer drives it: `start` holds the scoring
+    frames back from the datamanager's training order (before any step); `check(step)` every
+    `check_every` steps scores them and keeps the best model; `finish(step)` before the final
+    checkpoint keeps the best model where it beat the last, and `auto_stop.json` beside the run's
+    config records every check and the decision (a resumed run replays it: `resume`)."""
+
+    def __init__(self, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
+        self.config, self.pipeline, self.optimizers = config, pipeline, optimizers
+        self.run_dir, self.steps_asked = run_dir, steps_asked
+        self.partial_dir = run_dir / PARTIAL_FOLDER  # where its files are written before their rename
+        self.progress = PlateauRule(config.patience, config.min_improvement)
+        self.stop_reason: Optional[str] = None
+        self.last_step = 0
+        self._best: Optional[dict] = None
+        self._scores_settled_model = isinstance(pipeline.model, GuardedModel)  # it says when scores settle
+
+    @classmethod
+    def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
+        """Hold the scoring frames back and return the run's stop; None where it is off or the
+        capture has too few frames (said on the console)."""
+        datamanager = pipeline.datamanager
+        if not config.enabled or not hasattr(datamanager, "hold_back"):
+            return None
+        images = held_back_images(len(datamanager.train_dataset), config.held_back_frames)
+        if not images:
+            CONSOLE.log(
+                f"automatic stop off: {len(datamanager.train_dataset)} training images are too few to hold "
+                f"{config.held_back_frames} back"
+            )
+            return None
+        datamanager.hold_back(images)
+        frames = [datamanager.train_dataset.frame_index(k) for k in images]
+        CONSOLE.log(f"automatic stop: capture frames {frames} are held back from training to score it")
+        return cls(config, pipeline, optimizers, run_dir, steps_asked)
+
+    def state_path(self, kind: str, step: int, run: Optional[Path] = None) -> Path:
+        """Where a state of step `step` is kept beside the run's config (this run's, or `run`'s):
+        'best', the best-scoring model so far, which a resumed run can still go back to; 'trained',
+        the state trained last when the final checkpoint holds the best one instead."""
+        return (run or self.run_dir) / "auto_stop" / f"{kind}-{step:09d}.pt"
+
+    def resume(self, run: Path, start_step: int) -> None:
+        """Continue the automatic stop of the run being resumed: its checks before the checkpoint,
+        replayed, and its best model so far. Where that run ended by keeping its best model, the
+        training goes on from the state it had trained, not from the kept one."""
+        record_path = run / "auto_stop.json"
+        if not record_path.is_file():
+            return
+        record = json.loads(record_path.read_text())
+        ended_on_kept = record.get("kept_step") not in (None, record["last_step"])
+        if ended_on_kept and record["last_step"] == start_step - 1:
+            trained = self.state_path("trained", record["last_step"], run)
+            if trained.is_file():
+                state = torch.load(trained, map_location=self.pipeline.device, weights_only=True)
+                restore(self.pipeline, self.optimizers, state)
+                self.pipeline.model.step = start_step
+            else:
+                CONSOLE.log(f"[yellow]automatic stop: {trained} is gone: training goes on from the kept model")
+        for check in record["checks"]:
+            if check["step"] < start_step:
+                self.progress.update(check["step"], check["psnr"])
+        best = self.progress.best_step
+        if best is not None and self.config.keep_best:
+            path = self.state_path("best", best, run)
+            if path.is_file():
+                self._best = torch.load(path, map_location=self.pipeline.device, weights_only=True)
+            else:
+                CONSOLE.log(f"[yellow]automatic stop: {path} is gone: the model of step {best} can no longer be kept")
+
+    def check(self, step: int) -> bool:
+        """Score the held-back frames after `step`; True the first time the scores have plateaued
+        (training must stop). No score before the schedule's start-up is over (the model's
+        `settled_step`: full resolution, first opacity reset)."""
+        self.last_step = step
+        if self._scores_settled_model and step < self.pipeline.model.settled_step:
+            return False
+        score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
+        if self.progress.update(step, score) and self.config.keep_best:
+            best = self._best = snapshot(self.pipeline, self.optimizers, step)
+            write_atomically(self.state_path("best", step), lambda tmp: torch.save(best, tmp), self.partial_dir)
+        stops = self.progress.plateaued and self.stop_reason is None
+        if stops:
+            self.stop_reason = self.progress.reason(self.config.check_every)
+            CONSOLE.log(f"[bold]step {step}: training stops: {self.stop_reason}")
+        self.write_record(kept=None)
+        return stops
+
+    def forget_older_best(self) -> None:
+        """After a checkpoint: a resume from it (or a later one) needs no best model older than the best so far."""
+        best = self.progress.best_step
+        if best is not None:
+            for path in self.state_path("best", best).parent.glob("best-*.pt"):
+                if int(path.stem.split("-")[1]) < best:
+                    path.unlink()
+
+    def finish(self, step: int) -> None:
+        """Before the final checkpoint of a run whose last trained step is `step`: keep the best
+        model where it beat the last by `min_improvement`, and write the record."""
+        self.last_step = step
+        history = self.progress.history
+        checked = bool(history) and history[-1][0] == step
+        final = history[-1][1] if checked else held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
+        kept = step
+        if self._best is not None and self.progress.best > final + self.progress.min_improvement:
+            # the state trained last, for a resume that goes on training (the final checkpoint holds the kept one)
+            trained = snapshot(self.pipeline, self.optimizers, step)
+            write_atomically(self.state_path("trained", step), lambda tmp: torch.save(trained, tmp), self.partial_dir)
+            restore(self.pipeline, self.optimizers, self._best)
+            self.pipeline.model.step = step  # splatfacto's load_state_dict sets it to 30000
+            kept = self._best["step"]
+            CONSOLE.log(
+                f"[bold]kept the model of step {kept} ({self.progress.best:.2f} dB on the held-back frames, "
+                f"{final:.2f} at the end)"
+            )
+        self.write_record(kept, final)
+
+    def write_record(self, kept: Optional[int], final: Optional[float] = None) -> None:
+        """auto_stop.json beside the run's config: the checks so far (a resumed run replays them)
+        and, at the end, the model kept and why the run ended."""
+        datamanager = self.pipeline.datamanager
+        record = {
+            "held_back_frames": [datamanager.train_dataset.frame_index(k) for k in datamanager.held_back],
+            "steps_asked": self.steps_asked,
+            "last_step": self.last_step,
+            "stopped_early": self.stop_reason is not None,
+            "reason": self.stop_reason,
+            "kept_step": kept,
+            "final_psnr": final,
+            "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
+        }
+        write_text_atomically(self.run_dir / "auto_stop.json", json.dumps(record, indent=1), self.partial_dir)

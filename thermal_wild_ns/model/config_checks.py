@@ -1,0 +1,67 @@
+"""What a thermal model's config refuses, with the reason, rather than doing nothing or something
+else silently: options it inherits from splatfacto and nerfstudio but does not use (hidden from
+`--help` by `tyro.conf.Suppress` in the config), and checkpoints of another config."""
+
+from __future__ import annotations
+
+from typing import Tuple
+
+from thermal_wild_ns.errors import InputError
+
+UNUSED_OPTIONS = {
+    "background_color": "the background is the background MLP, or background_value",
+    "sh_degree": "thermal emission is a scalar: no spherical harmonics",
+    "sh_degree_interval": "no spherical harmonics",
+    "n_split_samples": "gsplat's strategy splits each Gaussian in two",
+    "use_scale_regularization": "not implemented for thermal splats",
+    "max_gauss_ratio": "not implemented for thermal splats",
+    "use_bilateral_grid": "a colour-camera correction; thermal frames' drift is the frame embeddings' and the LUTs'",
+    "grid_shape": "no bilateral grid",
+    "color_corrected_metrics": "metrics are scored by the evaluation protocols in the original space",
+    "enable_collider": "splats have no ray sampling",
+    "collider_params": "splats have no ray sampling",
+    "loss_coefficients": "the loss weights are l1_lambda, ssim_lambda and alpha_lambda",
+    "eval_num_rays_per_chunk": "splats render whole images",
+    "prompt": "no text prompts",
+}
+"""Options `WildThermalModelConfig` inherits but the model does not use, and why."""
+
+
+def refuse_unused_options(config) -> None:
+    """An `InputError` naming any option of `UNUSED_OPTIONS` set away from its default (a config
+    file edited by hand, or written for splatfacto): it would do nothing."""
+    defaults = type(config)()
+    changed = [name for name in UNUSED_OPTIONS if getattr(config, name) != getattr(defaults, name)]
+    if changed:
+        raise InputError(
+            "wild-thermal does not use "
+            + "; ".join(f"{name} (set to {getattr(config, name)!r}: {UNUSED_OPTIONS[name]})" for name in changed)
+            + ". Remove it from the config"
+        )
+
+
+def refuse_mismatched_checkpoint(
+    state_dict: dict, emission_mlp: bool, background_mlp: bool, frame_embed_shape: Tuple[int, int]
+) -> None:
+    """A ValueError where a checkpoint's `state_dict` does not fit a model with (or without) the
+    emission and background MLPs and frame embeddings of `frame_embed_shape`, before nerfstudio's
+    loader falls back to a non-strict load that would silently drop the MLPs or embeddings."""
+    parts = {
+        "emission MLP (use_emission_mlp)": ("emission_mlp.", emission_mlp),
+        "per-Gaussian embeddings (use_emission_mlp)": ("gauss_params.gauss_embed", emission_mlp),
+        "background MLP (use_background_mlp)": ("background_mlp.", background_mlp),
+    }
+    for what, (prefix, wanted) in parts.items():
+        present = any(k.startswith(prefix) for k in state_dict)
+        if present != wanted:
+            raise ValueError(
+                f"checkpoint {'has' if present else 'lacks'} the {what} but this config "
+                f"{'disables' if present else 'enables'} it: "
+                "load it with the config it was trained with (its config.yml)"
+            )
+    frames = state_dict.get("frame_embed.weight")
+    if frames is not None and tuple(frames.shape) != tuple(frame_embed_shape):
+        raise ValueError(
+            f"checkpoint has {frames.shape[0]} frame embeddings of size {frames.shape[1]}, this config "
+            f"{frame_embed_shape[0]} of size {frame_embed_shape[1]}: it was trained on other data or settings"
+        )

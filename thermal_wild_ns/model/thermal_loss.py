@@ -1,0 +1,114 @@
+"""The photometric loss of a thermal render against its frame: L1 + (heat-aware) SSIM + the alpha
+regulariser, in the training space or taken back to the original space through each frame's
+inverse LUT (`loss_space`). Owns what it needs of the frames: each training frame's checks (finite,
+contrast, its original-space image), computed once per frame and resolution (the frames never change)."""
+
+from __future__ import annotations
+
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+from nerfstudio.utils.rich_utils import CONSOLE
+from torch import Tensor, nn
+
+from thermal_wild_ns.image_metrics import ssim
+from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, thermal_contrast
+
+INVERSE_LUT_SAMPLES = 4096
+"""Training-space values at which each training frame's inverse LUT is tabulated for a loss in
+the original space (linear in between: far finer than any step of the equalization)."""
+
+
+def inverse_lut_table(sequence, frame_times: Sequence[float]) -> Tensor:
+    """The inverse LUTs [images, S] of the training frames at capture positions `frame_times`, from
+    their `PreprocessedSequence`, sampled at S evenly spaced training-space values."""
+    values = np.linspace(0.0, 1.0, INVERSE_LUT_SAMPLES)
+    tables = np.stack([sequence.to_original_normalised(values, sequence.lut(int(t))) for t in frame_times])
+    return torch.from_numpy(tables.astype(np.float32))  # [images, S]
+
+
+def checked_thermal_image(batch: Dict) -> Tensor:
+    """The batch's image [H, W, 1], or a ValueError saying it is not a single-channel thermal image."""
+    image = batch["image"]
+    if image.dim() != 3 or image.shape[-1] != 1:
+        raise ValueError(
+            f"WildThermalModel expects single-channel thermal images [H, W, 1]; image {batch.get('image_idx')} "
+            f"has shape {tuple(image.shape)}. Use the thermal datamanager/dataparsers of thermal_wild_ns."
+        )
+    return image
+
+
+class ThermalLoss(nn.Module):
+    """The loss terms of `WildThermalModelConfig` (l1_lambda, ssim_lambda, heat_aware_ssim,
+    alpha_lambda, alpha_reg_tolerance, loss_space). `inverse_luts` [images, S] (None: no loss in the
+    original space) is a buffer, so it follows the model's device; it is not saved in checkpoints."""
+
+    def __init__(self, config, inverse_luts: Optional[Tensor]):
+        super().__init__()
+        self.config = config
+        self.register_buffer("inverse_luts", inverse_luts, persistent=False)
+        self._frame_checks: Dict[tuple, tuple] = {}  # (training image, shape) -> (all finite, contrast, original)
+        self._warned_nonfinite = False
+
+    def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
+        """Training-space values of training image `image` taken back to the original space through
+        its inverse LUT (piecewise linear, differentiable); None without inverse LUTs."""
+        if self.inverse_luts is None or self.config.loss_space != "original":
+            return None
+        table = self.inverse_luts[image]  # [S]
+        position = values.clamp(0.0, 1.0) * (table.shape[0] - 1)
+        lower = position.detach().floor().clamp(max=table.shape[0] - 2)
+        weight = position - lower
+        lower = lower.long()
+        return table[lower] * (1.0 - weight) + table[lower + 1] * weight
+
+    def ground_truth(self, gt: Tensor, render: Tensor, image: Optional[int]) -> Tuple[Tensor, Optional[Tensor]]:
+        """The frame `gt` [H, W, 1] at the render's resolution with non-finite pixels replaced by the
+        render (so they add nothing to losses and metrics) and, for a training frame (`image`, its
+        index; None otherwise) without such pixels, its thermal contrast (for the heat-aware SSIM)."""
+        key = (image, tuple(gt.shape)) if image is not None else None
+        checked = self._frame_checks.get(key) if key is not None else None
+        if checked is None:
+            all_finite = bool(torch.isfinite(gt).all())
+            original = self.to_original_space(gt, image) if key is not None and all_finite else None
+            reference = gt if original is None else original
+            checked = (all_finite, thermal_contrast(reference) if all_finite else None, original)
+            if key is not None:
+                self._frame_checks[key] = checked
+        all_finite, contrast, _ = checked
+        if not all_finite:
+            finite = torch.isfinite(gt)
+            if not self._warned_nonfinite:
+                CONSOLE.log(
+                    f"[yellow]Image {image} has {int((~finite).sum())} non-finite pixels; "
+                    "they are left out of the loss and metrics."
+                )
+                self._warned_nonfinite = True
+            gt = torch.where(finite, gt, render.detach())
+        return gt, contrast
+
+    def forward(self, outputs: Dict, gt: Tensor, contrast: Optional[Tensor], image: Optional[int]) -> Dict[str, Tensor]:
+        """The weighted loss terms of `outputs` (thermal, accumulation, background) against `gt`
+        (from `ground_truth`); `image`: the training image, None outside training."""
+        pred = outputs["thermal"]
+        cfg = self.config
+        compared_pred, compared_gt, l1_scale = pred, gt, 1.0
+        if image is not None and cfg.loss_space == "original":
+            original = self._frame_checks.get((image, tuple(gt.shape)), (None, None, None))[2]
+            if original is not None:
+                # L1 in units of the frame's own contrast, so that its weight against the
+                # (contrast-relative) SSIM and the alpha term stays what it is in training space
+                compared_pred, compared_gt = self.to_original_space(pred, image), original
+                l1_scale = 1.0 / contrast
+        plain_ssim = lambda: ssim(compared_pred, compared_gt, data_range=1.0)
+        losses = {
+            "l1_loss": cfg.l1_lambda * l1_scale * (compared_gt - compared_pred).abs().mean(),
+            "ssim_loss": cfg.ssim_lambda
+            * (1.0 - (heat_aware_ssim(compared_pred, compared_gt, contrast) if cfg.heat_aware_ssim else plain_ssim())),
+        }
+        if cfg.alpha_lambda > 0:
+            losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(
+                outputs["accumulation"], gt, outputs["background"], cfg.alpha_reg_tolerance
+            )
+        return losses

@@ -1,0 +1,44 @@
+"""The lean training step: what nerfstudio's `Trainer.train_iteration` does (gradients cleared, the
+loss dict summed in the same order, backward, every optimizer stepped, the schedulers stepped),
+without the per-step Python around it (gradient-accumulation and grad-scaler bookkeeping, one
+wrapped `step()` per optimizer), for the configs where it is the same step."""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable, Optional
+
+import torch
+
+from thermal_wild_ns._upstream import fused_adam_ready, fused_adam_step
+
+
+def lean_step_unsupported(config, optimizers) -> Optional[str]:
+    """Why `lean_iteration` cannot stand in for nerfstudio's step with this trainer config and its
+    `Optimizers`, or None: it needs fused Adam without gradient clipping, no mixed precision, no
+    gradient accumulation or logging."""
+    if config.mixed_precision:
+        return "mixed precision"
+    if any(n != 1 for n in config.gradient_accumulation_steps.values()) or config.log_gradients:
+        return "gradient accumulation or gradient logging"
+    for name, optimizer in optimizers.optimizers.items():
+        if not fused_adam_ready(optimizer) or optimizers.config[name]["optimizer"].max_norm is not None:
+            return f"optimizer '{name}' is not a fused Adam without gradient clipping"
+    return None
+
+
+def lean_iteration(pipeline, optimizers, step: int, accept: Optional[Callable[[list], bool]]):
+    """One training step; `accept(param_groups)`, if given, decides after backward whether the
+    optimizers step (the divergence guard). Returns (loss, loss dict, metrics dict) as nerfstudio's."""
+    adams = list(optimizers.optimizers.values())
+    for optimizer in adams:
+        for group in optimizer.param_groups:
+            for param in group["params"]:
+                param.grad = None
+    _, loss_dict, metrics_dict = pipeline.get_train_loss_dict(step=step)
+    loss = functools.reduce(torch.add, loss_dict.values())
+    loss.backward()
+    if accept is None or accept(list(optimizers.parameters)):
+        fused_adam_step(adams)
+    optimizers.scheduler_step_all(step)
+    return loss, loss_dict, metrics_dict

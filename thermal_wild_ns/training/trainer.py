@@ -1,0 +1,215 @@
+"""`GuardedTrainer`: nerfstudio's Trainer, made of small parts, each its own module and tests.
+
+- the lean step (`lean_step.py`): nerfstudio's training step without its per-step Python;
+- the divergence guard (`divergence.py`) between backward and the optimizer step: a step whose loss
+  or gradients are not finite, or whose loss spikes far above the recent median, is skipped (no
+  update, no densification statistics); where the model says its schedule moves the loss
+  (`schedule_moves_loss(step)`), the recent losses are forgotten instead. Every `check_every` steps
+  it checks the model itself and keeps a healthy copy (`checkpoints.snapshot`); a broken model rolls
+  back to it, up to `max_rollbacks` times, then `TrainingDiverged` stops the run (a clear message,
+  a non-zero exit code from `ns-train`);
+- the automatic stop (`auto_stop.AutoStopRun`): stops once the scene stops improving, says why,
+  keeps the best model and records the decision in `auto_stop.json` beside the run's config;
+- checkpoints (`checkpoints.py`) written atomically, at least `SAVES_PER_RUN` times a run, and
+  `--max-num-iterations` as the run's total step count, resumed or not.
+
+What the trainer asks of the model is one declared interface (`model_interface.GuardedModel`); a
+model without it (stock splatfacto) trains without those checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional, Type
+
+import torch
+import tyro
+import yaml
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.utils.decorators import check_main_thread
+from nerfstudio.utils.rich_utils import CONSOLE
+from torch.profiler import record_function
+
+from thermal_wild_ns._upstream import (
+    TrainerAfterLoad,
+    guard_optimizer_steps,
+    repoint_optimizers,
+    trainer_checkpoint_state,
+)
+from thermal_wild_ns.errors import IncompleteConfig, InputError
+from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint, write_text_atomically
+from thermal_wild_ns.training.auto_stop import AutoStopConfig, AutoStopRun
+from thermal_wild_ns.training.checkpoints import SAVES_PER_RUN, restore, save_checkpoint, snapshot
+from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
+from thermal_wild_ns.training.lean_step import lean_iteration, lean_step_unsupported
+from thermal_wild_ns.training.model_interface import GuardedModel
+
+
+@dataclass
+class GuardedTrainerConfig(TrainerConfig):
+    _target: Type = field(default_factory=lambda: GuardedTrainer)
+    prompt: tyro.conf.Suppress[Optional[str]] = None
+    """nerfstudio's alias of the model's text prompt: thermal models take none."""
+    guard: DivergenceGuardConfig = field(default_factory=DivergenceGuardConfig)
+    """Divergence and collapse detection."""
+    auto_stop: AutoStopConfig = field(default_factory=AutoStopConfig)
+    """Stop when the scene stops improving, scored on a few training frames held back from the gradient."""
+    lean_step: bool = True
+    """Run each training step's body in this plugin's trainer rather than through nerfstudio's
+    `Trainer.train_iteration`: the same forward, loss, backward, checks and Adam update, without the
+    per-step Python around them (gradient-accumulation and grad-scaler bookkeeping, one wrapped
+    `step()` per optimizer). It needs fused Adam optimizers without gradient clipping, no mixed
+    precision and no gradient accumulation, and falls back to nerfstudio's step (and says why)
+    otherwise. False: always nerfstudio's step, the reference the lean one is tested against."""
+
+    def __setstate__(self, state: dict) -> None:
+        """How config.yml is read back (PyYAML sets a saved object's fields through this): a file cut
+        short lacks the fields saved last, which would otherwise fall back to defaults silently."""
+        missing = [f.name for f in dataclasses.fields(self) if f.name not in state]
+        if missing:
+            raise IncompleteConfig(
+                f"{len(missing)} settings are missing, the last saved first: {', '.join(missing[-3:])}"
+            )
+        self.__dict__.update(state)
+
+    def save_config(self) -> None:
+        """nerfstudio's `save_config` (config.yml beside the run), written atomically."""
+        # the loading commands check for checkpoints before reading data (ThermalPipeline)
+        if hasattr(self.pipeline, "checkpoint_dir"):
+            self.pipeline.checkpoint_dir = self.get_checkpoint_dir()
+        base = self.get_base_dir()
+        CONSOLE.log(f"Saving config to: {base / 'config.yml'}")
+        write_text_atomically(base / "config.yml", yaml.dump(self), base / PARTIAL_FOLDER)
+
+
+class GuardedTrainer(TrainerAfterLoad):
+    """nerfstudio's Trainer with the lean step, the divergence guard, the automatic stop and atomic
+    checkpoints, where `--max-num-iterations` is the run's total step count, resumed or not."""
+
+    config: GuardedTrainerConfig
+
+    def setup(self, test_mode="val"):
+        load_dir = self.config.load_dir
+        if load_dir is not None:
+            # a user's typo or a damaged file, not a bug: one line, no traceback (before the data is read)
+            if not Path(load_dir).is_dir():
+                raise SystemExit(
+                    f"--load-dir {load_dir}: no such folder (a run's checkpoints are in RUN/nerfstudio_models)"
+                )
+            try:
+                check_checkpoint(Path(load_dir), self.config.load_step)
+            except InputError as err:
+                raise SystemExit(f"--load-dir: {err}") from None
+        super().setup(test_mode=test_mode)
+        self.guard = DivergenceGuard(self.config.guard)
+        # once, not per step: a runtime protocol check is slow, and the model's class does not change
+        self.guarded_model = isinstance(self.pipeline.model, GuardedModel)
+        self._step = 0
+        self._healthy: Optional[dict] = None  # the last healthy state, for a rollback
+        unsupported = lean_step_unsupported(self.config, self.optimizers) if self.config.lean_step else None
+        self.lean = self.config.lean_step and unsupported is None
+        if unsupported is not None:
+            CONSOLE.log(f"nerfstudio's training step (not the lean one): {unsupported}")
+        if self.config.guard.enabled and not self.lean:  # the lean step calls the guard itself
+            guard_optimizer_steps(self.optimizers, self._accept_step)
+        self.auto_stop = AutoStopRun.start(
+            self.config.auto_stop,
+            self.pipeline,
+            self.optimizers,
+            self.config.get_base_dir(),
+            self.config.max_num_iterations,
+        )
+        if self.auto_stop is not None and load_dir is not None:
+            self.auto_stop.resume(Path(load_dir).parent, self._start_step)
+
+    def _accept_step(self, param_groups) -> bool:
+        """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
+        model = self.pipeline.model
+        guarded = self.guarded_model
+        loss, frame = model.last_training_loss() if guarded else (None, None)
+        with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
+            reason = self.guard.check_step(loss, self.optimizers.parameters, param_groups, frame)
+        if reason is not None and guarded:
+            model.discard_step_statistics()  # the strategy must not record this step's gradients either
+        self.guard.record(self._step, reason)
+        return reason is None
+
+    def train(self) -> None:
+        # nerfstudio trains max_num_iterations steps after the step it resumed from; here it is the
+        # total, so a resumed run ends where the uninterrupted one would
+        total, every = self.config.max_num_iterations, self.config.steps_per_save
+        remaining = max(0, total - self._start_step)
+        if remaining == 0:
+            CONSOLE.log(f"the checkpoint is at step {self._start_step - 1}: --max-num-iterations {total} is reached")
+            return
+        self.config.max_num_iterations = remaining
+        self.config.steps_per_save = min(every, max(1, total // SAVES_PER_RUN))
+        try:
+            super().train()
+        finally:
+            self.config.max_num_iterations, self.config.steps_per_save = total, every
+
+    def after_checkpoint_load(self) -> None:
+        # splatfacto's load_state_dict replaced the Gaussian parameters after the optimizers were built
+        repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())
+
+    def train_iteration(self, step: int):
+        self._step = step
+        result = self._guarded_iteration(step)
+        if self.auto_stop is not None and (step + 1) % self.config.auto_stop.check_every == 0:
+            if self.auto_stop.check(step):
+                self.stop_training = True  # nerfstudio's loop ends before the next step
+        return result
+
+    @check_main_thread
+    def save_checkpoint(self, step: int) -> None:
+        """nerfstudio's checkpoint (`trainer_checkpoint_state`), written atomically (`checkpoints.py`)."""
+        state = trainer_checkpoint_state(self, step)
+        only_latest = self.config.save_only_latest_checkpoint
+        save_checkpoint(state, self.checkpoint_dir, step, self.config.get_base_dir() / PARTIAL_FOLDER, only_latest)
+        if self.auto_stop is not None:
+            self.auto_stop.forget_older_best()
+
+    def before_final_checkpoint(self) -> None:
+        if self.auto_stop is None:
+            return
+        self.step = self._step  # the last step trained (nerfstudio's loop counted one past it at a stop)
+        self.auto_stop.finish(self._step)
+
+    def _iteration(self, step: int):
+        if self.lean:
+            return lean_iteration(
+                self.pipeline, self.optimizers, step, self._accept_step if self.config.guard.enabled else None
+            )
+        return super().train_iteration(step)
+
+    def _guarded_iteration(self, step: int):
+        if not self.config.guard.enabled:
+            return self._iteration(step)
+        if self.guarded_model and self.pipeline.model.schedule_moves_loss(step):
+            self.guard.rebaseline()
+        try:
+            result = self._iteration(step)
+            if step % self.config.guard.check_every == 0:
+                self.guard.check_model(self.pipeline.model, step)
+                self._healthy = snapshot(self.pipeline, self.optimizers, step)
+        except TrainingDiverged as err:
+            healthy = self._healthy
+            if healthy is None or self.guard.rollbacks >= self.config.guard.max_rollbacks:
+                raise
+            restore(self.pipeline, self.optimizers, healthy)
+            model = self.pipeline.model
+            model.step = step  # splatfacto's load_state_dict sets it to 30000 (for its viewer)
+            if self.guarded_model:
+                model.discard_step_statistics()  # this step's statistics belong to the discarded state
+            self.guard.rollbacks += 1
+            self.guard.consecutive = 0
+            CONSOLE.log(
+                f"[yellow]{err} -> rolled back to the healthy state of step {healthy['step']} "
+                f"({self.guard.rollbacks} of at most {self.config.guard.max_rollbacks} rollbacks)"
+            )
+            zero = torch.zeros((), device=self.pipeline.device)
+            return zero, {"rolled_back": zero}, {}
+        return result
