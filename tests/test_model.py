@@ -529,3 +529,56 @@ def test_every_option_the_method_offers_is_read_and_the_unused_ones_are_refused(
     monkeypatch.undo()
     with pytest.raises(InputError, match="does not use use_bilateral_grid.*Remove it"):
         make_model(use_bilateral_grid=True)
+
+
+def test_the_view_term_follows_the_view_and_averages_to_nothing():
+    """The view-dependent emission: band 1's z coefficient adds +C1 c seen from +z and -C1 c from -z;
+    over all directions every band averages to zero (the emission without it is the average)."""
+    from thermal_wild_ns.model.view_emission import SH_C1, sh_bands, view_term
+
+    means, coefficients = torch.zeros(1, 3), torch.tensor([[0.0, 0.5, 0.0]])  # [1, 3]: the z band only
+    from_above = view_term(means, coefficients, torch.tensor([0.0, 0.0, -5.0]))  # looking along +z
+    from_below = view_term(means, coefficients, torch.tensor([0.0, 0.0, 5.0]))
+    assert torch.allclose(from_above, torch.tensor([[SH_C1 * 0.5]])) and torch.allclose(from_below, -from_above)
+    dirs = torch.nn.functional.normalize(torch.randn(200_000, 3, generator=torch.Generator().manual_seed(0)), dim=-1)
+    assert sh_bands(dirs, 2).mean(dim=0).abs().max() < 5e-3
+
+
+def test_a_model_without_view_term_renders_as_one_with_a_zero_view_term():
+    """`view_sh_degree` adds per-Gaussian coefficients, zero at the start: the first render is the
+    plain model's; with coefficients it changes with the view, and training reaches them."""
+    torch.manual_seed(0)
+    plain = make_model()
+    torch.manual_seed(0)
+    viewed = make_model(view_sh_degree=2)
+    assert "view_sh" not in plain.gauss_params and viewed.gauss_params["view_sh"].shape == (400, 8)
+    for model in (plain, viewed):
+        torch.manual_seed(1)
+        perturb_output_layers(model)
+        model.train()
+    camera = make_camera(1)
+    assert torch.equal(plain.get_outputs(camera)["thermal"], viewed.get_outputs(camera)["thermal"])
+    outputs = viewed.get_outputs(camera)
+    outputs["thermal"].sum().backward()
+    assert viewed.gauss_params["view_sh"].grad.abs().sum() > 0
+    with torch.no_grad():
+        viewed.gauss_params["view_sh"].normal_(0.0, 0.3)
+    assert not torch.equal(plain.get_outputs(camera)["thermal"], viewed.get_outputs(camera)["thermal"])
+    with pytest.raises(ValueError, match="view_sh_degree must be 0, 1 or 2"):
+        make_model(view_sh_degree=3)
+
+
+def test_the_view_term_trains_through_nerfstudio(tmp_path, demo_scene_dir):
+    """With `view_sh_degree`, `ns-train`'s trainer has an optimizer for the coefficients (the method's
+    `view_sh` group) and steps them."""
+    from thermal_wild_ns.demo import demo_trainer_config
+
+    config = demo_trainer_config(tmp_path, steps=3, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.pipeline.model.view_sh_degree = 1
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+    coefficients = trainer.pipeline.model.gauss_params["view_sh"]
+    assert "view_sh" in trainer.optimizers.optimizers and coefficients.abs().sum() > 0
+    assert coefficients.shape == (trainer.pipeline.model.num_points, 3)

@@ -39,6 +39,8 @@ def wild_thermal_optimizers() -> dict:
         # colour times C0 = 0.2821: the same rate per unit of emission, which IS the colour here
         # (chosen by docs/results/full_settings_gpu)
         "emission": _adam(2.5e-3 * 0.28209479),
+        # splatfacto's rate for its higher spherical-harmonic bands (features_rest), in the same units
+        "view_sh": _adam(2.5e-3 / 20),
         "gauss_embed": _adam(5e-3, _APPEARANCE_WEIGHT_DECAY),
         "frame_embed": _adam(5e-3, _APPEARANCE_WEIGHT_DECAY),
         "emission_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),

@@ -11,6 +11,8 @@ import torch
 from nerfstudio.models.splatfacto import RGB2SH, random_quat_tensor
 from torch import Tensor
 
+from thermal_wild_ns.model.view_emission import view_coefficients
+
 
 def initial_gaussians(
     seed_points: Optional[Tuple[Tensor, Tensor]],
@@ -18,7 +20,8 @@ def initial_gaussians(
     k_nearest: Callable[[Tensor, int], Tuple[np.ndarray, np.ndarray]],
 ) -> Dict[str, Tensor]:
     """`means` [N, 3], `scales` [N, 3] (log), `quats` [N, 4], `emission` [N, 1], `opacities` [N, 1]
-    (logit) and, with `config.use_emission_mlp`, `gauss_embed` [N, De]. `seed_points`: the
+    (logit), with `config.use_emission_mlp` `gauss_embed` [N, De], and with `config.view_sh_degree` > 0
+    `view_sh` [N, K] (`view_emission.py`). `seed_points`: the
     dataparser's (xyz [N, 3], grey [N, 3] in 0..255); `k_nearest`: splatfacto's neighbour search."""
     if seed_points is not None and not config.random_init:
         means = seed_points[0].float()
@@ -47,6 +50,8 @@ def initial_gaussians(
     }
     if config.use_emission_mlp:
         params["gauss_embed"] = 0.1 * torch.randn(num_points, config.gaussian_embed_dim)
+    if config.view_sh_degree > 0:  # no view dependence until the data asks for it
+        params["view_sh"] = torch.zeros(num_points, view_coefficients(config.view_sh_degree))
     return params
 
 

@@ -1,15 +1,12 @@
 """WildThermalModel: splatfacto for thermal-only data ("Thermal is Always Wild", CVPR 2026).
 
-Differences from `SplatfactoModel`, and only these are overridden:
-- one scalar emission per Gaussian (no spherical harmonics), rendered as a 1-channel image;
-- a per-Gaussian embedding (in `gauss_params`, so densification clones/splits/prunes it with
-  its Gaussian) and a per-frame embedding feed an emission MLP (`fields.EmissionMLP`);
-- a background MLP b(view direction, frame embedding) fills the residual transmittance:
-  image = render + (1 - alpha) * b  (gsplat's render is premultiplied by alpha);
-- loss = l1 * L1 + ssim * (1 - heat-aware SSIM) + alpha * alpha regulariser (`losses.py`);
-- rendering goes through `thermal_wild_ns.rendering.rasterization` (gsplat on CUDA, the
-  pure-torch rasterizer elsewhere) on the model's device; no LPIPS (it would download weights).
-Outside training the frame embedding is fixed (`inference_embedding`), so renders are stable.
+What differs from `SplatfactoModel` (only these methods are overridden): one scalar emission per
+Gaussian, from a per-Gaussian and a per-frame embedding through an emission MLP (`fields.py`), plus an
+optional view-dependent term (`view_emission.py`); a background MLP b(direction, frame embedding) fills
+the residual transmittance, image = render + (1 - alpha) * b (`background.py`); the loss is L1 +
+heat-aware SSIM + alpha regulariser (`thermal_loss.py`); renders go through `rendering.rasterization`
+(gsplat on CUDA, pure torch elsewhere); no LPIPS (it would download weights). Outside training a
+render is at the state its caller passes (`frame_embedding`), else the canonical one: renders are stable.
 """
 
 from __future__ import annotations
@@ -39,6 +36,7 @@ from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussia
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
+from thermal_wild_ns.model.view_emission import view_term
 from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, colormap_table
 
@@ -86,6 +84,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     model renders) or 'original' (both taken back through the frame's inverse LUT, so that
     equalization shapes the gradients' reach but cannot amplify errors where it stretched the
     levels). The same for frames that were not preprocessed."""
+    view_sh_degree: int = 0
+    """Degree (0, 1 or 2) of a per-Gaussian view-dependent term added to the emission: spherical
+    harmonics of the direction from the camera (emissivity and reflected sky change with the view
+    angle). The same at every capture time, so it cannot take over what the frame embeddings explain.
+    0: none (emission the same from every direction)."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8
@@ -222,16 +225,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return self.frame_states.at(t)
 
     def interpolate_embeddings(self, rows: Sequence[int]) -> None:
-        """Set the embeddings of training images that take no gradient (held back to score the
-        run, `training/auto_stop.py`) to the state interpolated from the other training frames
-        around them, so that every use of the embeddings (their mean, `embedding_at`) sees
-        states the data shaped."""
+        """Fill the embeddings of training images held back from the gradient (`training/auto_stop.py`)
+        from their neighbours' (`FrameStates.fill_from_neighbours`): every state then is the data's."""
         self.frame_states.fill_from_neighbours(rows)
 
     def inference_embedding(self) -> Tensor:
-        """The canonical frame embedding [Df]: the configured `inference_embedding` (the training
-        frames' mean by default). Outside autograd the same tensor is returned until the embeddings
-        change, so the baked emission keyed on it stays valid."""
+        """The canonical frame embedding [Df] (`inference_embedding`; the training frames' mean by
+        default), the same tensor until the embeddings change, so the baked emission keyed on it holds."""
         return self.frame_states.named(self.config.inference_embedding, self.step)
 
     def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
@@ -307,6 +307,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
         with record_function("thermal/emission"):
             colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
+            if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
+                camera_position = view.camera_to_world[0, :3, 3]  # [3]
+                colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
         with record_function("thermal/rasterize"):
             render, alpha, self.info = rasterization(
                 means=crop(self.means),
@@ -403,8 +406,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         refuse_mismatched_checkpoint(state_dict, *has_mlps, tuple(self.frame_embed.weight.shape))
         return super().load_state_dict(state_dict, strict=strict, **kwargs)
 
-    # The densification statistics and the global torch RNG (gsplat's splits sample from it) go into
-    # the checkpoint with the parameters, so a resumed run continues the same run.
+    # densification statistics and torch's RNG (gsplat's splits draw from it) are saved: a resume continues the run
     def get_extra_state(self) -> dict:
         state = {k: v for k, v in self.strategy_state.items() if v is not None}
         return {"strategy_state": state, "torch_rng_state": torch.get_rng_state()}

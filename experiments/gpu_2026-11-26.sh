@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# The GPU runs of 2026-11-26 (issue 33: a view-dependent emission term, `view_sh_degree`):
+#     bash experiments/gpu_2026-11-26.sh PLAN
+# from the repository root on the GPU machine, one plan per device call on one warm machine: `install`
+# with `.devicebundle` carried, the flight2 plans with `.data/flight2` and `.data/cache` carried, the
+# DUNR plan with `.data/dunr` and `.data/cache` (copies of ../shared/data/*; the cache holds their
+# triangulations, made on the CPU machine as experiments/gpu_2026-11-25.sh says: the GPU image has no
+# pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
+# Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
+set -uo pipefail
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
+
+bench() {  # bench NAME SCENE ARGS...: 3 seeds of one configuration in the background, its files to $OUT
+  local name=$1 scene=$2
+  shift 2
+  timeout 560 python3 -m experiments.bench --output-dir "/tmp/$name" --scenes "$scene" --cache-dir "$PWD/.data/cache" \
+    --seeds 3 --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 "$@" > "$OUT/$name.log" 2>&1
+  for f in bench.json bench.md; do [ -f "/tmp/$name/$f" ] && cp "/tmp/$name/$f" "$OUT/$name-$f"; done
+}
+flight2=(--steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000)
+dunr=(--steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000)
+
+case "$plan" in
+  install)
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    tail -2 "$OUT/bundle_setup.log"
+    ;;
+  flight2-view)  # the full method's defaults, and with a degree-1 view term
+    bench flight2-default "$PWD/.data/flight2" --methods wild-thermal "${flight2[@]}" &
+    bench flight2-sh1 "$PWD/.data/flight2" --methods wild-thermal --set pipeline.model.view_sh_degree=1 "${flight2[@]}" &
+    wait
+    ;;
+  flight2-sh2-splatfacto)  # a degree-2 view term; stock splatfacto (spherical harmonics to degree 3), first 10k steps
+    bench flight2-sh2 "$PWD/.data/flight2" --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${flight2[@]}" &
+    bench flight2-splatfacto "$PWD/.data/flight2" --methods splatfacto --steps 10000 --schedule 30000 \
+      --eval-at 2000 5000 10000 --time-limit 420 &
+    wait
+    ;;
+  dunr-view)
+    bench dunr-default "$PWD/.data/dunr" --methods wild-thermal "${dunr[@]}" &
+    bench dunr-sh1 "$PWD/.data/dunr" --methods wild-thermal --set pipeline.model.view_sh_degree=1 "${dunr[@]}" &
+    wait
+    ;;
+esac
+for f in "$OUT"/*-bench.md; do [ -f "$f" ] && { echo "== $f"; grep -E "^\| (wild|splat)" "$f" | head -8; }; done
