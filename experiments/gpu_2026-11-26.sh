@@ -2,13 +2,13 @@
 # The GPU runs of 2026-11-26 (issue 33: a view-dependent emission term, `view_sh_degree`):
 #     bash experiments/gpu_2026-11-26.sh PLAN
 # from the repository root on the GPU machine, one plan per device call on one warm machine: `install`
-# with `.devicebundle` carried, the flight2 plans with `.data/flight2` and `.data/cache` carried, the
+# with `.devicebundle` carried (built by `bash ../shared/device/prepare.sh plyfile`: the data layouts read PLY seeds), the flight2 plans with `.data/flight2` and `.data/cache` carried, the
 # DUNR plan with `.data/dunr` and `.data/cache` (copies of ../shared/data/*; the cache holds their
 # triangulations, made on the CPU machine as experiments/gpu_2026-11-25.sh says: the GPU image has no
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -44,5 +44,18 @@ case "$plan" in
     bench dunr-sh1 "$PWD/.data/dunr" --methods wild-thermal --set pipeline.model.view_sh_degree=1 "${dunr[@]}" &
     wait
     ;;
+  synthetic-view)  # generated scenes without view dependence: does the term stay out of the way?
+    synthetic=(--scenes demo stress:drift stress:vignetting --steps 5000 --num-downscales 1 --eval-at 1000 2000 5000)
+    bench synthetic-default demo --methods wild-thermal "${synthetic[@]}" --runs-per-gpu 5 &
+    bench synthetic-sh2 demo --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${synthetic[@]}" --runs-per-gpu 5 &
+    wait
+    ;;
+  dunr-sh2-splatfacto)
+    bench dunr-sh2 "$PWD/.data/dunr" --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${dunr[@]}" &
+    bench dunr-splatfacto "$PWD/.data/dunr" --methods splatfacto --steps 10000 --schedule 30000 \
+      --eval-at 2000 5000 10000 --time-limit 420 &
+    wait
+    ;;
 esac
 for f in "$OUT"/*-bench.md; do [ -f "$f" ] && { echo "== $f"; grep -E "^\| (wild|splat)" "$f" | head -8; }; done
+exit 0
