@@ -88,7 +88,7 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent term added to the emission: spherical
     harmonics of the direction from the camera (emissivity and reflected sky change with the view
     angle). The same at every capture time, so it cannot take over what the frame embeddings explain.
-    0: none (emission the same from every direction)."""
+    0 (default): none. It helped a drone survey and cost a generated scene (docs/results/view_term_gpu)."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8

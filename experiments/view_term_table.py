@@ -1,0 +1,56 @@
+"""The table of docs/results/view_term_gpu/README.md from the *-bench.json files of that folder.
+
+python -m experiments.view_term_table docs/results/view_term_gpu > docs/results/view_term_gpu/table.md
+"""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+FILES = {
+    "flight2": ["flight2-default", "flight2-sh1", "flight2-sh2", "flight2-splatfacto"],
+    "dunr": ["dunr-default", "dunr-sh1", "dunr-sh2", "dunr-splatfacto"],
+    "synthetic": ["synthetic-default", "synthetic-sh2"],
+}
+LABELS = {
+    "default": "wild-thermal (defaults)",
+    "sh1": "wild-thermal, view_sh_degree=1",
+    "sh2": "wild-thermal, view_sh_degree=2",
+    "splatfacto": "splatfacto (first 10k steps of 30k)",
+}
+
+
+def fmt(values) -> str:
+    v = np.array(values)
+    return f"{v.mean():.2f} ({v.min():.2f}–{v.max():.2f})"
+
+
+COLUMNS = [
+    "scene",
+    "configuration",
+    "seeds",
+    "`novel`",
+    "`time`",
+    "`aligned`",
+    "`oracle` (a bound)",
+    "steps",
+    "Gaussians",
+]
+print("| " + " | ".join(COLUMNS + ["ms/step (shared)"]) + " |")
+print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+for names in FILES.values():
+    for name in names:
+        runs_all = json.loads((Path(sys.argv[1]) / f"{name}-bench.json").read_text())["runs"]
+        scenes = list(dict.fromkeys(r["scene"] for r in runs_all))
+        for scene in scenes:
+            runs = [r for r in runs_all if r["scene"] == scene]
+            label = LABELS[name.split("-", 1)[1]]
+            cols = [fmt([r[f"psnr_{p}"] for r in runs]) for p in ("novel", "time", "aligned", "oracle")]
+            if label.startswith("splatfacto"):  # no photometric state: `time` is `novel`, no oracle
+                cols[1] = cols[3] = "—"
+            steps = int(np.mean([r["steps"] for r in runs]))
+            gaussians = int(np.mean([r["gaussians"] for r in runs]))
+            ms = np.mean([r["ms_per_step"] for r in runs])
+            print(f"| {scene} | {label} | {len(runs)} | " + " | ".join(cols) + f" | {steps} | {gaussians} | {ms:.1f} |")
