@@ -43,6 +43,7 @@ from thermal_wild_ns.method_configs import METHODS, method_trainer
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.pipeline.evaluation import CHEAP_PROTOCOLS, evaluate
+from thermal_wild_ns.training.trainer import seeded_trainer
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
 """How many runs share this run's GPU (set by `--runs-per-gpu`'s queues for their workers)."""
@@ -275,8 +276,7 @@ def setup_trainer(config):
     """nerfstudio's Trainer for `config`, set up (LPIPS never built)."""
     prepare_checkpoint_commands()  # stock splatfacto's checkpoints too
     with no_lpips_download():
-        trainer = config.setup(local_rank=0, world_size=1)
-        trainer.setup()
+        trainer = seeded_trainer(config)
     return trainer
 
 

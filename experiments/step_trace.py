@@ -15,6 +15,7 @@ from pathlib import Path
 import torch
 
 from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.training.trainer import seeded_trainer
 
 
 def main() -> None:
@@ -26,8 +27,7 @@ def main() -> None:
     shutil.rmtree(args.out, ignore_errors=True)
     config = demo_trainer_config(args.out, steps=args.steps, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = args.scene
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
+    trainer = seeded_trainer(config)
     model, steps = trainer.pipeline.model, []
     losses = model.get_loss_dict
 

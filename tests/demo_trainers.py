@@ -2,6 +2,7 @@
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
+from thermal_wild_ns.training.trainer import seeded_trainer
 
 
 def demo_trainer(out, scene_dir, steps: int, section: str, preprocessed: bool = False, **settings):
@@ -14,6 +15,5 @@ def demo_trainer(out, scene_dir, steps: int, section: str, preprocessed: bool = 
         config.pipeline.datamanager.preprocessing = PhotometricConfig()
     for key, value in settings.items():
         setattr(getattr(config, section), key, value)
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
+    trainer = seeded_trainer(config)
     return trainer

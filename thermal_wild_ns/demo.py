@@ -25,6 +25,7 @@ from thermal_wild_ns.data.demo_scene import generate_demo_scene
 from thermal_wild_ns.errors import report_input_errors_briefly
 from thermal_wild_ns.method_configs import method_trainer
 from thermal_wild_ns.pipeline.evaluation import evaluate
+from thermal_wild_ns.training.trainer import seeded_trainer
 
 
 @dataclass
@@ -70,8 +71,7 @@ def main(args: DemoArgs) -> dict:
     generate_demo_scene(args.output_dir / "scene")
     config = demo_trainer_config(args.output_dir, steps, args.max_gaussians)
     config.save_config()
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
+    trainer = seeded_trainer(config)
     untrained = evaluate(trainer.pipeline, protocols=("novel",))
     start = time.time()
     trainer.train()

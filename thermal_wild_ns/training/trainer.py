@@ -20,10 +20,12 @@ model without it (stock splatfacto) trains without those checks.
 from __future__ import annotations
 
 import dataclasses
+import random
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Type
 
+import numpy as np
 import torch
 import tyro
 import yaml
@@ -213,3 +215,17 @@ class GuardedTrainer(TrainerAfterLoad):
             zero = torch.zeros((), device=self.pipeline.device)
             return zero, {"rolled_back": zero}, {}
         return result
+
+
+def seeded_trainer(config: TrainerConfig):
+    """The trainer of `config`, set up as `ns-train` sets it up (nerfstudio's `train_loop`): Python's,
+    numpy's and torch's random generators seeded with `config.machine.seed` first, so the initial
+    Gaussians and networks, and every draw after them, are the same in every run of one config. For
+    code that trains without `ns-train` (the demo, the benchmarks)."""
+    seed = config.machine.seed
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    return trainer
