@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -48,6 +48,19 @@ case "$plan" in
     synthetic=(--scenes demo stress:drift stress:vignetting --steps 5000 --num-downscales 1 --eval-at 1000 2000 5000)
     bench synthetic-default demo --methods wild-thermal "${synthetic[@]}" --runs-per-gpu 5 &
     bench synthetic-sh2 demo --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${synthetic[@]}" --runs-per-gpu 5 &
+    wait
+    ;;
+  flight2-auto)  # degree 2, kept or dropped at the first check by the held-back frames (decide_view_term, default)
+    bench flight2-auto "$PWD/.data/flight2" --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${flight2[@]}"
+    ;;
+  dunr-auto)
+    bench dunr-auto "$PWD/.data/dunr" --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${dunr[@]}"
+    ;;
+  synthetic-auto)  # the generated scenes with the decided view term, and the view-dependent scene without one
+    synthetic=(--steps 5000 --num-downscales 1 --eval-at 1000 2000 5000 --runs-per-gpu 6)
+    bench synthetic-auto demo --scenes demo stress:drift stress:vignetting stress:view --methods wild-thermal \
+      --set pipeline.model.view_sh_degree=2 "${synthetic[@]}" &
+    bench synthetic-view-default demo --scenes stress:view --methods wild-thermal "${synthetic[@]}" &
     wait
     ;;
   dunr-sh2-splatfacto)

@@ -4,6 +4,7 @@ protocols score and the heat-aware SSIM builds on."""
 from __future__ import annotations
 
 import functools
+from typing import Dict, Tuple
 
 import torch
 import torch.nn.functional as F
@@ -43,3 +44,14 @@ def psnr(pred: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
     """PSNR in dB for images with values in a range of `data_range`."""
     mse = torch.mean((pred - target) ** 2).clamp(min=1e-12)
     return 10 * torch.log10(data_range**2 / mse)
+
+
+def image_metrics_and_images(pred: Tensor, gt: Tensor, num_points: int) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
+    """nerfstudio's evaluation of one image: PSNR and SSIM of the render `pred` [H, W, 1] against `gt`
+    (training space), and the two side by side in grey [H, 2W, 3]."""
+    metrics = {
+        "psnr": float(psnr(pred, gt)),
+        "ssim": float(ssim(pred, gt, data_range=1.0)),
+        "gaussian_count": float(num_points),
+    }
+    return metrics, {"img": torch.cat([gt, pred], dim=1).clamp(0, 1).expand(-1, -1, 3)}

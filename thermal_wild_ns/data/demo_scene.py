@@ -72,6 +72,9 @@ class DemoSceneConfig:
     """Scale of temperature differences about 12 degC (low texture / low contrast below 1)."""
     look_up: float = 0.0
     """Raise the cameras' aim (metres at the target): more of every frame is uniform sky."""
+    view_falloff: float = 0.0
+    """View-dependent radiance (0: none): a surface's emissivity falls with the angle from its normal,
+    1 - view_falloff * (1 - cos)^2, and the sky it reflects makes up the rest, as on a real survey."""
     path_views: int = 0
     """Clean views (with depth) on the smooth camera path through the capture, for flicker and floater measures."""
 
@@ -106,9 +109,13 @@ def _sky_temp(d: np.ndarray) -> np.ndarray:
     return -6.0 + 8.0 * (1.0 - np.clip(d[..., 2], 0.0, 1.0)) ** 2  # colder towards the zenith
 
 
-def cast_rays(origins: np.ndarray, dirs: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Temperature (degC), hit distance (inf for sky) and hit points for rays [..., 3]."""
+def cast_rays(
+    origins: np.ndarray, dirs: np.ndarray, view_falloff: float = 0.0
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Temperature (degC), hit distance (inf for sky) and hit points for rays [..., 3]; with
+    `view_falloff`, the apparent temperature of surfaces seen at an angle (`DemoSceneConfig`)."""
     t_best = np.full(dirs.shape[:-1], np.inf)
+    normals = np.zeros(dirs.shape)  # [..., 3], the surface normal at each hit (zero for sky)
     temp = _sky_temp(dirs)
     # ground z = 0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -117,6 +124,7 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray) -> Tuple[np.ndarray, np.nda
     hit = (t > 0) & (t < t_best)
     temp = np.where(hit, _ground_temp(p[..., 0], p[..., 1]), temp)
     t_best = np.where(hit, t, t_best)
+    normals = np.where(hit[..., None], np.array([0.0, 0.0, 1.0]), normals)
     # facade y = WALL_Y
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (WALL_Y - origins[..., 1]) / dirs[..., 1]
@@ -124,6 +132,7 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray) -> Tuple[np.ndarray, np.nda
     hit = (t > 0) & (t < t_best) & (np.abs(p[..., 0]) < 4.0) & (p[..., 2] > 0) & (p[..., 2] < 4.0)
     temp = np.where(hit, _wall_temp(p[..., 0], p[..., 2]), temp)
     t_best = np.where(hit, t, t_best)
+    normals = np.where(hit[..., None], np.array([0.0, -1.0, 0.0]), normals)
     # warm bodies
     for sx, sy, r, deg in SPHERES:
         oc = origins - np.array([sx, sy, r])
@@ -136,6 +145,12 @@ def cast_rays(origins: np.ndarray, dirs: np.ndarray) -> Tuple[np.ndarray, np.nda
         shade = deg - 3.0 * (p[..., 2] / (2 * r))  # cooler head-to-feet gradient
         temp = np.where(hit, shade, temp)
         t_best = np.where(hit, t, t_best)
+        normals = np.where(hit[..., None], (p - np.array([sx, sy, r])) / r, normals)
+    if view_falloff > 0:
+        cos = np.abs(np.sum(dirs * normals, -1))  # [...], 0 for sky
+        emissivity = np.where(np.isfinite(t_best), 1.0 - view_falloff * (1.0 - cos) ** 2, 1.0)
+        reflected = dirs - 2.0 * np.sum(dirs * normals, -1, keepdims=True) * normals
+        temp = emissivity * temp + (1.0 - emissivity) * _sky_temp(reflected)
     points = origins + np.where(np.isfinite(t_best), t_best, 0.0)[..., None] * dirs
     return temp, t_best, points
 
@@ -164,7 +179,7 @@ def render_view(c2w: np.ndarray, cfg: DemoSceneConfig, supersample: int = 2) -> 
     d_cam = np.stack([(u - cfg.width / 2) / cfg.focal, -(v - cfg.height / 2) / cfg.focal, -np.ones_like(u)], -1)
     dirs = d_cam @ c2w[:3, :3].T
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-    temp, dist, _ = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
+    temp, dist, _ = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs, cfg.view_falloff)
     temp = temp.reshape(cfg.height, s, cfg.width, s).mean(axis=(1, 3))
     z = dist / np.linalg.norm(d_cam, axis=-1)
     depth = z.reshape(cfg.height, s, cfg.width, s).min(axis=(1, 3))
@@ -198,6 +213,7 @@ STRESS_FAULTS: Dict[str, Dict] = {
     "fixed-pattern": {"column_noise_counts": 6.0, "row_noise_counts": 6.0},
     "low-contrast": {"contrast": 0.15},
     "sky": {"look_up": 2.5},
+    "view": {"view_falloff": 0.5},
 }
 """The stress scenes: the demo's content with one fault at a time (and "all" of them together).
 "clean" has no fault at all, not even sensor noise: the reference the others are compared with."""
@@ -341,7 +357,7 @@ def _surface_points(c2w: np.ndarray, cfg: DemoSceneConfig, rng: np.random.Genera
     d_cam = np.stack([(u - cfg.width / 2) / cfg.focal, -(v - cfg.height / 2) / cfg.focal, -np.ones(n)], -1)
     dirs = d_cam @ c2w[:3, :3].T
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-    temp, dist, pts = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs)
+    temp, dist, pts = cast_rays(np.broadcast_to(c2w[:3, 3], dirs.shape), dirs, cfg.view_falloff)
     temp = 12.0 + cfg.contrast * (temp - 12.0)
     keep = np.isfinite(dist)
     pts = pts[keep] + 0.02 * rng.standard_normal((int(keep.sum()), 3))

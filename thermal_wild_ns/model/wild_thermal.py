@@ -12,7 +12,7 @@ render is at the state its caller passes (`frame_embedding`), else the canonical
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
+from typing import Callable, Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
 import torch
 import tyro
@@ -25,7 +25,7 @@ from torch.nn import Parameter
 from torch.profiler import record_function
 
 from thermal_wild_ns.errors import InputError
-from thermal_wild_ns.image_metrics import psnr, ssim
+from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
 from thermal_wild_ns.model.background import ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_views import TrainingViews
@@ -36,9 +36,9 @@ from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussia
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
-from thermal_wild_ns.model.view_emission import view_term
+from thermal_wild_ns.model.view_emission import ViewTermChoice, view_term
 from thermal_wild_ns.rendering import Backend, rasterization
-from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, colormap_table
+from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
 
 @dataclass
@@ -85,10 +85,12 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     equalization shapes the gradients' reach but cannot amplify errors where it stretched the
     levels). The same for frames that were not preprocessed."""
     view_sh_degree: int = 0
-    """Degree (0, 1 or 2) of a per-Gaussian view-dependent term added to the emission: spherical
-    harmonics of the direction from the camera (emissivity and reflected sky change with the view
-    angle). The same at every capture time, so it cannot take over what the frame embeddings explain.
-    0 (default): none. It helped a drone survey and cost a generated scene (docs/results/view_term_gpu)."""
+    """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
+    change with the view angle), the same at every capture time (`view_emission.py`); 0: none."""
+    decide_view_term: bool = True
+    """Keep a view term only where the held-back frames gain from it (`ViewTermChoice`); no check: kept."""
+    view_term_min_gain: float = 0.05
+    """The gain (dB, held-back frames) a view term must bring to be kept."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8
@@ -167,6 +169,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self.baked = BakedValues()  # outside training: `baked_emission`
         self.training_views = TrainingViews()
+        has_view_term = "view_sh" in self.gauss_params
+        self.view_choice = ViewTermChoice(cfg.decide_view_term, cfg.view_term_min_gain) if has_view_term else None
         sequence = (self.kwargs.get("metadata") or {}).get("preprocessed")  # the training frames' LUTs
         use_luts = sequence is not None and cfg.loss_space == "original"
         self.thermal_loss = ThermalLoss(cfg, inverse_lut_table(sequence, self.frame_times) if use_luts else None)
@@ -307,7 +311,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
         with record_function("thermal/emission"):
             colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
-            if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
+            if self.view_choice is not None and self.view_choice.on:  # the view-dependent term (`view_emission.py`)
                 camera_position = view.camera_to_world[0, :3, 3]  # [3]
                 colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
         with record_function("thermal/rasterize"):
@@ -354,12 +358,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return self.get_outputs(camera if camera.device == self.device else camera.to(self.device), frame_embedding)
 
     def _outputs(self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
-        clipped = thermal.clamp(0.0, 1.0)
-        if self.training:  # nothing reads rgb while training: the cheapest grey view
-            rgb = clipped.expand(-1, -1, 3)
-        else:  # the thermal colormap (viewer, ns-render)
-            table = colormap_table(self.viewer_controls.colormap, str(clipped.device))  # [256, 3]
-            rgb = table[(clipped[..., 0] * 255).round().long()]  # [H, W, 3]
+        # nothing reads rgb while training: the cheapest grey view; else the colormap (viewer, ns-render)
+        rgb = thermal_rgb(thermal, None if self.training else self.viewer_controls.colormap)  # [H, W, 3]
         return {  # rgb first: the viewer shows the first output by default
             "rgb": rgb,
             "thermal": thermal,  # [H, W, 1], normalised dataset units (training space)
@@ -400,6 +400,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """This step's gradients stay out of the densification statistics (a step the guard skipped)."""
         self._discard_statistics = True
 
+    def decide_parts(self, score: Callable[[], float]) -> List[str]:
+        """Decide the parts the scene's held-back frames (`score()`, their PSNR) must choose: the view term."""
+        choice = self.view_choice
+        decision = None if choice is None else choice.decide_with(self.gauss_params["view_sh"], score)
+        return [] if decision is None else [decision]
+
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
         has_mlps = (self.emission_mlp is not None, self.background_mlp is not None)
@@ -409,7 +415,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     # densification statistics and torch's RNG (gsplat's splits draw from it) are saved: a resume continues the run
     def get_extra_state(self) -> dict:
         state = {k: v for k, v in self.strategy_state.items() if v is not None}
-        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state()}
+        view = {} if self.view_choice is None else {"view_term": self.view_choice.state()}
+        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state(), **view}
 
     def set_extra_state(self, state: dict) -> None:
         if not state:
@@ -418,6 +425,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.strategy_state[key] = value.to(self.device) if isinstance(value, Tensor) else value
         if "torch_rng_state" in state:
             torch.set_rng_state(state["torch_rng_state"])
+        if "view_term" in state and self.view_choice is not None:
+            self.view_choice.load(state["view_term"])
 
     def step_post_backward(self, step):
         if self._discard_statistics:  # the guard skipped this step: no statistics from it
@@ -438,12 +447,4 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return schedule_moves_loss(self.config, self.strategy, step)
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
-        gt, _ = self._ground_truth(outputs, batch)
-        pred = outputs["thermal"]
-        metrics = {
-            "psnr": float(psnr(pred, gt)),
-            "ssim": float(ssim(pred, gt, data_range=1.0)),
-            "gaussian_count": float(self.num_points),
-        }
-        images = {"img": torch.cat([gt, pred], dim=1).clamp(0, 1).expand(-1, -1, 3)}
-        return metrics, images
+        return image_metrics_and_images(outputs["thermal"], self._ground_truth(outputs, batch)[0], self.num_points)

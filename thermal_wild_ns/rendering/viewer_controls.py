@@ -32,6 +32,15 @@ def colormap_table(name: str, device: str) -> Tensor:
     return torch.from_numpy(palette_rgb(name).astype("float32") / 255.0).to(device)
 
 
+def thermal_rgb(thermal: Tensor, colormap: Optional[str]) -> Tensor:
+    """A thermal image [H, W, 1] (clipped to [0, 1]) as RGB [H, W, 3]: through `colormap`, or grey
+    without one (a view expanded, no copy)."""
+    clipped = thermal.clamp(0.0, 1.0)
+    if colormap is None:
+        return clipped.expand(-1, -1, 3)
+    return colormap_table(colormap, str(clipped.device))[(clipped[..., 0] * 255).round().long()]
+
+
 class ThermalViewerControls(nn.Module):
     """The viewer's thermal elements for a model trained on frames at `frame_times` (capture order)."""
 
