@@ -10,14 +10,16 @@ from pathlib import Path
 import numpy as np
 
 FILES = {
-    "flight2": ["flight2-default", "flight2-sh1", "flight2-sh2", "flight2-splatfacto"],
-    "dunr": ["dunr-default", "dunr-sh1", "dunr-sh2", "dunr-splatfacto"],
-    "synthetic": ["synthetic-default", "synthetic-sh2"],
+    "flight2": ["flight2-default", "flight2-sh1", "flight2-sh2", "flight2-auto", "flight2-splatfacto"],
+    "dunr": ["dunr-default", "dunr-sh1", "dunr-sh2", "dunr-auto", "dunr-splatfacto"],
+    "synthetic": ["synthetic-default", "synthetic-view-default", "synthetic-sh2", "synthetic-auto"],
 }
 LABELS = {
     "default": "wild-thermal (defaults)",
     "sh1": "wild-thermal, view_sh_degree=1",
     "sh2": "wild-thermal, view_sh_degree=2",
+    "auto": "wild-thermal, view_sh_degree=2, zero-test rule (kept in every run)",
+    "view-default": "wild-thermal (defaults)",
     "splatfacto": "splatfacto (first 10k steps of 30k)",
 }
 

@@ -152,22 +152,3 @@ def test_the_score_is_the_aligned_time_render_of_the_held_back_frame(tmp_path, d
     monkeypatch.setattr(pipeline.datamanager, "held_back_truth", lambda k: 1.3 * captured(k) + 0.1)
     jumped = auto_stop.held_back_score(pipeline, [image])
     assert jumped == pytest.approx(score - 20 * np.log10(1.3), abs=1e-3)
-
-
-def test_the_first_check_lets_the_scene_decide_the_view_term_and_records_it(tmp_path, demo_scene_dir, monkeypatch):
-    """At its first check the automatic stop asks the model to decide its optional parts from the
-    held-back frames (with the view term: 20.0 dB, without: 20.5), says so and records it."""
-    from thermal_wild_ns.demo import demo_trainer_config
-    from thermal_wild_ns.training.trainer import seeded_trainer
-
-    _scores(monkeypatch, [20.0, 20.5] + [20.0 + k for k in range(10)])  # with, without, then the checks
-    config = demo_trainer_config(tmp_path, steps=8, max_gaussians=3000)
-    config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    config.pipeline.model.view_sh_degree = 1
-    config.auto_stop.check_every, config.auto_stop.patience = 4, 2
-    trainer = seeded_trainer(config)
-    trainer.train()
-    record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
-    assert len(record["decisions"]) == 1 and record["decisions"][0].startswith("step 3: view term dropped")
-    assert not trainer.pipeline.model.view_choice.on
-    assert [c["step"] for c in record["checks"]] == [3, 7]

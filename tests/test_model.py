@@ -583,29 +583,3 @@ def test_the_view_term_trains_through_nerfstudio(tmp_path, demo_scene_dir):
     coefficients = trainer.pipeline.model.gauss_params["view_sh"]
     assert "view_sh" in trainer.optimizers.optimizers and coefficients.abs().sum() > 0
     assert coefficients.shape == (trainer.pipeline.model.num_points, 3)
-
-
-def test_the_view_term_is_kept_only_where_the_held_back_frames_gain_from_it():
-    """`decide_parts` asks the score with the term and with its coefficients zeroed: a gain below
-    `view_term_min_gain` drops it (zeroed, no longer rendered, no gradient), a larger one keeps it
-    untouched; it decides once, and the choice travels with the checkpoint (extra state)."""
-    camera = make_camera(1)
-    for gain, kept in ((0.2, True), (0.02, False)):
-        model = make_model(view_sh_degree=1, view_term_min_gain=0.05)
-        with torch.no_grad():
-            model.gauss_params["view_sh"].normal_(0.0, 0.3)
-        before = model.gauss_params["view_sh"].detach().clone()
-        scores = iter([20.0 + gain, 20.0])  # with the term, then without it
-        decisions = model.decide_parts(scores.__next__)
-        assert len(decisions) == 1 and ("kept" if kept else "dropped") in decisions[0]
-        assert torch.equal(model.gauss_params["view_sh"], before if kept else torch.zeros_like(before))
-        assert model.decide_parts(lambda: 0.0) == []  # once
-        model.train()
-        model.get_outputs(camera)["thermal"].sum().backward()
-        assert (model.gauss_params["view_sh"].grad is not None) == kept
-        restored = make_model(view_sh_degree=1)
-        restored.set_extra_state(model.get_extra_state())
-        assert restored.view_choice.state() == {"on": kept, "decided": True}
-    undecided = make_model(view_sh_degree=1, decide_view_term=False)
-    assert undecided.decide_parts(lambda: 0.0) == [] and undecided.view_choice.on
-    assert make_model().decide_parts(lambda: 0.0) == []  # no view term: nothing to decide

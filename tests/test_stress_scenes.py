@@ -83,3 +83,21 @@ def test_path_views_are_clean_and_lie_between_training_views(scenes):
         assert (scenes["all"] / p["file_path"]).is_file() and (scenes["all"] / p["depth_npy_path"]).is_file()
     with pytest.raises(ValueError, match="unknown stress fault 'rain'"):
         stress_scene_config("rain")
+
+
+def test_view_dependent_radiance_changes_with_the_view_angle():
+    """`stress:view`: a surface seen head-on keeps its temperature, seen at a grazing angle it moves
+    toward the sky it reflects (emissivity 1 - 0.5 (1 - cos)^2); the sky itself is unchanged."""
+    from thermal_wild_ns.data.demo_scene import _ground_temp, _sky_temp, cast_rays
+
+    origin = np.array([[0.0, 0.0, 5.0], [0.0, -5.0, 1e-3]])  # above a ground point, and level with it
+    target = np.array([0.0, 0.0, 0.0])
+    dirs = (target - origin) / np.linalg.norm(target - origin, axis=-1, keepdims=True)
+    plain, _, _ = cast_rays(origin, dirs)
+    viewed, _, _ = cast_rays(origin, dirs, view_falloff=0.5)
+    truth = _ground_temp(np.zeros(1), np.zeros(1))[0]
+    assert plain == pytest.approx([truth, truth]) and viewed[0] == pytest.approx(truth)  # head-on: unchanged
+    reflected_sky = _sky_temp(np.array([0.0, 1.0, 0.0]))  # the grazing view reflects the horizon
+    assert viewed[1] == pytest.approx(0.5 * truth + 0.5 * reflected_sky, abs=0.05)
+    up = np.array([[0.0, 0.0, 1.0]])
+    assert cast_rays(np.zeros((1, 3)) + [0, 0, 1], up, 0.5)[0] == pytest.approx(_sky_temp(up))

@@ -11,8 +11,6 @@ Constants and sign conventions are gsplat 1.4.0's (`gsplat.cuda._torch_impl._eva
 
 from __future__ import annotations
 
-from typing import Callable, Dict, Optional
-
 import torch
 from torch import Tensor
 
@@ -49,41 +47,3 @@ def view_term(means: Tensor, coefficients: Tensor, camera_position: Tensor) -> T
     degree = {3: 1, 8: 2}[coefficients.shape[-1]]
     dirs = torch.nn.functional.normalize(means - camera_position, dim=-1)  # [N, 3]
     return (sh_bands(dirs, degree) * coefficients).sum(dim=-1, keepdim=True)  # [N, 1]
-
-
-class ViewTermChoice:
-    """Whether the view term renders. It trains from the start; with `decide`, the first time the
-    automatic stop scores the held-back frames (`decide_with`) it is kept only where they score at
-    least `min_gain` dB better with it than with its coefficients zeroed, else it is zeroed and
-    renders no more (its coefficients then get no gradient). Without `decide`, or where no check
-    comes (the automatic stop off, or too few frames to hold back), it stays on."""
-
-    def __init__(self, decide: bool, min_gain: float):
-        self.on = True
-        self.decided = not decide
-        self.min_gain = min_gain
-
-    def decide_with(self, coefficients: Tensor, score: Callable[[], float]) -> Optional[str]:
-        """Decide once from `score()` (the held-back frames' PSNR) with and without `coefficients`
-        [N, K] (zeroed in place where dropped); the decision in words, or None if already made."""
-        if self.decided:
-            return None
-        with_term = score()
-        kept = coefficients.detach().clone()
-        with torch.no_grad():
-            coefficients.zero_()
-        without = score()
-        self.decided, self.on = True, with_term >= without + self.min_gain
-        if self.on:
-            with torch.no_grad():
-                coefficients.copy_(kept)
-        return (
-            f"view term {'kept' if self.on else 'dropped'}: the held-back frames score {with_term:.2f} dB with it, "
-            f"{without:.2f} without (kept from +{self.min_gain:g} dB)"
-        )
-
-    def state(self) -> Dict[str, bool]:
-        return {"on": self.on, "decided": self.decided}
-
-    def load(self, state: Dict[str, bool]) -> None:
-        self.on, self.decided = bool(state["on"]), bool(state["decided"])

@@ -12,7 +12,7 @@ render is at the state its caller passes (`frame_embedding`), else the canonical
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
+from typing import Dict, List, Literal, Optional, Sequence, Tuple, Type, Union
 
 import torch
 import tyro
@@ -36,7 +36,7 @@ from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussia
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
-from thermal_wild_ns.model.view_emission import ViewTermChoice, view_term
+from thermal_wild_ns.model.view_emission import view_term
 from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
@@ -86,11 +86,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     levels). The same for frames that were not preprocessed."""
     view_sh_degree: int = 0
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
-    change with the view angle), the same at every capture time (`view_emission.py`); 0: none."""
-    decide_view_term: bool = True
-    """Keep a view term only where the held-back frames gain from it (`ViewTermChoice`); no check: kept."""
-    view_term_min_gain: float = 0.05
-    """The gain (dB, held-back frames) a view term must bring to be kept."""
+    change with the view angle), the same at every capture time (`view_emission.py`). 0: none (helped a
+    drone survey, cost a scene with vignetting: docs/results/view_term_gpu)."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     l1_lambda: float = 0.8
@@ -169,8 +166,6 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self.baked = BakedValues()  # outside training: `baked_emission`
         self.training_views = TrainingViews()
-        has_view_term = "view_sh" in self.gauss_params
-        self.view_choice = ViewTermChoice(cfg.decide_view_term, cfg.view_term_min_gain) if has_view_term else None
         sequence = (self.kwargs.get("metadata") or {}).get("preprocessed")  # the training frames' LUTs
         use_luts = sequence is not None and cfg.loss_space == "original"
         self.thermal_loss = ThermalLoss(cfg, inverse_lut_table(sequence, self.frame_times) if use_luts else None)
@@ -311,7 +306,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
         with record_function("thermal/emission"):
             colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
-            if self.view_choice is not None and self.view_choice.on:  # the view-dependent term (`view_emission.py`)
+            if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
                 camera_position = view.camera_to_world[0, :3, 3]  # [3]
                 colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
         with record_function("thermal/rasterize"):
@@ -400,12 +395,6 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """This step's gradients stay out of the densification statistics (a step the guard skipped)."""
         self._discard_statistics = True
 
-    def decide_parts(self, score: Callable[[], float]) -> List[str]:
-        """Decide the parts the scene's held-back frames (`score()`, their PSNR) must choose: the view term."""
-        choice = self.view_choice
-        decision = None if choice is None else choice.decide_with(self.gauss_params["view_sh"], score)
-        return [] if decision is None else [decision]
-
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
         has_mlps = (self.emission_mlp is not None, self.background_mlp is not None)
@@ -415,8 +404,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     # densification statistics and torch's RNG (gsplat's splits draw from it) are saved: a resume continues the run
     def get_extra_state(self) -> dict:
         state = {k: v for k, v in self.strategy_state.items() if v is not None}
-        view = {} if self.view_choice is None else {"view_term": self.view_choice.state()}
-        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state(), **view}
+        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state()}
 
     def set_extra_state(self, state: dict) -> None:
         if not state:
@@ -425,8 +413,6 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.strategy_state[key] = value.to(self.device) if isinstance(value, Tensor) else value
         if "torch_rng_state" in state:
             torch.set_rng_state(state["torch_rng_state"])
-        if "view_term" in state and self.view_choice is not None:
-            self.view_choice.load(state["view_term"])
 
     def step_post_backward(self, step):
         if self._discard_statistics:  # the guard skipped this step: no statistics from it

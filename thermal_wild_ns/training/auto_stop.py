@@ -39,7 +39,7 @@ from thermal_wild_ns.pipeline.photometric_state import (
 )
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
 from thermal_wild_ns.training.checkpoints import restore, snapshot
-from thermal_wild_ns.training.model_interface import GuardedModel, SceneDecidingModel
+from thermal_wild_ns.training.model_interface import GuardedModel
 
 
 @dataclass
@@ -146,7 +146,6 @@ class AutoStopRun:
         self.last_step = 0
         self._best: Optional[dict] = None
         self._scores_settled_model = isinstance(pipeline.model, GuardedModel)  # it says when scores settle
-        self.decisions: List[str] = []  # what the scene decided of the model's parts (`SceneDecidingModel`)
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -190,7 +189,6 @@ class AutoStopRun:
                 self.pipeline.model.step = start_step
             else:
                 CONSOLE.log(f"[yellow]automatic stop: {trained} is gone: training goes on from the kept model")
-        self.decisions = list(record.get("decisions", []))  # the model's choices came back with its checkpoint
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
@@ -209,12 +207,7 @@ class AutoStopRun:
         self.last_step = step
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
-        held_back = self.pipeline.datamanager.held_back
-        if isinstance(self.pipeline.model, SceneDecidingModel):
-            for decision in self.pipeline.model.decide_parts(lambda: held_back_score(self.pipeline, held_back)):
-                CONSOLE.log(f"[bold]step {step}: {decision}")
-                self.decisions.append(f"step {step}: {decision}")
-        score = held_back_score(self.pipeline, held_back)
+        score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.keep_best:
             best = self._best = snapshot(self.pipeline, self.optimizers, step)
             write_atomically(self.state_path("best", step), lambda tmp: torch.save(best, tmp), self.partial_dir)
@@ -267,6 +260,5 @@ class AutoStopRun:
             "kept_step": kept,
             "final_psnr": final,
             "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
-            "decisions": self.decisions,
         }
         write_text_atomically(self.run_dir / "auto_stop.json", json.dumps(record, indent=1), self.partial_dir)

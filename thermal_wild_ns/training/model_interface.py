@@ -5,7 +5,7 @@ model-side checks: no loss check per step, scores from step 0, no embeddings to 
 
 from __future__ import annotations
 
-from typing import Callable, List, Optional, Protocol, Sequence, Tuple, runtime_checkable
+from typing import Optional, Protocol, Sequence, Tuple, runtime_checkable
 
 from torch import Tensor
 
@@ -31,13 +31,4 @@ class GuardedModel(Protocol):
 
     def interpolate_embeddings(self, rows: Sequence[int]) -> None:
         """Set the embeddings of held-back training images to the state their neighbours give."""
-        ...
-
-
-@runtime_checkable
-class SceneDecidingModel(Protocol):
-    def decide_parts(self, score: Callable[[], float]) -> List[str]:
-        """Decide the model's optional parts from `score()` (the held-back frames' PSNR as the model
-        renders now); the decisions in words (none where there is nothing left to decide). The
-        automatic stop calls it at its first check, before scoring."""
         ...
