@@ -320,6 +320,20 @@ def trainer_checkpoint_state(trainer, step: int) -> dict:
     }
 
 
+@contextlib.contextmanager
+def training_state_kept(model):
+    """nerfstudio 1.1.5's splatfacto (and this plugin's model, which follows it) keeps its last
+    render's `info` and `last_size` on the model for the densification after the training step
+    (`step_post_backward`). A render in between (the automatic stop scoring its held-back frames)
+    would replace them; while this context is open such renders may, and they are put back after."""
+    kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
+    try:
+        yield
+    finally:
+        for name, value in kept.items():
+            setattr(model, name, value)
+
+
 class TrainerAfterLoad(Trainer):
     """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
     state arrives, and `Trainer._after_train` (private) saves the final checkpoint with no hook

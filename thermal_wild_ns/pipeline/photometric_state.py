@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from thermal_wild_ns._upstream import training_state_kept
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence
@@ -163,10 +164,9 @@ def render_layers(pipeline, camera, state: PhotometricState) -> Dict[str, np.nda
     model's units; NaN for a model without it)."""
     model = pipeline.model
     was_training = model.training
-    kept = {name: getattr(model, name) for name in ("info", "last_size") if hasattr(model, name)}
     model.eval()
     try:
-        with torch.no_grad():
+        with torch.no_grad(), training_state_kept(model):
             outputs = outputs_at(model, camera, state)
             rendered = thermal_output(outputs)[..., 0].float().cpu().numpy()  # [H, W]
             alpha, depth = outputs.get("accumulation"), outputs.get("depth")
@@ -174,8 +174,6 @@ def render_layers(pipeline, camera, state: PhotometricState) -> Dict[str, np.nda
             depth = np.full_like(rendered, np.nan) if depth is None else depth[..., 0].float().cpu().numpy()
     finally:
         model.train(was_training)
-        for name, value in kept.items():
-            setattr(model, name, value)
     original = to_original(pipeline, rendered, state)
     return {"training": rendered, "original": original, "coverage": coverage, "depth": depth}
 
