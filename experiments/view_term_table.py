@@ -22,6 +22,8 @@ LABELS = {
     "view-default": "wild-thermal (defaults)",
     "splatfacto": "splatfacto (first 10k steps of 30k)",
 }
+COLUMNS = ["scene", "configuration", "seeds", "`novel`", "`time`", "`aligned`", "`oracle` (a bound)", "steps"]
+COLUMNS += ["Gaussians", "ms/step (shared)"]
 
 
 def fmt(values) -> str:
@@ -29,30 +31,24 @@ def fmt(values) -> str:
     return f"{v.mean():.2f} ({v.min():.2f}–{v.max():.2f})"
 
 
-COLUMNS = [
-    "scene",
-    "configuration",
-    "seeds",
-    "`novel`",
-    "`time`",
-    "`aligned`",
-    "`oracle` (a bound)",
-    "steps",
-    "Gaussians",
-]
-print("| " + " | ".join(COLUMNS + ["ms/step (shared)"]) + " |")
-print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
-for names in FILES.values():
-    for name in names:
-        runs_all = json.loads((Path(sys.argv[1]) / f"{name}-bench.json").read_text())["runs"]
-        scenes = list(dict.fromkeys(r["scene"] for r in runs_all))
-        for scene in scenes:
-            runs = [r for r in runs_all if r["scene"] == scene]
-            label = LABELS[name.split("-", 1)[1]]
-            cols = [fmt([r[f"psnr_{p}"] for r in runs]) for p in ("novel", "time", "aligned", "oracle")]
-            if label.startswith("splatfacto"):  # no photometric state: `time` is `novel`, no oracle
-                cols[1] = cols[3] = "—"
-            steps = int(np.mean([r["steps"] for r in runs]))
-            gaussians = int(np.mean([r["gaussians"] for r in runs]))
-            ms = np.mean([r["ms_per_step"] for r in runs])
-            print(f"| {scene} | {label} | {len(runs)} | " + " | ".join(cols) + f" | {steps} | {gaussians} | {ms:.1f} |")
+def main(folder: Path) -> None:
+    print("| " + " | ".join(COLUMNS) + " |")
+    print("|" + " --- |" * len(COLUMNS))
+    for names in FILES.values():
+        for name in names:
+            runs_all = json.loads((folder / f"{name}-bench.json").read_text())["runs"]
+            for scene in dict.fromkeys(r["scene"] for r in runs_all):
+                runs = [r for r in runs_all if r["scene"] == scene]
+                label = LABELS[name.split("-", 1)[1]]
+                cols = [fmt([r[f"psnr_{p}"] for r in runs]) for p in ("novel", "time", "aligned", "oracle")]
+                if label.startswith("splatfacto"):  # no photometric state: `time` is `novel`, no oracle
+                    cols[1] = cols[3] = "—"
+                steps = int(np.mean([r["steps"] for r in runs]))
+                gaussians = int(np.mean([r["gaussians"] for r in runs]))
+                ms = np.mean([r["ms_per_step"] for r in runs])
+                row = [scene, label, str(len(runs)), *cols, str(steps), str(gaussians), f"{ms:.1f}"]
+                print("| " + " | ".join(row) + " |")
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]))
