@@ -1,5 +1,8 @@
 """WildThermalModel on CPU: forward/backward, densification alignment, bad input, checkpoints."""
 
+import contextlib
+
+import numpy as np
 import pytest
 import torch
 from nerfstudio.cameras.cameras import Cameras
@@ -583,3 +586,23 @@ def test_the_view_term_trains_through_nerfstudio(tmp_path, demo_scene_dir):
     coefficients = trainer.pipeline.model.gauss_params["view_sh"]
     assert "view_sh" in trainer.optimizers.optimizers and coefficients.abs().sum() > 0
     assert coefficients.shape == (trainer.pipeline.model.num_points, 3)
+
+
+def test_the_viewer_opens_through_the_nearest_training_camera():
+    """Once the viewer started (it hands the control itself), its clients are put just past the
+    frustum of the training camera nearest the chosen state (the first for the canonical one)."""
+    from types import SimpleNamespace
+
+    model = make_model()
+    controls = model.viewer_controls
+    controls._look_through_training_camera(0)  # no viewer yet: nothing to move, no error
+    client = SimpleNamespace(camera=SimpleNamespace(wxyz=None, position=None), atomic=contextlib.nullcontext)
+    frustum = SimpleNamespace(wxyz=(1.0, 0.0, 0.0, 0.0), position=(1.0, 2.0, 3.0))
+    controls.viewer_control.viewer = SimpleNamespace(  # what nerfstudio's viewer sets in `_setup`
+        camera_handles={0: frustum},
+        config=SimpleNamespace(camera_frustum_scale=0.1),
+        viser_server=SimpleNamespace(get_clients=lambda: {1: client}),
+    )
+    controls._look_through_training_camera(controls.nearest_training_image())
+    assert client.camera.wxyz == frustum.wxyz
+    assert np.allclose(client.camera.position, [1.0, 2.0, 3.2])  # 2 frustum scales along +z (viser's view axis)

@@ -239,6 +239,10 @@ class ViewerControlOnConnect(ViewerControl):
         super()._setup(viewer)
         viewer.viser_server.on_client_connect(self.on_connect)
 
+    def started_viewer(self):
+        """The viewer this control was handed (`_setup`), or None before a viewer started."""
+        return getattr(self, "viewer", None)
+
 
 class DefaultStrategyWithHooks(DefaultStrategy):
     """gsplat 1.4.0's `DefaultStrategy` grows and accounts Gaussians in its private `_grow_gs` and

@@ -7,13 +7,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional, Type
+from typing import Callable, Optional, Protocol, Type, runtime_checkable
 
 import numpy as np
 import torch
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
+from thermal_wild_ns.data.dataparsers import ThermalDataParser
 from thermal_wild_ns.errors import InputError, MissingInput, report_input_errors_briefly
 from thermal_wild_ns.pipeline.evaluation import evaluate, scores
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, canonical_state, render, state_at, to_original
@@ -21,6 +22,23 @@ from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint,
 
 DATA_RECORD = "data.json"
 """Beside a run's config: what the run was trained on (`ThermalPipeline._record_or_check_data`)."""
+
+
+@runtime_checkable
+class ViewerControlledModel(Protocol):
+    """A model with the thermal viewer controls (`rendering.viewer_controls.ThermalViewerControls`):
+    the pipeline keeps their colour bar in step with the state they choose."""
+
+    viewer_controls: "ThermalViewerControlsLike"
+
+
+class ThermalViewerControlsLike(Protocol):
+    capture_time: Optional[float]
+    colormap: str
+
+    def on_state_change(self, listener: Callable[[], None]) -> None: ...
+
+    def show_colour_bar(self, text: str) -> None: ...
 
 
 @dataclass
@@ -68,9 +86,8 @@ class ThermalPipeline(VanillaPipeline):
             ) from None
         if config.checkpoint_dir is not None:
             self._record_or_check_data(Path(config.checkpoint_dir).parent / DATA_RECORD, loads_a_run)
-        controls = getattr(self.model, "viewer_controls", None)  # a thermal model's (ThermalViewerControls)
-        if controls is not None:
-            controls.on_state_change(self.update_colour_bar)
+        if isinstance(self.model, ViewerControlledModel):  # a thermal model (its ThermalViewerControls)
+            self.model.viewer_controls.on_state_change(self.update_colour_bar)
             self.update_colour_bar()
 
     def _record_or_check_data(self, record: Path, loads_a_run: bool) -> None:
@@ -78,7 +95,7 @@ class ThermalPipeline(VanillaPipeline):
         config. Loading a run (ns-eval, ns-render, the viewer): the data must be what it was, or the
         scores and renders would silently be of other frames."""
         parser = self.datamanager.dataparser
-        if not hasattr(parser, "fingerprint"):
+        if not isinstance(parser, ThermalDataParser):  # its data's fingerprint
             return
         now = {"data": str(parser.config.data), "frames": parser.fingerprint()}
         if not loads_a_run:

@@ -112,8 +112,8 @@ class ThermalViewerControls(nn.Module):
     def _look_through_training_camera(self, image: int, client=None) -> None:
         """Put a viewer client (default: all) at training image `image`'s camera (or else the first
         one), as clicking its frustum does."""
-        viewer = getattr(self.viewer_control, "viewer", None)  # set by the viewer when it starts
-        handles = getattr(viewer, "camera_handles", None)
+        viewer = self.viewer_control.started_viewer()
+        handles = None if viewer is None else viewer.camera_handles
         if not handles:
             return
         handle = handles.get(image) or handles[min(handles)]

@@ -30,6 +30,7 @@ import torch
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.image_metrics import psnr
+from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
@@ -152,7 +153,7 @@ class AutoStopRun:
         """Hold the scoring frames back and return the run's stop; None where it is off or the
         capture has too few frames (said on the console)."""
         datamanager = pipeline.datamanager
-        if not config.enabled or not hasattr(datamanager, "hold_back"):
+        if not config.enabled or not isinstance(datamanager, ThermalDatamanager):  # it holds frames back
             return None
         images = held_back_images(len(datamanager.train_dataset), config.held_back_frames)
         if not images:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Deque, Dict, List, Optional
 
 import torch
+from nerfstudio.models.splatfacto import SplatfactoModel
 from nerfstudio.utils.rich_utils import CONSOLE
 
 
@@ -110,7 +111,7 @@ class DivergenceGuard:
         for (name, _), ok in zip(named, finite):
             if not ok:
                 raise TrainingDiverged(f"step {step}: parameter '{name}' holds NaN/inf values; training has diverged")
-        if hasattr(model, "num_points"):
+        if isinstance(model, SplatfactoModel):  # Gaussians to count
             if model.num_points == 0:
                 raise TrainingDiverged(f"step {step}: every Gaussian was pruned; the model collapsed to an empty scene")
             opacity = float(torch.sigmoid(model.opacities.detach()).mean())

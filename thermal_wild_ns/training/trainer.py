@@ -42,6 +42,7 @@ from thermal_wild_ns._upstream import (
 )
 from thermal_wild_ns.errors import IncompleteConfig, InputError
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint, write_text_atomically
+from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.training.auto_stop import AutoStopConfig, AutoStopRun
 from thermal_wild_ns.training.checkpoints import SAVES_PER_RUN, restore, save_checkpoint, snapshot
 from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
@@ -79,7 +80,7 @@ class GuardedTrainerConfig(TrainerConfig):
     def save_config(self) -> None:
         """nerfstudio's `save_config` (config.yml beside the run), written atomically."""
         # the loading commands check for checkpoints before reading data (ThermalPipeline)
-        if hasattr(self.pipeline, "checkpoint_dir"):
+        if isinstance(self.pipeline, ThermalPipelineConfig):
             self.pipeline.checkpoint_dir = self.get_checkpoint_dir()
         base = self.get_base_dir()
         CONSOLE.log(f"Saving config to: {base / 'config.yml'}")
