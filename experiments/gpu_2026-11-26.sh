@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -61,6 +61,11 @@ case "$plan" in
     bench synthetic-auto demo --scenes demo stress:drift stress:vignetting stress:view --methods wild-thermal \
       --set pipeline.model.view_sh_degree=2 "${synthetic[@]}" &
     bench synthetic-view-default demo --scenes stress:view --methods wild-thermal "${synthetic[@]}" &
+    wait
+    ;;
+  flight2-budget)  # issue 33's growth question on flight2: the full method with 3x and 10x its Gaussian budget
+    bench flight2-300k "$PWD/.data/flight2" --methods wild-thermal --max-gaussians 300000 "${flight2[@]}" &
+    bench flight2-1m "$PWD/.data/flight2" --methods wild-thermal --max-gaussians 1000000 "${flight2[@]}" &
     wait
     ;;
   dunr-sh2-splatfacto)
