@@ -126,14 +126,19 @@ def test_the_startup_file_loads_the_shim_alone():
 
 
 def test_a_config_naming_a_moved_module_still_loads():
-    """config.yml of a run trained before `data/datamanager.py` moved to `pipeline/` names the old
-    module path; nerfstudio's loader (yaml) must still build the class."""
+    """config.yml of a run trained before a module moved (`MOVED_MODULES`) names the old module path;
+    nerfstudio's loader (yaml) must still build each class it names there."""
     import yaml
 
     import thermal_wild_ns
     from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
+    from thermal_wild_ns.training.divergence import DivergenceGuardConfig
 
-    for old in thermal_wild_ns.MOVED_MODULES:
-        text = f"!!python/object:{old}.ThermalDatamanagerConfig {{camera_res_scale_factor: 0.5}}"
-        config = yaml.load(text, Loader=yaml.Loader)
-        assert type(config) is ThermalDatamanagerConfig and config.camera_res_scale_factor == 0.5
+    named = {  # a class each old module held, as a run's config names it, and a field to read back
+        "thermal_wild_ns.data.datamanager": (ThermalDatamanagerConfig, "camera_res_scale_factor", 0.5),
+        "thermal_wild_ns.training.guard": (DivergenceGuardConfig, "max_rollbacks", 7),
+    }
+    assert set(named) == set(thermal_wild_ns.MOVED_MODULES)
+    for old, (cls, field, value) in named.items():
+        config = yaml.load(f"!!python/object:{old}.{cls.__name__} {{{field}: {value}}}", Loader=yaml.Loader)
+        assert type(config) is cls and getattr(config, field) == value
