@@ -136,12 +136,12 @@ def test_the_lean_step_gives_way_to_nerfstudios_where_it_cannot_stand_in(tmp_pat
     """Gradient clipping is one of nerfstudio's step's options the lean step leaves out: with it
     set, training runs nerfstudio's step and says which optimizer made it so."""
     from thermal_wild_ns.demo import demo_trainer_config
+    from thermal_wild_ns.training.trainer import seeded_trainer
 
     config = demo_trainer_config(tmp_path, steps=4, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.optimizers["opacities"]["optimizer"].max_norm = 1.0
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
+    trainer = seeded_trainer(config)
     from thermal_wild_ns.training.lean_step import lean_step_unsupported
 
     assert not trainer.lean and "'opacities'" in lean_step_unsupported(trainer.config, trainer.optimizers)

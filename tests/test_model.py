@@ -576,12 +576,12 @@ def test_the_view_term_trains_through_nerfstudio(tmp_path, demo_scene_dir):
     """With `view_sh_degree`, `ns-train`'s trainer has an optimizer for the coefficients (the method's
     `view_sh` group) and steps them."""
     from thermal_wild_ns.demo import demo_trainer_config
+    from thermal_wild_ns.training.trainer import seeded_trainer
 
     config = demo_trainer_config(tmp_path, steps=3, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.view_sh_degree = 1
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
+    trainer = seeded_trainer(config)
     trainer.train()
     coefficients = trainer.pipeline.model.gauss_params["view_sh"]
     assert "view_sh" in trainer.optimizers.optimizers and coefficients.abs().sum() > 0

@@ -65,7 +65,6 @@ def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method
 
 
 def main(args: DemoArgs) -> dict:
-
     device = "cuda" if torch.cuda.is_available() else "cpu"
     steps = args.steps or (10_000 if device == "cuda" else 800)
     generate_demo_scene(args.output_dir / "scene")
@@ -112,7 +111,6 @@ def main(args: DemoArgs) -> dict:
 
 
 def entrypoint():
-
     report_input_errors_briefly()
     main(tyro.cli(DemoArgs))
 

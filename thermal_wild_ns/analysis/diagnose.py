@@ -98,7 +98,6 @@ def preprocessing_advice(sequence: PreprocessedSequence) -> str:
 
 
 def _plot(result: Dict, path: Path, title: str) -> None:
-
     matplotlib.use("Agg")
 
     before, after = result["before"], result["after"]
@@ -221,7 +220,6 @@ def diagnose(args: DiagnoseArgs) -> Dict:
 
 
 def entrypoint():
-
     report_input_errors_briefly()
     diagnose(tyro.cli(DiagnoseArgs))
 

@@ -365,7 +365,6 @@ def _surface_points(c2w: np.ndarray, cfg: DemoSceneConfig, rng: np.random.Genera
 
 
 def _write_points_ply(path: Path, points: np.ndarray) -> None:
-
     vertex = np.empty(len(points), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("thermal", "f4")])
     for i, name in enumerate(("x", "y", "z", "thermal")):
         vertex[name] = points[:, i]

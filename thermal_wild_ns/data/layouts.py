@@ -67,7 +67,6 @@ def _declared_range(meta: dict) -> Optional[RadiometricRange]:
 
 
 def _read_ply_points(path: Path) -> Optional[SeedPoints]:
-
     try:
         vertex = PlyData.read(str(path))["vertex"]
     except Exception as err:  # plyfile raises several types for bad files
@@ -583,7 +582,6 @@ def read_exif_gps(
 
 
 def _exif_gps_mismatch(root: Path) -> Optional[str]:
-
     try:
         first = _image_files(_survey_frames_folder(root))[0]
         if read_frame_prior(first) is None:

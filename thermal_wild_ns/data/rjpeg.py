@@ -217,7 +217,6 @@ def dji_calibration(paths: Sequence[Path], raws: Optional[Sequence[np.ndarray]] 
 
 
 def _read_float_tiff(path: Path) -> Optional[np.ndarray]:
-
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     return None if image is None else image.astype(np.float32)
 
@@ -347,7 +346,6 @@ _CAMERA_INFO = {  # field: (byte offset, struct format), ExifTool FLIR::CameraIn
 
 
 def _flir_raw(record: bytes, path: Path) -> np.ndarray:
-
     order = _record_order(record)
     width, height = struct.unpack(order + "HH", record[2:6])
     image = record[0x20:]

@@ -80,7 +80,6 @@ class ExportThermalSplat(ns_export.ExportGaussianSplat):
     """ns-export gaussian-splat, plus a `thermal` property and header comments."""
 
     def main(self) -> None:
-
         check_trained_run(self.load_config)  # before ns-export creates the output folder
 
         loaded = {}

@@ -69,7 +69,6 @@ class SurveyFrame:
     """Local east-north-up metres -> the project's CRS (easting, northing, ellipsoidal height)."""
 
     def __init__(self, georeference: Georeference):
-
         self.georeference = georeference
         # no project CRS (OpenDroneMap gives a GPS origin only): the site's UTM zone, metres like a project's
         zone = int((georeference.longitude + 180) // 6) % 60 + 1
@@ -109,7 +108,6 @@ def celsius_or_native(rng, original: np.ndarray) -> Tuple[np.ndarray, str]:
 
 
 def _load(load_config: Path):
-
     check_trained_run(load_config)
     _, pipeline, _, _ = eval_setup(Path(load_config), test_mode="inference")
     return pipeline
@@ -128,7 +126,6 @@ class ExportCelsiusPoints:
     """Gaussians less opaque than this are left out (faint floaters)."""
 
     def main(self) -> dict:
-
         pipeline = _load(self.load_config)
         rng = pipeline.datamanager.train_dataset.thermal_range
         model = pipeline.model
@@ -174,7 +171,6 @@ class ExportOrthomosaic:
     """Largest side of the raster; a finer resolution over a large site stops with what would fit."""
 
     def main(self) -> dict:
-
         georeference = run_georeference(self.load_config)
         if georeference is None:
             raise InputError(

@@ -63,10 +63,13 @@ class ThermalLoss(nn.Module):
         lower = lower.long()
         return table[lower] * (1.0 - weight) + table[lower + 1] * weight
 
-    def ground_truth(self, gt: Tensor, render: Tensor, image: Optional[int]) -> Tuple[Tensor, Optional[Tensor]]:
+    def ground_truth(
+        self, gt: Tensor, render: Tensor, image: Optional[int], name: object = None
+    ) -> Tuple[Tensor, Optional[Tensor]]:
         """The frame `gt` [H, W, 1] at the render's resolution with non-finite pixels replaced by the
         render (so they add nothing to losses and metrics) and, for a training frame (`image`, its
-        index; None otherwise) without such pixels, its thermal contrast (for the heat-aware SSIM)."""
+        index; None otherwise) without such pixels, its thermal contrast (for the heat-aware SSIM).
+        `name`: how a warning names the frame (its batch's image index)."""
         key = (image, tuple(gt.shape)) if image is not None else None
         checked = self._frame_checks.get(key) if key is not None else None
         if checked is None:
@@ -81,7 +84,7 @@ class ThermalLoss(nn.Module):
             finite = torch.isfinite(gt)
             if not self._warned_nonfinite:
                 CONSOLE.log(
-                    f"[yellow]Image {image} has {int((~finite).sum())} non-finite pixels; "
+                    f"[yellow]Image {name} has {int((~finite).sum())} non-finite pixels; "
                     "they are left out of the loss and metrics."
                 )
                 self._warned_nonfinite = True

@@ -364,11 +364,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         }
 
     # ----------------------------------------------------------------- losses
+    def _training_image(self, batch: Dict) -> Optional[int]:
+        """The batch's training image while training (its frame checks are kept), else None."""
+        return int(batch["image_idx"]) if self.training and "image_idx" in batch else None
+
     def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Optional[Tensor]]:
         """The frame at the render's resolution and its contrast (`ThermalLoss.ground_truth`)."""
         gt = self.get_gt_img(checked_thermal_image(batch))
-        image = int(batch["image_idx"]) if self.training and "image_idx" in batch else None
-        return self.thermal_loss.ground_truth(gt, outputs["thermal"], image)
+        image = self._training_image(batch)
+        return self.thermal_loss.ground_truth(gt, outputs["thermal"], image, batch.get("image_idx"))
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
         gt, _ = self._ground_truth(outputs, batch)
@@ -377,13 +381,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
         with record_function("thermal/loss"):
             gt, contrast = self._ground_truth(outputs, batch)
-            image = int(batch["image_idx"]) if self.training and "image_idx" in batch else None
+            image = self._training_image(batch)
             losses = self.thermal_loss(outputs, gt, contrast, image)
-            if self.training:
-                self.camera_optimizer.get_loss_dict(losses)
         if self.training:
-            frame = int(batch["image_idx"]) if "image_idx" in batch else None
-            self._last_training_loss = (sum(losses.values()).detach(), frame)
+            self.camera_optimizer.get_loss_dict(losses)
+            self._last_training_loss = (sum(losses.values()).detach(), image)
         return losses
 
     # ------------------------------------------------- the trainer's interface (training/model_interface.py)

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Callable, List, Optional
 
 import yaml
+from nerfstudio.engine.trainer import TrainerConfig
 
 from thermal_wild_ns.data.thermal_io import process_alive
 from thermal_wild_ns.errors import IncompleteConfig, InputError
@@ -128,12 +129,12 @@ def check_trained_run(load_config: Path) -> None:
         raise SystemExit(
             f"--load-config {path}: the run's config is damaged or cut short, or not a config ({err})"
         ) from None
-    method = getattr(config, "method_name", None)
-    if method is None:
+    if not isinstance(config, TrainerConfig) or config.method_name is None:
         raise SystemExit(f"--load-config {path}: not a nerfstudio run config (no method_name)")
+    method = config.method_name
     if not str(method).startswith("wild-thermal"):
         raise SystemExit(f"--load-config {path}: a '{method}' run; this command needs a wild-thermal* run")
     try:
-        check_checkpoint(Path(config.get_checkpoint_dir()), getattr(config, "load_step", None))
+        check_checkpoint(Path(config.get_checkpoint_dir()), config.load_step)
     except InputError as err:
         raise SystemExit(f"--load-config {path}: {err}") from None

@@ -140,7 +140,6 @@ class RenderInterpolated(RadiometricOptions, ns_render.RenderInterpolated):
     """ns-render interpolate, plus radiometric frames; a pose source of one camera renders that pose."""
 
     def main(self) -> None:
-
         with _radiometric_too(self, self.output_path), interpolation_over_one_pose():
             super().main()
 
@@ -164,7 +163,6 @@ Commands = tyro.conf.FlagConversionOff[
 
 
 def entrypoint():
-
     report_input_errors_briefly()
     tyro.cli(Commands).main()
 

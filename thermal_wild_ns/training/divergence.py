@@ -22,6 +22,7 @@ class TrainingDiverged(RuntimeError):
 @dataclass
 class DivergenceGuardConfig:
     enabled: bool = True
+    """Skip bad steps and roll a broken model back (off: train without these checks)."""
     loss_spike_factor: float = 20.0
     """Skip a step whose loss exceeds this many times the median loss of the last accepted steps."""
     spike_window: int = 100
