@@ -1,6 +1,6 @@
 """The table of docs/results/view_term_gpu/README.md (printed) from the *-bench.json files of that folder.
 
-    python -m experiments.view_term_table docs/results/view_term_gpu
+python -m experiments.view_term_table docs/results/view_term_gpu
 """
 
 import json
