@@ -15,7 +15,7 @@ FLOORS = [
     ["rendering", "export", "training"],
     ["model"],
     ["method_configs"],
-    ["demo"],
+    ["demo", "multi_gpu"],
 ]
 """Rooms bottom up, as docs/design.md draws them: a module may import its own floor's and lower ones."""
 FUNCTION_LOCAL_IMPORTS = {

@@ -45,6 +45,7 @@ from thermal_wild_ns.data.capture import (
 )
 from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, generate_demo_scene, stress_scene_config
 from thermal_wild_ns.data.palettes import PALETTE_NAMES
+from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 from thermal_wild_ns.data.thermal_io import DEGENERATE_SHARE, RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
 from thermal_wild_ns.errors import InputError, report_input_errors_briefly
@@ -55,7 +56,7 @@ MIN_SEED_POINTS = 4
 # Choices derived from the registries they name (tyro turns them into --help choices)
 LayoutName = Literal[("auto", *layouts.LAYOUTS)]  # type: ignore[valid-type]
 PaletteName = Literal[("auto", *PALETTE_NAMES)]  # type: ignore[valid-type]
-SceneName = Literal[("demo", *STRESS_FAULTS, "all")]  # type: ignore[valid-type]
+SceneName = Literal[("demo", *STRESS_FAULTS, "all", "survey")]  # type: ignore[valid-type]
 
 
 @dataclass
@@ -381,7 +382,10 @@ class ThermalDemoDataParserConfig(ThermalDataParserConfig):
     """Where the demo scene is generated (and read from)."""
     layout: LayoutName = "nerfstudio"
     scene: SceneName = "demo"
-    """'demo', or a stress scene: the same content with one fault ('all': every fault; 'clean': none)."""
+    """'demo', or a stress scene: the same content with one fault ('all': every fault; 'clean': none);
+    'survey': a synthetic drone survey of `survey_frames` frames (`survey_scene.py`)."""
+    survey_frames: int = 250
+    """Frames of the synthetic survey (scene 'survey'): its site grows with them."""
 
 
 class ThermalDemo(ThermalDataParser):
@@ -389,7 +393,10 @@ class ThermalDemo(ThermalDataParser):
 
     def capture(self) -> ThermalCapture:
         scene = self.config.scene
-        generate_demo_scene(self.config.data, DemoSceneConfig() if scene == "demo" else stress_scene_config(scene))
+        if scene == "survey":
+            generate_survey_scene(self.config.data, SurveySceneConfig(num_frames=self.config.survey_frames))
+        else:
+            generate_demo_scene(self.config.data, DemoSceneConfig() if scene == "demo" else stress_scene_config(scene))
         return super().capture()
 
 

@@ -22,7 +22,7 @@ import json
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, Tuple
+from typing import Dict, List, Tuple
 
 import cv2
 import numpy as np
@@ -307,6 +307,22 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
             )
     points = np.concatenate(point_sets)[: cfg.num_points]
     _write_points_ply(tmp / "sparse_pc.ply", points)
+    extra = {
+        "key": key,
+        "config": asdict(cfg),
+        "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset", "outlier")},
+    }
+    write_transforms(tmp, cfg, frames, path, extra)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    tmp.rename(out_dir)
+    return out_dir
+
+
+def write_transforms(folder: Path, cfg, frames: List[Dict], path: List[Dict], generator: Dict) -> None:
+    """`folder/transforms.json` of a generated scene (`cfg`: its width, height, focal, eval_every):
+    the frames, the train/held-out split (every `eval_every`-th frame held out), the seed points file,
+    the recording range, the smooth-path views, and what generated it (`thermal_demo`: key, config)."""
     names = [f["file_path"] for f in frames]
     meta = {
         "camera_model": "OPENCV",
@@ -329,18 +345,10 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
             "dtype": "uint16",
         },
         "path": path,
-        "thermal_demo": {
-            "key": key,
-            "config": asdict(cfg),
-            "faults": {k: np.asarray(v).tolist() for k, v in faults.items() if k in ("gain", "offset", "outlier")},
-        },
+        "thermal_demo": generator,
     }
-    with open(tmp / "transforms.json", "w") as f:
+    with open(folder / "transforms.json", "w") as f:
         json.dump(meta, f, indent=1)
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    tmp.rename(out_dir)
-    return out_dir
 
 
 def _clean_counts(c2w: np.ndarray, cfg: DemoSceneConfig) -> Tuple[np.ndarray, np.ndarray]:

@@ -38,11 +38,12 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     max_gaussians: int = 1_000_000
 
     @classmethod
-    def for_splatfacto(cls, cfg, num_train_data: int) -> "BudgetedDefaultStrategy":
+    def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":
         """The strategy of a splatfacto model config (`SplatfactoModelConfig`'s densification fields,
-        as splatfacto maps them) with `cfg.max_gaussians` as the budget."""
+        as splatfacto maps them) with `cfg.max_gaussians` as the budget, shared by `ranks` ranks that
+        each hold their share of the Gaussians."""
         return cls(
-            max_gaussians=cfg.max_gaussians,
+            max_gaussians=cfg.max_gaussians // ranks,
             prune_opa=cfg.cull_alpha_thresh,
             grow_grad2d=cfg.densify_grad_thresh,
             grow_scale3d=cfg.densify_size_thresh,
@@ -81,24 +82,25 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
         """gsplat's running statistics, computed with masks instead of gathering the visible
         Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
         one camera per step (what splatfacto renders), except that a render too small for the
-        screen-size rule (`screen_size_rule_applies`) adds no screen radii."""
+        screen-size rule (`screen_size_rule_applies`) adds no screen radii. A distributed render (one
+        camera per rank) gives this rank's Gaussians in every rank's camera [W, N, ...]: summed as gsplat."""
         if packed or info["n_cameras"] != 1:
             return False  # gsplat's own
         gradient = info[self.key_for_gradient]
-        grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [1, N, 2]
+        grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [C, N, 2], C = 1 or ranks
         grads[..., 0] *= info["width"] / 2.0 * info["n_cameras"]
         grads[..., 1] *= info["height"] / 2.0 * info["n_cameras"]
         n = params["means"].shape[0]
         for key in ("grad2d", "count") + (("radii",) if self.refine_scale2d_stop_iter > 0 else ()):
             if state[key] is None:
                 state[key] = torch.zeros(n, device=grads.device)
-        visible = info["radii"][0] > 0.0  # [N]
-        state["grad2d"] += torch.where(visible, grads[0].norm(dim=-1), 0.0)
-        state["count"] += visible
+        visible = info["radii"] > 0.0  # [C, N]
+        state["grad2d"] += torch.where(visible, grads.norm(dim=-1), 0.0).sum(0)
+        state["count"] += visible.sum(0)
         if self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(
             info["width"], info["height"], self.grow_scale2d
         ):
             # screen radius normalised to [0, 1], as gsplat
-            radii = torch.where(visible, info["radii"][0], 0) / float(max(info["width"], info["height"]))
+            radii = torch.where(visible, info["radii"], 0).amax(0) / float(max(info["width"], info["height"]))
             torch.maximum(state["radii"], radii, out=state["radii"])
         return True

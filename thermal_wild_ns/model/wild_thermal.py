@@ -37,6 +37,7 @@ from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.model.view_emission import view_term
+from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
@@ -122,6 +123,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     max_gaussians: int = 100_000
     """Densification never grows the model past this many Gaussians. The default is the knee of a
     budget sweep on DUNR (docs/results.md); raise it for captures with much more to see."""
+    distributed: tyro.conf.Suppress[bool] = False
+    """Set by the multi-GPU launcher (`training/distributed.py`): while training, each rank of
+    torch.distributed's process group holds every world-th Gaussian (and that share of
+    `max_gaussians`) and renders through gsplat's distributed rasterization."""
 
 
 class WildThermalModel(GreyColourAccessors, SplatfactoModel):
@@ -135,7 +140,14 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         # .cuda(), a 3-channel SSIM and LPIPS (which downloads AlexNet weights).
         cfg = self.config
         refuse_unused_options(cfg)
-        params = initial_gaussians(self.seed_points, cfg, self.k_nearest_sklearn)
+        self.ranks = RankGroup.current() if cfg.distributed else RankGroup()
+        # every rank builds the same initial model (one seed), then keeps its share of the Gaussians
+        if self.ranks.split and (cfg.use_absgrad or cfg.camera_optimizer.mode != "off"):
+            raise InputError(
+                "training across GPUs needs --pipeline.model.use-absgrad False (gsplat's distributed "
+                "rasterization has no absgrad) and --pipeline.model.camera-optimizer.mode off"
+            )
+        params = self.ranks.own_rows(initial_gaussians(self.seed_points, cfg, self.k_nearest_sklearn))
         self.gauss_params = nn.ParameterDict({k: Parameter(v) for k, v in params.items()})
 
         num_frames = max(self.num_train_data, 1)
@@ -169,7 +181,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         sequence = (self.kwargs.get("metadata") or {}).get("preprocessed")  # the training frames' LUTs
         use_luts = sequence is not None and cfg.loss_space == "original"
         self.thermal_loss = ThermalLoss(cfg, inverse_lut_table(sequence, self.frame_times) if use_luts else None)
-        self.strategy = BudgetedDefaultStrategy.for_splatfacto(cfg, self.num_train_data)
+        self.strategy = BudgetedDefaultStrategy.for_splatfacto(cfg, self.num_train_data, self.ranks.world)
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
@@ -304,11 +316,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             return x if ids is None else x[ids]
 
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
+        camera_position = view.camera_to_world[0, :3, 3]  # [3]
+        split = self.training and self.ranks.split  # the Gaussians are split across GPUs
         with record_function("thermal/emission"):
-            colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
-            if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
-                camera_position = view.camera_to_world[0, :3, 3]  # [3]
-                colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
+            if split:  # one channel per rank: every rank's camera sees this rank's Gaussians at its state
+                colors = self.emission_for_every_rank(frame_embed, cam_idx_of(camera), camera_position)  # [N, W]
+            else:
+                colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
+                if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
+                    colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
         with record_function("thermal/rasterize"):
             render, alpha, self.info = rasterization(
                 means=crop(self.means),
@@ -328,8 +344,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 sparse_grad=False,
                 absgrad=self.strategy.absgrad,
                 rasterize_mode=self.config.rasterize_mode,
+                distributed=split,
                 backend=self.config.rasterizer,
-            )  # [1, H, W, 1(+1)], [1, H, W, 1]
+            )  # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split: this rank's channel is kept), [1, H, W, 1]
+        if split:
+            render = torch.cat(
+                [render[..., self.ranks.rank : self.ranks.rank + 1], render[..., self.ranks.world :]], -1
+            )
         if self.training and torch.is_grad_enabled():  # no densification statistics from no-grad renders
             self.strategy.step_pre_backward(
                 self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
@@ -341,6 +362,21 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             depth = render[0, ..., 1:2]
             depth = torch.where(alpha > 0, depth, depth.detach().max())
         return self._outputs(thermal, alpha, background, depth)
+
+    def emission_for_every_rank(self, frame_embed: Tensor, cam_idx: int, camera_position: Tensor) -> Tensor:
+        """This rank's Gaussians' emission [N, W] as every rank's camera of this step sees them (gsplat's
+        distributed rasterization takes per-Gaussian colours only; each rank keeps its own channel):
+        channel s at rank s's frame embedding (and, with the view term, from its camera)."""
+        mine = torch.cat([torch.tensor([float(cam_idx)], device=self.device), camera_position.to(self.device)])
+        views = self.ranks.gather_stack(mine)  # [W, 4]: each rank's training image and camera position
+        channels = []
+        for s in range(self.ranks.world):
+            embed = frame_embed if s == self.ranks.rank else self.frame_embed.weight[views[s, 0].long()]
+            colors = self.gaussian_emission(embed)  # [N, 1]
+            if "view_sh" in self.gauss_params:
+                colors = colors + view_term(self.means, self.gauss_params["view_sh"], views[s, 1:])
+            channels.append(colors)
+        return torch.cat(channels, dim=-1)
 
     @torch.no_grad()
     def get_outputs_for_camera(
@@ -436,3 +472,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def get_image_metrics_and_images(self, outputs, batch) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         return image_metrics_and_images(outputs["thermal"], self._ground_truth(outputs, batch)[0], self.num_points)
+
+
+def cam_idx_of(camera: Cameras) -> int:
+    """The training image index a training camera carries (`metadata['cam_idx']`)."""
+    return int(camera.metadata["cam_idx"])  # type: ignore[index]

@@ -11,6 +11,7 @@ from typing import Dict, List, Optional, Tuple, Type
 import cv2
 import numpy as np
 import torch
+import tyro
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.configs.dataparser_configs import AnnotatedDataParserUnion
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanagerConfig
@@ -22,6 +23,7 @@ from thermal_wild_ns._upstream import SingleChannelFullImageDatamanager, undisto
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 
@@ -123,6 +125,9 @@ class ThermalDatamanagerConfig(FullImageDatamanagerConfig):
     train_order_seed: int = 0
     """Training frames are visited in a fresh permutation per pass, drawn from (this seed, pass
     number): the order is a function of the step, so a resumed run sees what the uninterrupted one would."""
+    distributed: tyro.conf.Suppress[bool] = False
+    """Set by the multi-GPU launcher (`training/distributed.py`): each step trains one image per rank of
+    torch.distributed's process group, consecutive in the order (`RankGroup.image_slot`)."""
 
 
 class ThermalDatamanager(SingleChannelFullImageDatamanager):
@@ -141,6 +146,7 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
                 "resumed run sees what the uninterrupted one would"
             )
         super().__init__(config, *args, **kwargs)
+        self.ranks = RankGroup.current() if config.distributed else RankGroup()
         self._training_cameras: Dict[int, Cameras] = {}  # with host_cameras: built once per training image
 
     @cached_property
@@ -202,7 +208,7 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
     def next_train(self, step: int):
         """The training image of `step` (a function of the step alone, so a resumed run sees what
         the uninterrupted one would) and its camera, as nerfstudio's `next_train` gives them."""
-        epoch, position = divmod(step, len(self.train_dataset) - len(self.held_back))
+        epoch, position = divmod(self.ranks.image_slot(step), len(self.train_dataset) - len(self.held_back))
         image_idx = self.train_order(epoch)[position]
         data = dict(self.cached_train[image_idx])  # a copy: the cached dictionary is never changed
         data["image"] = data["image"].to(self.device)

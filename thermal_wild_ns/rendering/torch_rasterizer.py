@@ -26,6 +26,8 @@ import math
 from typing import Dict, Literal, Optional, Tuple
 
 import torch
+import torch.distributed as dist
+import torch.distributed.nn.functional as dist_autograd
 from gsplat.cuda._torch_impl import (
     _fisheye_proj,
     _ortho_proj,
@@ -277,10 +279,18 @@ def rasterization(
     Same arguments and returns: render_colors [C, H, W, D(+1)], render_alphas [C, H, W, 1] and a
     meta dict with the fields gsplat's strategies read (means2d, radii, width, height,
     n_cameras, gaussian_ids, ...). `sparse_grad` and `channel_chunk` only change how gsplat's
-    kernels are scheduled, so they are accepted and ignored; `distributed` is not supported.
+    kernels are scheduled, so they are accepted and ignored. `distributed` is gsplat's: every rank of
+    torch.distributed's process group holds its own Gaussians and renders its own cameras; each rank
+    projects its Gaussians into every rank's cameras and sends each camera's splats to the rank that
+    renders it (`_exchange_splats`), so gradients flow back to the Gaussians' owners. As in gsplat it
+    needs per-Gaussian colours, `packed=False` and no `absgrad`, and the meta's `means2d` and `radii`
+    are the rank's own Gaussians in every rank's cameras [C_world, N, ...] (what the densification
+    statistics need).
     """
     if distributed:
-        raise NotImplementedError("The torch rasterizer does not support distributed=True; use gsplat on CUDA.")
+        assert not packed and not absgrad and sh_degree is None and colors.dim() == 2, (
+            "distributed rendering needs packed=False, absgrad=False and per-Gaussian colours [N, D] (as gsplat's)"
+        )
     N = means.shape[0]
     C = viewmats.shape[0]
     assert means.shape == (N, 3), means.shape
@@ -293,6 +303,10 @@ def rasterization(
         covars, _ = _quat_scale_to_covar_preci(quats, scales, compute_preci=False)
     assert covars is not None and covars.shape == (N, 3, 3), covars.shape
 
+    C_local = C
+    if distributed:  # project into every rank's cameras (gsplat gathers them the same way)
+        viewmats, Ks = (_all_gather_rows(x) for x in (viewmats, Ks))
+        C = viewmats.shape[0]
     radii, means2d, depths, conics, compensations = project_gaussians(
         means,
         covars,
@@ -311,7 +325,14 @@ def rasterization(
     if compensations is not None:
         opacities = opacities * compensations
 
-    if sh_degree is None:
+    if distributed:
+        meta_radii, meta_means2d_world = radii, means2d  # this rank's Gaussians in every camera
+        colors = colors.expand(C, N, colors.shape[-1])
+        radii, means2d, depths, conics, opacities, colors = _exchange_splats(
+            C_local, radii, means2d, depths, conics, opacities, colors
+        )
+        C, N = C_local, radii.shape[1]
+    elif sh_degree is None:
         assert (colors.dim() == 2 and colors.shape[0] == N) or (colors.dim() == 3 and colors.shape[:2] == (C, N)), (
             colors.shape
         )
@@ -378,6 +399,9 @@ def rasterization(
             [render_colors[..., :-1], render_colors[..., -1:] / render_alphas.clamp(min=1e-10)], -1
         )
 
+    tiles_per_gauss = tiles_per_gauss.view(radii.shape).int()  # of the splats this rank composited
+    if distributed:
+        radii, meta_means2d = meta_radii, meta_means2d_world
     meta = {
         "camera_ids": camera_ids if packed else None,
         "gaussian_ids": gaussian_ids if packed else None,
@@ -388,7 +412,7 @@ def rasterization(
         "opacities": opacities,
         "tile_width": tile_width,
         "tile_height": tile_height,
-        "tiles_per_gauss": tiles_per_gauss.view(radii.shape).int(),
+        "tiles_per_gauss": tiles_per_gauss,
         "isect_ids": pair_tile,
         "flatten_ids": pair_splat.int(),
         "width": width,
@@ -397,3 +421,34 @@ def rasterization(
         "n_cameras": C,
     }
     return render_colors, render_alphas, meta
+
+
+def _all_gather_rows(x: Tensor) -> Tensor:
+    """Every rank's `x` [C, ...] stacked in rank order [world * C, ...] (the same C on every rank)."""
+    parts = [torch.empty_like(x) for _ in range(dist.get_world_size())]
+    dist.all_gather(parts, x.contiguous())
+    return torch.cat(parts)
+
+
+def _exchange_splats(c_local: int, radii: Tensor, *values: Tensor) -> Tuple[Tensor, ...]:
+    """Send each camera's splats to the rank that renders it: every input is [C_world, N, ...] (this
+    rank's Gaussians in every rank's cameras, `c_local` cameras per rank, in rank order); every output
+    is [c_local, N_world, ...] (every rank's Gaussians in this rank's cameras, ranks' Gaussians in rank
+    order, as gsplat's `gaussian_ids` offsets them). Differentiable in `values` (gradients go back to
+    the Gaussians' owners); `radii` is not."""
+    world = dist.get_world_size()
+    counts = [torch.zeros((), dtype=torch.int64) for _ in range(world)]
+    dist.all_gather(counts, torch.tensor(radii.shape[1], dtype=torch.int64).to(radii.device))
+    sizes = [int(n) for n in counts]
+
+    widest = max(sizes)
+
+    def exchange(x: Tensor) -> Tensor:
+        # padded to the largest rank's count: torch's all_to_all on gloo (scatters) moves equal sizes only
+        padded = torch.cat([x, x.new_zeros((x.shape[0], widest - x.shape[1], *x.shape[2:]))], dim=1)
+        send = [chunk.contiguous() for chunk in padded.split(c_local, dim=0)]  # [c_local, widest, ...] per rank
+        receive = [padded.new_empty((c_local, widest, *x.shape[2:])) for _ in sizes]
+        received = dist_autograd.all_to_all(receive, send)
+        return torch.cat([part[:, :n] for part, n in zip(received, sizes)], dim=1)
+
+    return tuple(exchange(x) for x in (radii, *values))

@@ -27,9 +27,16 @@ def lean_step_unsupported(config, optimizers) -> Optional[str]:
     return None
 
 
-def lean_iteration(pipeline, optimizers, step: int, accept: Optional[Callable[[list], bool]]):
-    """One training step; `accept(param_groups)`, if given, decides after backward whether the
-    optimizers step (the divergence guard). Returns (loss, loss dict, metrics dict) as nerfstudio's."""
+def lean_iteration(
+    pipeline,
+    optimizers,
+    step: int,
+    accept: Optional[Callable[[list], bool]],
+    after_backward: Optional[Callable[[], None]] = None,
+):
+    """One training step; `after_backward()`, if given, runs right after backward (the gradient sum
+    across GPUs); `accept(param_groups)`, if given, decides then whether the optimizers step (the
+    divergence guard). Returns (loss, loss dict, metrics dict) as nerfstudio's."""
     adams = list(optimizers.optimizers.values())
     for optimizer in adams:
         for group in optimizer.param_groups:
@@ -38,6 +45,8 @@ def lean_iteration(pipeline, optimizers, step: int, accept: Optional[Callable[[l
     _, loss_dict, metrics_dict = pipeline.get_train_loss_dict(step=step)
     loss = functools.reduce(torch.add, loss_dict.values())
     loss.backward()
+    if after_backward is not None:
+        after_backward()
     if accept is None or accept(list(optimizers.parameters)):
         fused_adam_step(adams)
     optimizers.scheduler_step_all(step)

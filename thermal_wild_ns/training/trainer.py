@@ -218,15 +218,16 @@ class GuardedTrainer(TrainerAfterLoad):
         return result
 
 
-def seeded_trainer(config: TrainerConfig):
+def seeded_trainer(config: TrainerConfig, local_rank: int = 0):
     """The trainer of `config`, set up as `ns-train` sets it up (nerfstudio's `train_loop`): Python's,
     numpy's and torch's random generators seeded with `config.machine.seed` first, so the initial
     Gaussians and networks, and every draw after them, are the same in every run of one config. For
-    code that trains without `ns-train` (the demo, the benchmarks)."""
+    code that trains without `ns-train` (the demo, the benchmarks, each GPU's process of `multi_gpu.py`,
+    on GPU `local_rank`)."""
     seed = config.machine.seed
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-    trainer = config.setup(local_rank=0, world_size=1)
+    trainer = config.setup(local_rank=local_rank, world_size=1)
     trainer.setup()
     return trainer

@@ -1,0 +1,113 @@
+"""Train one scene across the GPUs of one host, launched by PyTorch's standard launcher:
+
+    torchrun --nproc-per-node 2 -m thermal_wild_ns.multi_gpu wild-thermal [ns-train's options]
+
+Every option is ns-train's. torchrun starts one process per GPU; each holds every N-th Gaussian and
+trains one image per step, through gsplat's distributed rasterization (`training/distributed.py`).
+What changes from a one-GPU run, each printed at start:
+- densification statistics without absgrad (gsplat's distributed rasterization has none): the
+  growth threshold is scaled to the plain gradient (splatfacto's absgrad default 0.0008 -> 0.0002);
+- the automatic stop and the divergence guard are off (every rank would have to decide together):
+  the run trains `--max-num-iterations` steps;
+- no evaluation images or viewer during training;
+- each step trains N images (one per GPU): the same steps see N times the images.
+The run folder holds one config.yml and checkpoints that load on one GPU (ns-viewer, ns-render,
+ns-eval, wild-thermal-export). On a CPU (tests) the processes use the gloo backend and the pure-torch
+rasterizer's distributed mode.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+
+import torch
+import torch.distributed as dist
+import tyro
+from nerfstudio.configs.method_configs import AnnotatedBaseConfigUnion
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
+from thermal_wild_ns.pipeline.ranks import RankGroup
+from thermal_wild_ns.training.distributed import DistributedTrainerConfig
+from thermal_wild_ns.training.trainer import GuardedTrainerConfig, seeded_trainer
+
+PLAIN_GRADIENT_SCALE = 0.25
+"""Growth threshold on the plain 2D gradient over the one on absgrad (3DGS's 0.0002 over splatfacto's 0.0008)."""
+
+
+def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
+    """`config` (a thermal method's, as ns-train parsed it) set up for training across GPUs; says
+    what it changed. Refuses methods it cannot split (not this plugin's thermal model)."""
+    model, datamanager = config.pipeline.model, config.pipeline.datamanager
+    if not (
+        isinstance(config, GuardedTrainerConfig)
+        and isinstance(model, WildThermalModelConfig)
+        and isinstance(datamanager, ThermalDatamanagerConfig)
+    ):
+        raise SystemExit(f"{config.method_name}: only this plugin's thermal methods train across GPUs")
+    names = [f.name for f in dataclasses.fields(GuardedTrainerConfig) if f.name != "_target"]
+    split = DistributedTrainerConfig(**{name: copy.deepcopy(getattr(config, name)) for name in names})
+    changes = ["one image per GPU per step", "automatic stop and divergence guard off", "no evaluation during training"]
+    model, datamanager = split.pipeline.model, split.pipeline.datamanager
+    model.distributed = datamanager.distributed = True
+    if model.use_absgrad:
+        model.use_absgrad = False
+        model.densify_grad_thresh *= PLAIN_GRADIENT_SCALE
+        changes.append(f"growth on the plain gradient, densify_grad_thresh {model.densify_grad_thresh:g}")
+    split.auto_stop.enabled = False
+    split.guard.enabled = False
+    split.steps_per_eval_image = split.steps_per_eval_batch = split.steps_per_eval_all_images = 0
+    split.vis = "tensorboard"
+    split.viewer.quit_on_train_completion = True
+    CONSOLE.log("Training across GPUs: " + "; ".join(changes))
+    return split
+
+
+def one_gpu_config(config: DistributedTrainerConfig) -> GuardedTrainerConfig:
+    """The config a one-GPU command loads the run with (its config.yml): the same model and data,
+    not split (its densification settings kept, so a resumed run grows as this one did)."""
+    names = [f.name for f in dataclasses.fields(GuardedTrainerConfig) if f.name != "_target"]
+    single = GuardedTrainerConfig(**{name: copy.deepcopy(getattr(config, name)) for name in names})
+    single.pipeline.model.distributed = single.pipeline.datamanager.distributed = False
+    return single
+
+
+def join_process_group(device_type: str) -> RankGroup:
+    """This process's rank in torchrun's process group (NCCL between GPUs, gloo on CPUs)."""
+    if "RANK" not in os.environ:
+        raise SystemExit("launch with torchrun: torchrun --nproc-per-node N -m thermal_wild_ns.multi_gpu METHOD ...")
+    if device_type == "cuda":
+        torch.cuda.set_device(int(os.environ["LOCAL_RANK"]))
+    dist.init_process_group("nccl" if device_type == "cuda" else "gloo")
+    return RankGroup.current()
+
+
+def main(config: TrainerConfig) -> None:
+    ranks = join_process_group(config.machine.device_type)
+    try:
+        split = multi_gpu_config(config)
+        split.set_timestamp()
+        stamp = [split.timestamp]
+        dist.broadcast_object_list(stamp, src=0)  # one run folder for every rank
+        split.timestamp = stamp[0]
+        if ranks.rank == 0:
+            single = one_gpu_config(split)
+            single.timestamp = split.timestamp
+            single.save_config()
+        dist.barrier()
+        trainer = seeded_trainer(split, local_rank=int(os.environ.get("LOCAL_RANK", 0)))
+        trainer.train()
+    finally:
+        dist.destroy_process_group()
+
+
+def entrypoint() -> None:
+    main(tyro.cli(AnnotatedBaseConfigUnion, description=__doc__))
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,87 @@
+"""The trainer of one scene split across GPUs (`multi_gpu.py` launches it, one process per GPU).
+
+Each rank holds its share of the Gaussians (`pipeline/ranks.py`) and trains one image per step; gsplat's
+distributed rasterization sends every camera's splats to the rank that renders it and the gradients
+back to their owners. Everything else (frame embeddings, emission and background MLPs) has one copy per
+rank: after backward their gradients are summed over the ranks (`RankGroup.sum_gradients`), so the
+copies take the same Adam step and stay equal; the photometric state is one on every rank.
+
+A checkpoint is one file that loads on one GPU (ns-viewer, ns-render, ns-eval, wild-thermal-export):
+every rank's Gaussians gathered in rank order, the networks' optimizer state (the same on every
+rank), without the Gaussians' Adam moments and densification statistics, which are per rank. Resuming
+one with `ns-train --load-dir` on one GPU continues with fresh moments for the Gaussians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Type
+
+import torch
+from torch.nn import Parameter
+
+from thermal_wild_ns._upstream import trainer_checkpoint_state
+from thermal_wild_ns.pipeline.ranks import RankGroup
+from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER
+from thermal_wild_ns.training.checkpoints import save_checkpoint
+from thermal_wild_ns.training.lean_step import lean_iteration
+from thermal_wild_ns.training.trainer import GuardedTrainer, GuardedTrainerConfig
+
+GAUSSIANS = "_model.gauss_params."
+"""Prefix of the per-Gaussian tensors in a pipeline's state dict."""
+
+
+def gathered_checkpoint_state(trainer, step: int, ranks: RankGroup, gaussian_names: List[str]) -> dict:
+    """The run's checkpoint as one GPU would have written it (`trainer_checkpoint_state`), with every
+    rank's Gaussians (`gaussian_names`: the per-Gaussian parameters) gathered. Every rank must call
+    it (it is a collective); rank 0's result is the one to write."""
+    state = trainer_checkpoint_state(trainer, step)
+    pipeline = state["pipeline"]
+    for key in sorted(pipeline):
+        if key.startswith(GAUSSIANS):
+            pipeline[key] = ranks.gather_rows(pipeline[key])
+        elif key.endswith("_extra_state"):  # per-rank densification statistics: not kept
+            pipeline[key] = {**pipeline[key], "strategy_state": {}}
+    state["optimizers"] = {k: v for k, v in state["optimizers"].items() if k not in gaussian_names}
+    return state
+
+
+@dataclass
+class DistributedTrainerConfig(GuardedTrainerConfig):
+    """`GuardedTrainerConfig` for one scene across the GPUs of a host (set by `multi_gpu.py`)."""
+
+    _target: Type = field(default_factory=lambda: DistributedTrainer)
+
+
+class DistributedTrainer(GuardedTrainer):
+    """`GuardedTrainer` whose step sums the shared parameters' gradients over the ranks and whose
+    checkpoints gather the Gaussians (one file, written by rank 0). The divergence guard and the
+    automatic stop are off (their decisions would have to be taken by all ranks together)."""
+
+    config: DistributedTrainerConfig
+
+    def setup(self, test_mode="val"):
+        super().setup(test_mode=test_mode)
+        if not self.lean:
+            raise SystemExit("training across GPUs needs the lean training step (fused Adam, no mixed precision)")
+        self.ranks = RankGroup.current()
+        model = self.pipeline.model
+        self.gaussian_names = list(model.gauss_params.keys())
+        # one copy per rank; the Gaussians are replaced at each densification, these never are
+        self.shared: List[Parameter] = [p for n, p in model.named_parameters() if not n.startswith("gauss_params.")]
+
+    def _iteration(self, step: int):
+        return lean_iteration(
+            self.pipeline, self.optimizers, step, None, after_backward=lambda: self.ranks.sum_gradients(self.shared)
+        )
+
+    def save_checkpoint(self, step: int) -> None:  # every rank: the gather is collective
+        gap = self.ranks.differing(self.shared)
+        if gap != 0.0:  # a bug, not bad input: the copies must take identical steps
+            raise RuntimeError(f"step {step}: the ranks' copies of the shared parameters differ by up to {gap:g}")
+        state = gathered_checkpoint_state(self, step, self.ranks, self.gaussian_names)
+        if self.ranks.rank == 0:
+            only_latest = self.config.save_only_latest_checkpoint
+            base = self.config.get_base_dir()
+            save_checkpoint(state, self.checkpoint_dir, step, base / PARTIAL_FOLDER, only_latest)
+        torch.distributed.barrier()  # no rank runs ahead of a checkpoint being written
