@@ -123,6 +123,18 @@ def test_gaussian_budget_caps_growth():
     assert params["means"].shape[0] == 230
 
 
+def test_growth_stops_where_gpu_memory_ends_and_says_so():
+    model = make_model(n=200, max_gaussians=1000)
+    model.strategy.memory_room = lambda n, device: 10  # the device holds 10 more Gaussians
+    params = model.gauss_params
+    optimizers = {k: torch.optim.Adam([p], lr=1e-3) for k, p in params.items()}
+    model.strategy_state.update(grad2d=torch.ones(200), count=torch.ones(200), radii=torch.zeros(200))
+    model.strategy._grow_gs(params, optimizers, model.strategy_state, step=model.strategy.refine_start_iter + 1)
+    assert params["means"].shape[0] == 210
+    assert model.strategy.memory_stopped_at == 200
+    assert make_model(n=20).strategy.memory_room(20, torch.device("cpu")) is None  # no limit known off CUDA
+
+
 def test_bad_input_is_reported_or_skipped():
     model = make_model()
     model.train()
@@ -273,6 +285,33 @@ def test_sync_free_densification_statistics_equal_gsplats():
     for key in ("grad2d", "count", "radii"):
         assert torch.equal(states[0][key], states[1][key]), key
     assert states[0]["count"].max() > 0
+
+
+def test_densification_statistics_of_a_split_render_sum_every_ranks_camera():
+    """Training across GPUs, a rank's render reports its Gaussians in every rank's camera [W, N]
+    (gsplat's distributed meta, n_cameras 1): gradients and counts sum over the cameras as gsplat's
+    own statistics do; the screen radius is the largest over them (gsplat's scatter keeps any one)."""
+    from gsplat.strategy import DefaultStrategy
+
+    from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
+
+    g = torch.Generator().manual_seed(4)
+    n = 300
+    params = {"means": torch.zeros(n, 3)}
+    ours, theirs = (
+        cls(absgrad=False, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy)
+    )
+    states = [s.initialize_state() for s in (ours, theirs)]
+    means2d = torch.zeros(2, n, 2)
+    means2d.grad = torch.rand(2, n, 2, generator=g)
+    radii = (torch.rand(2, n, generator=g) * 200).int() * (torch.rand(2, n, generator=g) > 0.4)
+    info = {"width": 640, "height": 480, "n_cameras": 1, "radii": radii, "gaussian_ids": None, "means2d": means2d}
+    for strategy, state in zip((ours, theirs), states):
+        strategy._update_state(params, state, info)
+    for key in ("grad2d", "count"):
+        torch.testing.assert_close(states[0][key], states[1][key])
+    assert states[0]["count"].max() == 2
+    torch.testing.assert_close(states[0]["radii"], radii.amax(0) / 640.0)
 
 
 def test_screen_size_rule_is_skipped_where_it_would_split_every_gaussian():
@@ -533,6 +572,34 @@ def test_every_option_the_method_offers_is_read_and_the_unused_ones_are_refused(
     monkeypatch.undo()
     with pytest.raises(InputError, match="does not use use_bilateral_grid.*Remove it"):
         make_model(use_bilateral_grid=True)
+
+
+def test_emission_for_the_gaussians_in_view_only_renders_the_same():
+    """Above `emission_in_view_above` Gaussians the emission MLP runs for those the camera can see
+    only: the same training render and the same gradients, with part of the site left out."""
+    from thermal_wild_ns.model.in_view import in_view
+
+    renders, grads = [], []
+    for above in (10**9, 0):
+        torch.manual_seed(0)
+        model = make_model(n=400, view_sh_degree=1, emission_in_view_above=above)
+        perturb_output_layers(model)
+        with torch.no_grad():
+            model.gauss_params["means"][::2] += torch.tensor([4.0, 0.0, 0.0])  # half the site out of view
+            model.gauss_params["view_sh"].normal_(0, 0.1)
+        model.train()
+        camera = make_camera(1)
+        outputs = model.get_outputs(camera)
+        (outputs["thermal"] * torch.linspace(0, 1, 48)).sum().backward()
+        renders.append(outputs["thermal"].detach())
+        grads.append({n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None})
+    view = model.training_views.get(camera, lambda: camera.camera_to_worlds, 1, model.device, 1)
+    seen = in_view(model.means, model.scales, view.viewmat[0], view.K[0], view.width, view.height)
+    assert 50 < int(seen.sum()) < 350  # the test leaves Gaussians out, and keeps some
+    torch.testing.assert_close(renders[1], renders[0], atol=1e-6, rtol=1e-5)
+    assert grads[0].keys() == grads[1].keys()
+    for name in grads[0]:
+        torch.testing.assert_close(grads[1][name], grads[0][name], atol=1e-6, rtol=1e-4, msg=name)
 
 
 def test_the_view_term_follows_the_view_and_averages_to_nothing():

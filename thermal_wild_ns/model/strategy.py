@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Optional
 
 import torch
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns._upstream import DefaultStrategyWithHooks
 
@@ -25,6 +27,23 @@ def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bo
     return max(width, height) * grow_scale2d >= MIN_SCREEN_RADIUS_PX
 
 
+MEMORY_HEADROOM = 0.8
+"""Share of the GPU memory left that growth may plan to use: the estimate per Gaussian is rough."""
+
+
+def gaussians_memory_holds(n: int, device: torch.device) -> Optional[int]:
+    """How many more Gaussians the GPU's memory holds next to `n` (None off CUDA): the memory free on
+    the device, plus what torch reserved and does not use, over the peak allocation per Gaussian so far
+    (an overestimate of a Gaussian's share: frames and networks are counted in it, so it errs on the
+    side of stopping early)."""
+    if device.type != "cuda" or n == 0:
+        return None
+    free, _ = torch.cuda.mem_get_info(device)
+    spare = free + torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device)
+    per_gaussian = torch.cuda.max_memory_allocated(device) / n
+    return int(MEMORY_HEADROOM * spare / per_gaussian)
+
+
 @dataclass
 class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """DefaultStrategy whose growth step keeps only the strongest candidates within `max_gaussians`.
@@ -36,6 +55,11 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """
 
     max_gaussians: int = 1_000_000
+    memory_room: Callable[[int, torch.device], Optional[int]] = gaussians_memory_holds
+    """How many more Gaussians the device holds (None: no limit known); growth stops there, with a
+    message, rather than at an out-of-memory error."""
+    memory_stopped_at: Optional[int] = None
+    """The Gaussian count at which GPU memory first stopped growth (None: it never did)."""
 
     @classmethod
     def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":
@@ -64,6 +88,16 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     def before_growth(self, params, state, step) -> None:
         n = params["means"].shape[0]
         room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian
+        fits = self.memory_room(n, params["means"].device)
+        if fits is not None and fits < room:
+            room = fits
+            if self.memory_stopped_at is None:
+                self.memory_stopped_at = n
+                CONSOLE.log(
+                    f"[yellow]GPU memory: growth is capped at about {n + fits:,} Gaussians "
+                    f"(max_gaussians {self.max_gaussians:,} does not fit); train across GPUs "
+                    "(torchrun -m thermal_wild_ns.multi_gpu) or lower the resolution for more"
+                )
         grads = state["grad2d"] / state["count"].clamp_min(1)
         score = grads / self.grow_grad2d
         uses_radii = step < self.refine_scale2d_stop_iter  # as in gsplat's _grow_gs

@@ -33,6 +33,7 @@ from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, re
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
+from thermal_wild_ns.model.in_view import in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
@@ -123,6 +124,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     max_gaussians: int = 100_000
     """Densification never grows the model past this many Gaussians. The default is the knee of a
     budget sweep on DUNR (docs/results.md); raise it for captures with much more to see."""
+    emission_in_view_above: int = 1_000_000
+    """Above this many Gaussians, training evaluates the emission MLP (and the view term) only for the
+    Gaussians the camera can see (`in_view.py`): the same render, with memory and time that follow the
+    frame rather than the whole site (large surveys). Below it, the selection's host sync costs more
+    than it saves. Training across GPUs always selects."""
     distributed: tyro.conf.Suppress[bool] = False
     """Set by the multi-GPU launcher (`training/distributed.py`): while training, each rank of
     torch.distributed's process group holds every world-th Gaussian (and that share of
@@ -320,7 +326,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         split = self.training and self.ranks.split  # the Gaussians are split across GPUs
         with record_function("thermal/emission"):
             if split:  # one channel per rank: every rank's camera sees this rank's Gaussians at its state
-                colors = self.emission_for_every_rank(frame_embed, cam_idx_of(camera), camera_position)  # [N, W]
+                colors = self.emission_for_every_rank(frame_embed, cam_idx_of(camera), view)  # [N, W]
+            elif self.training and self.num_points > self.config.emission_in_view_above:
+                colors = self.emission_in_view(frame_embed, view.viewmat[0], view.K[0], W, H, camera_position)
             else:
                 colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
                 if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
@@ -363,19 +371,35 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             depth = torch.where(alpha > 0, depth, depth.detach().max())
         return self._outputs(thermal, alpha, background, depth)
 
-    def emission_for_every_rank(self, frame_embed: Tensor, cam_idx: int, camera_position: Tensor) -> Tensor:
+    def emission_in_view(
+        self, frame_embed: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int, camera_position: Tensor
+    ) -> Tensor:
+        """The emission [N, 1] of the Gaussians the camera (gsplat's `viewmat` [4, 4], `K` [3, 3]) can
+        see (`in_view`), zero for the others (which it does not draw)."""
+        seen = in_view(self.means, self.scales, viewmat, K, width, height).nonzero().squeeze(-1)  # [M]
+        values = self.gaussian_emission(frame_embed, seen)  # [M, 1]
+        if "view_sh" in self.gauss_params:
+            values = values + view_term(self.means[seen], self.gauss_params["view_sh"][seen], camera_position)
+        return values.new_zeros(self.num_points, 1).index_copy(0, seen, values)
+
+    def emission_for_every_rank(self, frame_embed: Tensor, cam_idx: int, view) -> Tensor:
         """This rank's Gaussians' emission [N, W] as every rank's camera of this step sees them (gsplat's
         distributed rasterization takes per-Gaussian colours only; each rank keeps its own channel):
-        channel s at rank s's frame embedding (and, with the view term, from its camera)."""
-        mine = torch.cat([torch.tensor([float(cam_idx)], device=self.device), camera_position.to(self.device)])
-        views = self.ranks.gather_stack(mine)  # [W, 4]: each rank's training image and camera position
+        channel s at rank s's frame embedding, for the Gaussians rank s's camera can see."""
+        mine = torch.cat(
+            [
+                torch.tensor([float(cam_idx)], device=self.device),
+                view.camera_to_world[0, :3, 3].to(self.device),
+                view.viewmat[0].reshape(-1),
+                view.K[0].reshape(-1),
+            ]
+        )  # [29]: the training image, camera position, world-to-camera, intrinsics
+        views = self.ranks.gather_stack(mine)  # [W, 29]
         channels = []
         for s in range(self.ranks.world):
             embed = frame_embed if s == self.ranks.rank else self.frame_embed.weight[views[s, 0].long()]
-            colors = self.gaussian_emission(embed)  # [N, 1]
-            if "view_sh" in self.gauss_params:
-                colors = colors + view_term(self.means, self.gauss_params["view_sh"], views[s, 1:])
-            channels.append(colors)
+            viewmat, K = views[s, 4:20].reshape(4, 4), views[s, 20:29].reshape(3, 3)
+            channels.append(self.emission_in_view(embed, viewmat, K, view.width, view.height, views[s, 1:4]))
         return torch.cat(channels, dim=-1)
 
     @torch.no_grad()

@@ -1,0 +1,112 @@
+"""`torchrun --nproc-per-node N -m experiments.multi_gpu_cost`: one scene's training step on N GPUs.
+
+The synthetic survey of `--frames` frames, trained as `thermal_wild_ns.multi_gpu` trains it (the
+Gaussians split across the ranks, one image per rank per step); for each total Gaussian count the
+model is resampled to it (each rank its share, densification off so the count holds) and `--steps`
+steps are timed: ms per step, images per second (N per step), and each GPU's peak memory, until the
+first count that does not fit (recorded). Run it with N = 1 and N = 2 on one host: the same counts,
+the same code. Rank 0 writes `multi_gpu_cost_{N}.json` to `--output-dir` and prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, Tuple
+
+import torch
+import torch.distributed as dist
+import tyro
+
+from experiments import device_name
+from experiments.survey_cost import resample_gaussians, timed_steps
+from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
+from thermal_wild_ns.method_configs import method_trainer
+from thermal_wild_ns.multi_gpu import join_process_group, multi_gpu_config
+from thermal_wild_ns.training.trainer import seeded_trainer
+
+
+@dataclass
+class MultiGpuCostArgs:
+    frames: int = 1000
+    gaussians: Tuple[int, ...] = (4_000_000, 16_000_000, 32_000_000, 48_000_000, 64_000_000)
+    """Total Gaussian counts (over every GPU), in increasing order."""
+    steps: int = 20
+    output_dir: Path = Path("outputs/multi_gpu_cost")
+
+
+def main(args: MultiGpuCostArgs) -> Dict:
+    ranks = join_process_group("cuda" if torch.cuda.is_available() else "cpu")
+    data = args.output_dir / f"survey_{args.frames}"
+    if ranks.rank == 0:
+        generate_survey_scene(data, SurveySceneConfig(num_frames=args.frames))
+    dist.barrier()
+    config = method_trainer("wild-thermal")
+    config.output_dir = args.output_dir / "runs"
+    config.max_num_iterations = 10**9
+    config.pipeline.datamanager.dataparser = ThermalDemoDataParserConfig(
+        data=data, scene="survey", survey_frames=args.frames
+    )
+    config.pipeline.datamanager.preprocessing_cache = args.output_dir / "cache"
+    config.pipeline.model.max_gaussians = max(args.gaussians)
+    split = multi_gpu_config(config)
+    split.timestamp = "cost"
+    start = time.perf_counter()
+    trainer = seeded_trainer(split, local_rank=int(os.environ.get("LOCAL_RANK", 0)))
+    setup = time.perf_counter() - start
+    strategy = trainer.pipeline.model.strategy
+    strategy.refine_start_iter = strategy.reset_every = 10**9
+    rows, step, limit = [], 0, None
+    for n in args.gaussians:
+        fits = torch.ones(())
+        try:
+            resample_gaussians(trainer, n // ranks.world, seed=ranks.rank)
+            if torch.cuda.is_available():
+                torch.cuda.empty_cache()
+                torch.cuda.reset_peak_memory_stats()
+            ms = timed_steps(trainer, step, args.steps)
+            step += args.steps + 5
+        except torch.OutOfMemoryError as err:
+            fits = torch.zeros(())
+            limit = f"GPU memory at {n:,} Gaussians: {str(err).splitlines()[0][:160]}"
+        device = trainer.pipeline.model.device
+        if ranks.split:  # every rank learns whether all fitted (an OOM on one rank ends the sweep on all)
+            fits = fits.to(device)
+            dist.all_reduce(fits, op=dist.ReduceOp.MIN)
+        if float(fits) == 0:
+            break
+        peak = torch.tensor(torch.cuda.max_memory_allocated() / 2**30 if torch.cuda.is_available() else 0.0)
+        peaks = ranks.gather_stack(peak.to(device)).tolist()
+        rows.append(
+            {
+                "gaussians": n,
+                "ms_per_step": round(ms, 2),
+                "images_per_s": round(1000 * ranks.world / ms, 1),
+                "gpu_peak_gib_per_rank": [round(p, 2) for p in peaks],
+            }
+        )
+        if ranks.rank == 0:
+            print(json.dumps(rows[-1]), flush=True)
+    result = {
+        "device": device_name(),
+        "gpus": ranks.world,
+        "frames": args.frames,
+        "setup_s": round(setup, 1),
+        "steps": args.steps,
+        "counts": rows,
+        "first_limit": limit,
+    }
+    if ranks.rank == 0:
+        args.output_dir.mkdir(parents=True, exist_ok=True)
+        (args.output_dir / f"multi_gpu_cost_{ranks.world}.json").write_text(json.dumps(result, indent=1))
+        print(json.dumps(result, indent=1))
+    dist.destroy_process_group()
+    return result
+
+
+if __name__ == "__main__":
+    main(tyro.cli(MultiGpuCostArgs))

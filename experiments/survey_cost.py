@@ -1,0 +1,184 @@
+"""`python -m experiments.survey_cost`: how a survey's cost grows on one GPU, and where it stops.
+
+For each survey size (frames of the synthetic drone survey, `data/survey_scene.py`, 640x512):
+- generation and setup time (reading, preprocessing, caching the frames) and the host's peak memory;
+- then, for each Gaussian count (the model resampled from its seeds to that count, densification
+  off so the count holds): ms per training step of the full method (its lean step, as ns-train
+  runs it) and the GPU's peak memory, until the first count that does not fit (the out-of-memory
+  error is caught and recorded: the first limit hit).
+Writes `cost.json` and `cost.md` to `--output-dir` and prints the table.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Tuple
+
+import torch
+import tyro
+from nerfstudio.engine.callbacks import TrainingCallbackLocation
+from torch.nn import Parameter
+
+from experiments import device_name, synchronize, write_report
+from experiments.bench import setup_trainer
+from thermal_wild_ns._upstream import repoint_optimizers
+from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
+from thermal_wild_ns.method_configs import method_trainer
+
+
+@dataclass
+class CostArgs:
+    frames: Tuple[int, ...] = (250, 1000, 4000)
+    """Survey sizes (frames)."""
+    gaussians: Tuple[int, ...] = (1_000_000, 4_000_000, 16_000_000, 32_000_000, 64_000_000)
+    """Gaussian counts to time at each size, in increasing order (stops at the first that does not fit)."""
+    steps: int = 20
+    """Timed steps per count (after 5 untimed)."""
+    method: str = "wild-thermal"
+    output_dir: Path = Path("outputs/survey_cost")
+
+
+def _host_peak_gib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
+
+
+def survey_trainer(args: CostArgs, frames: int):
+    config = method_trainer(args.method)
+    config.output_dir = args.output_dir / "runs"
+    config.vis = "tensorboard"
+    config.auto_stop.enabled = False
+    config.max_num_iterations = 10**9
+    config.pipeline.datamanager.dataparser = ThermalDemoDataParserConfig(
+        data=args.output_dir / f"survey_{frames}", scene="survey", survey_frames=frames
+    )
+    config.pipeline.datamanager.preprocessing_cache = args.output_dir / "cache"
+    config.pipeline.model.max_gaussians = max(args.gaussians)
+    return setup_trainer(config)
+
+
+def resample_gaussians(trainer, n: int, seed: int = 0) -> None:
+    """Replace the model's Gaussians by `n` copies drawn from the current ones (positions jittered by
+    their size), with fresh optimizer moments and densification statistics."""
+    model = trainer.pipeline.model
+    g = torch.Generator(device=model.device).manual_seed(n + seed)
+    count = model.num_points
+    pick = torch.randint(count, (n,), device=model.device, generator=g)
+    with torch.no_grad():
+        for name, param in list(model.gauss_params.items()):
+            value = param.data[pick].clone()
+            if name == "means":
+                value += torch.randn(value.shape, device=value.device, generator=g) * torch.exp(
+                    model.gauss_params["scales"].data[pick]
+                )
+            model.gauss_params[name] = Parameter(value)
+    for optimizer in trainer.optimizers.optimizers.values():
+        optimizer.state.clear()
+    repoint_optimizers(trainer.optimizers, trainer.pipeline.get_param_groups())
+    for key in list(model.strategy_state):
+        if isinstance(model.strategy_state[key], torch.Tensor):
+            model.strategy_state[key] = None
+
+
+def timed_steps(trainer, first: int, steps: int) -> float:
+    """ms per step of `steps` training steps (after 5 untimed), with nerfstudio's callbacks as its loop runs them."""
+
+    def step(s: int) -> None:
+        for callback in trainer.callbacks:
+            callback.run_callback_at_location(s, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+        trainer.train_iteration(s)
+        for callback in trainer.callbacks:
+            callback.run_callback_at_location(s, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+
+    for s in range(first, first + 5):
+        step(s)
+    synchronize()
+    start = time.perf_counter()
+    for s in range(first + 5, first + 5 + steps):
+        step(s)
+    synchronize()
+    return 1000 * (time.perf_counter() - start) / steps
+
+
+def measure_survey(args: CostArgs, frames: int) -> Dict:
+    start = time.perf_counter()
+    generate_survey_scene(args.output_dir / f"survey_{frames}", SurveySceneConfig(num_frames=frames))
+    generated = time.perf_counter() - start
+    start = time.perf_counter()
+    trainer = survey_trainer(args, frames)
+    setup = time.perf_counter() - start
+    model = trainer.pipeline.model
+    strategy = model.strategy
+    strategy.refine_start_iter = strategy.reset_every = 10**9  # the count holds while timed
+    row: Dict = {
+        "frames": frames,
+        "site_m": [round(x) for x in SurveySceneConfig(num_frames=frames).site_size],
+        "generate_s": round(generated, 1),
+        "setup_s": round(setup, 1),
+        "host_peak_gib_after_setup": round(_host_peak_gib(), 2),
+        "gpu_gib_after_setup": round(torch.cuda.memory_allocated() / 2**30, 2) if torch.cuda.is_available() else None,
+        "seeds": model.num_points,
+        "counts": [],
+    }
+    step = 0
+    for n in args.gaussians:
+        try:
+            resample_gaussians(trainer, n)
+            if torch.cuda.is_available():
+                torch.cuda.empty_cache()
+                torch.cuda.reset_peak_memory_stats()
+            ms = timed_steps(trainer, step, args.steps)
+            step += args.steps + 5
+            peak = torch.cuda.max_memory_allocated() / 2**30 if torch.cuda.is_available() else None
+            row["counts"].append({"gaussians": n, "ms_per_step": round(ms, 2), "gpu_peak_gib": peak and round(peak, 2)})
+            print(json.dumps({"frames": frames, **row["counts"][-1]}), flush=True)
+        except torch.OutOfMemoryError as err:
+            row["first_limit"] = f"GPU memory at {n:,} Gaussians: {str(err).splitlines()[0][:160]}"
+            print(row["first_limit"], flush=True)
+            break
+    row["host_peak_gib"] = round(_host_peak_gib(), 2)
+    del trainer, model
+    if torch.cuda.is_available():
+        torch.cuda.empty_cache()
+    return row
+
+
+def markdown(result: Dict) -> str:
+    lines = [
+        f"Device: {result['device']}; method {result['method']}; {result['steps']} timed steps per count.",
+        "",
+        "| frames | site (m) | generate s | setup s | host peak GiB | Gaussians | ms/step | GPU peak GiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for row in result["surveys"]:
+        head = (
+            f"| {row['frames']} | {row['site_m'][0]} x {row['site_m'][1]} | {row['generate_s']} | {row['setup_s']} "
+            f"| {row['host_peak_gib']} "
+        )
+        for i, c in enumerate(row["counts"]):
+            lead = head if i == 0 else "| | | | | "
+            lines.append(f"{lead}| {c['gaussians']:,} | {c['ms_per_step']} | {c['gpu_peak_gib']} |")
+        if "first_limit" in row:
+            lines.append(f"| | | | | | {row['first_limit']} | | |")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: CostArgs) -> Dict:
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    surveys: List[Dict] = [measure_survey(args, frames) for frames in args.frames]
+    result = {"device": device_name(), "method": args.method, "steps": args.steps, "surveys": surveys}
+    (args.output_dir / "cost.json").write_text(json.dumps(result, indent=1))
+    write_report(args.output_dir / "cost.md", markdown(result))
+    return result
+
+
+def entrypoint() -> None:
+    main(tyro.cli(CostArgs))
+
+
+if __name__ == "__main__":
+    entrypoint()
