@@ -56,7 +56,11 @@ def main(args: MultiGpuCostArgs) -> Dict:
     split = multi_gpu_config(config)
     split.timestamp = "cost"
     start = time.perf_counter()
+    if ranks.rank != 0:  # rank 0 first: it preprocesses and caches what the others read (as multi_gpu.main)
+        dist.barrier()
     trainer = seeded_trainer(split, local_rank=int(os.environ.get("LOCAL_RANK", 0)))
+    if ranks.rank == 0:
+        dist.barrier()
     setup = time.perf_counter() - start
     strategy = trainer.pipeline.model.strategy
     strategy.refine_start_iter = strategy.reset_every = 10**9

@@ -99,7 +99,12 @@ def main(config: TrainerConfig) -> None:
             single.timestamp = split.timestamp
             single.save_config()
         dist.barrier()
+        # rank 0 sets up alone first: it generates, preprocesses and caches what the others then read
+        if ranks.rank != 0:
+            dist.barrier()
         trainer = seeded_trainer(split, local_rank=int(os.environ.get("LOCAL_RANK", 0)))
+        if ranks.rank == 0:
+            dist.barrier()
         trainer.train()
     finally:
         dist.destroy_process_group()

@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Issue 35's GPU runs (one scene across GPUs; how big a survey fits on one):
+#     bash experiments/gpu_multi_gpu.sh PLAN
+# from the repository root on the GPU machine, one plan per device call on one warm machine: `install`
+# first, with `.devicebundle` carried (bash ../shared/device/prepare.sh plyfile). Nothing else is carried:
+# the surveys are generated there. The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
+#   install       the bundle
+#   cost-one      one GPU: survey_cost over 250 and 1000 frames (Gaussian counts until memory runs out)
+#   cost-4000     one GPU: the same over 4000 frames
+#   two-vs-one    a 2-GPU host: multi_gpu_cost with 1 GPU, then 2 GPUs up to 1.5x the count one GPU held
+#   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
+#                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
+#   quality-two   the same on 2 GPUs per run
+set -uo pipefail
+plan=${1:?plan: install, cost-one, cost-4000, two-vs-one, quality-one, quality-two}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
+counts=(1000000 4000000 16000000 64000000 128000000 192000000 256000000 320000000 384000000)
+survey() {  # survey FRAMES: generate the synthetic survey once (every core)
+  python3 -c "from pathlib import Path; from thermal_wild_ns.data.survey_scene import *; generate_survey_scene(Path('/tmp/survey_$1'), SurveySceneConfig(num_frames=$1))" > "$OUT/generate_$1.log" 2>&1
+}
+
+case "$plan" in
+  install)
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    tail -2 "$OUT/bundle_setup.log"
+    ;;
+  cost-one|cost-4000)
+    frames=(250 1000); [ "$plan" = cost-4000 ] && frames=(4000)
+    timeout 560 python3 -m experiments.survey_cost --frames "${frames[@]}" --gaussians "${counts[@]}" \
+      --output-dir "/tmp/$plan" > "$OUT/$plan.log" 2>&1
+    cp /tmp/$plan/cost.json "$OUT/$plan.json"; cp /tmp/$plan/cost.md "$OUT/$plan.md"; tail -25 "$OUT/$plan.log"
+    ;;
+  two-vs-one)
+    survey 1000
+    mkdir -p /tmp/mgc && ln -sfn /tmp/survey_1000 /tmp/mgc/survey_1000
+    CUDA_VISIBLE_DEVICES=0 timeout 250 torchrun --standalone --nproc-per-node 1 -m experiments.multi_gpu_cost \
+      --frames 1000 --gaussians "${counts[@]}" --output-dir /tmp/mgc > "$OUT/one.log" 2>&1
+    held=$(python3 -c "import json; print(json.load(open('/tmp/mgc/multi_gpu_cost_1.json'))['counts'][-1]['gaussians'])")
+    two=(4000000 16000000 64000000 $held $((held * 5 / 4)) $((held * 3 / 2)))
+    NCCL_DEBUG=WARN timeout 280 torchrun --standalone --nproc-per-node 2 -m experiments.multi_gpu_cost \
+      --frames 1000 --gaussians "${two[@]}" --output-dir /tmp/mgc > "$OUT/two.log" 2>&1
+    cp /tmp/mgc/multi_gpu_cost_*.json "$OUT/"; tail -5 "$OUT/one.log" "$OUT/two.log"
+    ;;
+  quality-one|quality-two)
+    survey 250
+    train() {  # train GPUS SEED CUDA_VISIBLE_DEVICES
+      CUDA_VISIBLE_DEVICES=$3 timeout 240 torchrun --standalone --nproc-per-node "$1" -m thermal_wild_ns.multi_gpu \
+        wild-thermal --output-dir "/tmp/q/gpus$1-seed$2" --experiment-name survey --timestamp run \
+        --max-num-iterations 2000 --machine.seed "$2" --pipeline.datamanager.train-order-seed "$2" \
+        --pipeline.model.max-gaussians 1000000 --pipeline.datamanager.preprocessing-cache /tmp/q/cache \
+        thermal-demo-data --data /tmp/survey_250 --scene survey --survey-frames 250 > "$OUT/train-gpus$1-seed$2.log" 2>&1
+      timeout 90 python3 -m experiments.score_checkpoint "/tmp/q/gpus$1-seed$2/survey/wild-thermal/run/config.yml" \
+        > "$OUT/score-gpus$1-seed$2.json" 2> "$OUT/score-gpus$1-seed$2.log"
+    }
+    if [ "$plan" = quality-one ]; then  # one GPU each, two at a time
+      train 1 1 0 & train 1 2 1 & wait
+      train 1 3 0
+    else
+      for seed in 1 2 3; do train 2 $seed 0,1; done
+    fi
+    tail -n1 "$OUT"/score-*.json
+    ;;
+esac
