@@ -7,7 +7,8 @@
 #   install       the bundle
 #   cost-one      one GPU: survey_cost over 250 and 1000 frames (Gaussian counts until memory runs out)
 #   cost-4000     one GPU: the same over 4000 frames
-#   two-vs-one    a 2-GPU host: multi_gpu_cost with 1 GPU, then 2 GPUs up to 1.5x the count one GPU held
+#   two-vs-one    a 2-GPU host (install first): multi_gpu_cost on the 1,000-frame survey with 1 GPU, then
+#                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
 #   quality-two   the same on 2 GPUs per run
@@ -35,13 +36,14 @@ case "$plan" in
   two-vs-one)
     survey 1000
     mkdir -p /tmp/mgc && ln -sfn /tmp/survey_1000 /tmp/mgc/survey_1000
-    CUDA_VISIBLE_DEVICES=0 timeout 250 torchrun --standalone --nproc-per-node 1 -m experiments.multi_gpu_cost \
-      --frames 1000 --gaussians "${counts[@]}" --output-dir /tmp/mgc > "$OUT/one.log" 2>&1
-    held=$(python3 -c "import json; print(json.load(open('/tmp/mgc/multi_gpu_cost_1.json'))['counts'][-1]['gaussians'])")
-    two=(4000000 16000000 64000000 $held $((held * 5 / 4)) $((held * 3 / 2)))
-    NCCL_DEBUG=WARN timeout 280 torchrun --standalone --nproc-per-node 2 -m experiments.multi_gpu_cost \
-      --frames 1000 --gaussians "${two[@]}" --output-dir /tmp/mgc > "$OUT/two.log" 2>&1
-    cp /tmp/mgc/multi_gpu_cost_*.json "$OUT/"; tail -5 "$OUT/one.log" "$OUT/two.log"
+    # the 2-GPU sweep stops below twice what one GPU held: a rank that ran out of memory would leave
+    # the other waiting in a collective until the command's time limit
+    both=(4000000 16000000 64000000 192000000)
+    CUDA_VISIBLE_DEVICES=0 timeout 200 torchrun --standalone --nproc-per-node 1 -m experiments.multi_gpu_cost \
+      --frames 1000 --gaussians "${both[@]}" 256000000 --output-dir /tmp/mgc > "$OUT/one.log" 2>&1
+    timeout 300 torchrun --standalone --nproc-per-node 2 -m experiments.multi_gpu_cost \
+      --frames 1000 --gaussians "${both[@]}" 256000000 320000000 384000000 --output-dir /tmp/mgc > "$OUT/two.log" 2>&1
+    cp /tmp/mgc/multi_gpu_cost_*.json "$OUT/"; grep -h '^{"gaussians' "$OUT/one.log" "$OUT/two.log"
     ;;
   quality-one|quality-two)
     survey 250

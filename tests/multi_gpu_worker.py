@@ -36,24 +36,24 @@ def main(out: Path) -> None:
     dist.init_process_group("gloo")
     rank, world = dist.get_rank(), dist.get_world_size()
     params, viewmats, Ks, weights = scene()
-    own = {k: v[rank::world].clone().requires_grad_() for k, v in params.items()}
-    render, alpha, meta = rasterization(
-        **own,
-        viewmats=viewmats[rank : rank + 1],
-        Ks=Ks[rank : rank + 1],
-        width=48,
-        height=32,
-        packed=False,
-        distributed=True,
-    )
-    meta["means2d"].retain_grad()
-    loss = (render[0] * weights[rank]).sum() + alpha.sum()
-    loss.backward()
-    saved = {k: v.grad for k, v in own.items()}
-    saved.update(
-        render=render.detach(), means2d_grad=meta["means2d"].grad, radii=meta["radii"], n_cameras=meta["n_cameras"]
-    )
-    torch.save(saved, out / f"rank{rank}.pt")
+    for packed in (False, True):
+        own = {k: v[rank::world].clone().requires_grad_() for k, v in params.items()}
+        render, alpha, meta = rasterization(
+            **own,
+            viewmats=viewmats[rank : rank + 1],
+            Ks=Ks[rank : rank + 1],
+            width=48,
+            height=32,
+            packed=packed,
+            distributed=True,
+        )
+        meta["means2d"].retain_grad()
+        loss = (render[0] * weights[rank]).sum() + alpha.sum()
+        loss.backward()
+        saved = {k: v.grad for k, v in own.items()}
+        saved.update(render=render.detach(), means2d_grad=meta["means2d"].grad, n_cameras=meta["n_cameras"])
+        saved.update({k: meta[k] for k in ("radii", "camera_ids", "gaussian_ids")})
+        torch.save(saved, out / f"rank{rank}-packed{packed}.pt")
     dist.destroy_process_group()
 
 

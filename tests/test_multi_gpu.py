@@ -27,26 +27,36 @@ def test_rank_shares_cover_everything_once():
     assert slots == list(range(8))
 
 
-def test_split_render_and_gradients_equal_one_process(tmp_path):
+@pytest.mark.parametrize("packed", [False, True])
+def test_split_render_and_gradients_equal_one_process(tmp_path_factory, packed):
     """Each rank renders its camera with its half of the Gaussians; the render, every Gaussian's
     gradient and the densification statistics' inputs must be one process's with all of them."""
-    run = subprocess.run([*TORCHRUN, str(ROOT / "tests" / "multi_gpu_worker.py"), str(tmp_path)], cwd=ROOT)
-    assert run.returncode == 0
+    out = tmp_path_factory.getbasetemp() / "split_render"
+    if not out.exists():  # one two-process run writes both layouts
+        out.mkdir()
+        run = subprocess.run([*TORCHRUN, str(ROOT / "tests" / "multi_gpu_worker.py"), str(out)], cwd=ROOT)
+        assert run.returncode == 0
     params, viewmats, Ks, weights = scene()
     full = {k: v.clone().requires_grad_() for k, v in params.items()}
-    render, alpha, meta = rasterization(**full, viewmats=viewmats, Ks=Ks, width=48, height=32, packed=False)
+    render, alpha, meta = rasterization(**full, viewmats=viewmats, Ks=Ks, width=48, height=32, packed=packed)
     meta["means2d"].retain_grad()
     ((render * weights).sum() + alpha.sum()).backward()
     assert alpha.sum() > 10  # the Gaussians are seen: the comparison is not of empty images
     for rank in range(2):
-        split = torch.load(tmp_path / f"rank{rank}.pt")
+        split = torch.load(out / f"rank{rank}-packed{packed}.pt")
         assert split["n_cameras"] == 1
         torch.testing.assert_close(split["render"][0], render[rank].detach(), atol=1e-5, rtol=1e-5)
         for name, param in full.items():
             torch.testing.assert_close(split[name], param.grad[rank::2], atol=1e-5, rtol=1e-4)
         # this rank's Gaussians in both cameras: what the densification statistics read
-        torch.testing.assert_close(split["means2d_grad"], meta["means2d"].grad[:, rank::2], atol=1e-6, rtol=1e-4)
-        assert torch.equal(split["radii"], meta["radii"][:, rank::2])
+        if packed:  # [nnz]: camera ids global, Gaussian ids the rank's own
+            mine = meta["gaussian_ids"] % 2 == rank
+            assert torch.equal(split["gaussian_ids"] * 2 + rank, meta["gaussian_ids"][mine])
+            assert torch.equal(split["camera_ids"], meta["camera_ids"][mine])
+        else:  # [cameras, N]
+            mine = (slice(None), slice(rank, None, 2))
+        torch.testing.assert_close(split["means2d_grad"], meta["means2d"].grad[mine], atol=1e-6, rtol=1e-4)
+        assert torch.equal(split["radii"], meta["radii"][mine])
 
 
 @pytest.mark.slow

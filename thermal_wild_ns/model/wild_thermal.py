@@ -344,7 +344,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 Ks=K,
                 width=W,
                 height=H,
-                packed=False,
+                packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
                 near_plane=0.01,
                 far_plane=1e10,
                 render_mode=render_mode,

@@ -281,15 +281,16 @@ def rasterization(
     n_cameras, gaussian_ids, ...). `sparse_grad` and `channel_chunk` only change how gsplat's
     kernels are scheduled, so they are accepted and ignored. `distributed` is gsplat's: every rank of
     torch.distributed's process group holds its own Gaussians and renders its own cameras; each rank
-    projects its Gaussians into every rank's cameras and sends each camera's splats to the rank that
-    renders it (`_exchange_splats`), so gradients flow back to the Gaussians' owners. As in gsplat it
-    needs per-Gaussian colours, `packed=False` and no `absgrad`, and the meta's `means2d` and `radii`
-    are the rank's own Gaussians in every rank's cameras [C_world, N, ...] (what the densification
-    statistics need).
+    projects its Gaussians into every rank's cameras and sends each camera's splats (packed: the
+    visible ones only, `_exchange_visible`; else all, `_exchange_splats`) to the rank that renders it,
+    so gradients flow back to the Gaussians' owners. As in gsplat it needs per-Gaussian colours and no
+    `absgrad`, and the meta's `means2d`, `radii` (and, packed, `camera_ids`, global, and
+    `gaussian_ids`, local) are the rank's own Gaussians in every rank's cameras (what the
+    densification statistics need).
     """
     if distributed:
-        assert not packed and not absgrad and sh_degree is None and colors.dim() == 2, (
-            "distributed rendering needs packed=False, absgrad=False and per-Gaussian colours [N, D] (as gsplat's)"
+        assert not absgrad and sh_degree is None and colors.dim() == 2, (
+            "distributed rendering needs absgrad=False and per-Gaussian colours [N, D] (as gsplat's)"
         )
     N = means.shape[0]
     C = viewmats.shape[0]
@@ -325,7 +326,7 @@ def rasterization(
     if compensations is not None:
         opacities = opacities * compensations
 
-    if distributed:
+    if distributed and not packed:
         meta_radii, meta_means2d_world = radii, means2d  # this rank's Gaussians in every camera
         colors = colors.expand(C, N, colors.shape[-1])
         radii, means2d, depths, conics, opacities, colors = _exchange_splats(
@@ -361,6 +362,12 @@ def rasterization(
         camera_ids, gaussian_ids = camera_ids[sel], gaussian_ids[sel]  # [nnz]
         means2d_flat = means2d[sel]  # [nnz, 2] is what packed gsplat hands the strategy
         radii, depths, conics, opacities, colors = radii[sel], depths[sel], conics[sel], opacities[sel], colors[sel]
+        if distributed:  # the visible splats go to the ranks whose cameras see them
+            meta_packed = (radii, means2d_flat, camera_ids, gaussian_ids)  # global cameras, local Gaussians
+            camera_ids, gaussian_ids, radii, means2d_flat, depths, conics, opacities, colors = _exchange_visible(
+                C_local, N, camera_ids, gaussian_ids, radii, means2d_flat, depths, conics, opacities, colors
+            )
+            C = C_local
         means2d = means2d_flat
     else:
         means2d_flat = means2d.reshape(C * N, 2)
@@ -400,7 +407,9 @@ def rasterization(
         )
 
     tiles_per_gauss = tiles_per_gauss.view(radii.shape).int()  # of the splats this rank composited
-    if distributed:
+    if distributed and packed:
+        radii, meta_means2d, camera_ids, gaussian_ids = meta_packed
+    elif distributed:
         radii, meta_means2d = meta_radii, meta_means2d_world
     meta = {
         "camera_ids": camera_ids if packed else None,
@@ -452,3 +461,33 @@ def _exchange_splats(c_local: int, radii: Tensor, *values: Tensor) -> Tuple[Tens
         return torch.cat([part[:, :n] for part, n in zip(received, sizes)], dim=1)
 
     return tuple(exchange(x) for x in (radii, *values))
+
+
+def _exchange_visible(c_local: int, n_local: int, camera_ids: Tensor, gaussian_ids: Tensor, *values: Tensor):
+    """Packed splats [nnz, ...] of this rank's Gaussians in every rank's cameras (`camera_ids` global,
+    camera-major) sent to the ranks that render those cameras. Returns camera ids (local to the
+    receiving rank), Gaussian ids (global: ranks' Gaussians in rank order) and `values`, each [nnz', ...].
+    Differentiable in `values`."""
+    world, rank = dist.get_world_size(), dist.get_rank()
+    device = camera_ids.device
+    counts = torch.bincount(camera_ids // c_local, minlength=world)  # [W]: splats for each rank
+    table = [torch.zeros(world + 1, dtype=torch.int64, device=device) for _ in range(world)]
+    dist.all_gather(table, torch.cat([counts, torch.tensor([n_local], device=device)]))
+    matrix = torch.stack(table).tolist()  # [source][destination], the source's Gaussian count last
+    widest = max(max(row[:world]) for row in matrix)
+    offsets = [0]
+    for row in matrix[:-1]:
+        offsets.append(offsets[-1] + row[world])  # first global id of each rank's Gaussians
+
+    def exchange(x: Tensor) -> Tensor:
+        # padded to the largest count: torch's all_to_all on gloo (scatters) moves equal sizes only
+        send = [
+            torch.cat([part, part.new_zeros((widest - part.shape[0], *part.shape[1:]))])
+            for part in x.split(matrix[rank][:world])
+        ]
+        receive = [x.new_empty((widest, *x.shape[1:])) for _ in range(world)]
+        received = dist_autograd.all_to_all(receive, send)
+        return torch.cat([part[: matrix[source][rank]] for source, part in enumerate(received)])
+
+    cameras = exchange(camera_ids) - rank * c_local
+    return (cameras, exchange(gaussian_ids + offsets[rank]), *(exchange(v) for v in values))
