@@ -7,6 +7,7 @@
 #   install       the bundle
 #   cost-one      one GPU: survey_cost over 250 and 1000 frames (Gaussian counts until memory runs out)
 #   cost-4000     one GPU: the same over 4000 frames
+#                 (GROWTH_STEPS=N: then N steps of unbounded growth from the largest count that fitted)
 #   two-vs-one    a 2-GPU host (install first): multi_gpu_cost on the 1,000-frame survey with 1 GPU, then
 #                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
@@ -30,7 +31,7 @@ case "$plan" in
   cost-one|cost-4000)
     frames=(250 1000); [ "$plan" = cost-4000 ] && frames=(4000)
     timeout 560 python3 -m experiments.survey_cost --frames "${frames[@]}" --gaussians "${counts[@]}" \
-      --output-dir "/tmp/$plan" > "$OUT/$plan.log" 2>&1
+      --growth-steps "${GROWTH_STEPS:-0}" --output-dir "/tmp/$plan" > "$OUT/$plan.log" 2>&1
     cp /tmp/$plan/cost.json "$OUT/$plan.json"; cp /tmp/$plan/cost.md "$OUT/$plan.md"; tail -25 "$OUT/$plan.log"
     ;;
   two-vs-one)

@@ -41,6 +41,10 @@ class CostArgs:
     """Timed steps per count (after 5 untimed)."""
     method: str = "wild-thermal"
     output_dir: Path = Path("outputs/survey_cost")
+    growth_steps: int = 0
+    """After the sweep: train this many steps from the largest count that fitted with densification on
+    and every Gaussian a candidate (refining every 10 steps, unbounded budget): does growth stop at the
+    memory the device has, with its message (`BudgetedDefaultStrategy.memory_room`), or run out?"""
 
 
 def _host_peak_gib() -> float:
@@ -84,24 +88,50 @@ def resample_gaussians(trainer, n: int, seed: int = 0) -> None:
             model.strategy_state[key] = None
 
 
+def training_step(trainer, step: int) -> None:
+    """One training step with nerfstudio's callbacks around it, as its loop runs them."""
+    for callback in trainer.callbacks:
+        callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+    trainer.train_iteration(step)
+    for callback in trainer.callbacks:
+        callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+
+
 def timed_steps(trainer, first: int, steps: int) -> float:
-    """ms per step of `steps` training steps (after 5 untimed), with nerfstudio's callbacks as its loop runs them."""
-
-    def step(s: int) -> None:
-        for callback in trainer.callbacks:
-            callback.run_callback_at_location(s, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
-        trainer.train_iteration(s)
-        for callback in trainer.callbacks:
-            callback.run_callback_at_location(s, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
-
+    """ms per step of `steps` training steps (after 5 untimed)."""
     for s in range(first, first + 5):
-        step(s)
+        training_step(trainer, s)
     synchronize()
     start = time.perf_counter()
     for s in range(first + 5, first + 5 + steps):
-        step(s)
+        training_step(trainer, s)
     synchronize()
     return 1000 * (time.perf_counter() - start) / steps
+
+
+def growth_to_the_limit(trainer, start: int, step: int, steps: int) -> Dict:
+    """Train `steps` steps from `start` Gaussians, every Gaussian a growth candidate at every 10th step."""
+    model = trainer.pipeline.model
+    strategy = model.strategy
+    resample_gaussians(trainer, start)
+    strategy.max_gaussians = 10**10
+    strategy.grow_grad2d = 1e-12
+    strategy.refine_start_iter, strategy.refine_every, strategy.pause_refine_after_reset = step, 10, 0
+    counts = []
+    try:
+        for s in range(step, step + steps):
+            training_step(trainer, s)
+            counts.append(model.num_points)
+        outcome = "trained every step"
+    except torch.OutOfMemoryError as err:
+        outcome = f"out of memory at {model.num_points:,} Gaussians: {str(err).splitlines()[0][:120]}"
+    return {
+        "start": start,
+        "end": model.num_points,
+        "largest": max(counts, default=start),
+        "memory_stopped_at": strategy.memory_stopped_at,
+        "outcome": outcome,
+    }
 
 
 def measure_survey(args: CostArgs, frames: int) -> Dict:
@@ -140,6 +170,9 @@ def measure_survey(args: CostArgs, frames: int) -> Dict:
             row["first_limit"] = f"GPU memory at {n:,} Gaussians: {str(err).splitlines()[0][:160]}"
             print(row["first_limit"], flush=True)
             break
+    if args.growth_steps and row["counts"]:
+        row["growth"] = growth_to_the_limit(trainer, row["counts"][-1]["gaussians"], step, args.growth_steps)
+        print(json.dumps({"frames": frames, "growth": row["growth"]}), flush=True)
     row["host_peak_gib"] = round(_host_peak_gib(), 2)
     del trainer, model
     if torch.cuda.is_available():

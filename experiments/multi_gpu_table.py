@@ -1,0 +1,75 @@
+"""`python -m experiments.multi_gpu_table [FOLDER]`: the tables of docs/results/multi_gpu/README.md
+from the files the GPU runs wrote there (`bash experiments/gpu_multi_gpu.sh PLAN`)."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+from pathlib import Path
+
+
+def spread(values) -> str:
+    return f"{statistics.mean(values):.2f} ({min(values):.2f}–{max(values):.2f})"
+
+
+def main(folder: Path) -> str:
+    one, two = (json.loads((folder / f"multi_gpu_cost_{n}.json").read_text()) for n in (1, 2))
+    by_count = {row["gaussians"]: row for row in one["counts"]}
+    lines = [
+        f"1,000-frame survey, {one['device']}; {one['steps']} timed steps per count "
+        "(experiments.multi_gpu_cost, plan two-vs-one)",
+        "",
+        "| Gaussians | 1 GPU ms/step | 1 GPU images/s | 1 GPU peak GiB | 2 GPUs ms/step | 2 GPUs images/s "
+        "| 2 GPUs peak GiB per GPU | throughput 2 vs 1 |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for row in two["counts"]:
+        single = by_count.get(row["gaussians"])
+        cells = (
+            [f"{single['ms_per_step']}", f"{single['images_per_s']}", f"{single['gpu_peak_gib_per_rank'][0]}"]
+            if single
+            else ["does not fit", "", ""]
+        )
+        ratio = f"{row['images_per_s'] / single['images_per_s']:.2f}x" if single else "—"
+        lines.append(
+            f"| {row['gaussians']:,} | {' | '.join(cells)} | {row['ms_per_step']} | {row['images_per_s']} "
+            f"| {max(row['gpu_peak_gib_per_rank'])} | {ratio} |"
+        )
+    lines += ["", f"One GPU's first limit: {one['first_limit'].split('. Including')[0]}.", ""]
+    lines += [
+        "250-frame survey, 2,000 steps through `torchrun -m thermal_wild_ns.multi_gpu` (plans quality-one, "
+        "quality-two), scored by experiments.score_checkpoint: mean (min–max) of seeds 1–3",
+        "",
+        "| GPUs | images seen | Gaussians | `novel` PSNR | `time` PSNR | `aligned` PSNR | `aligned` °C MAE |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for gpus in (1, 2):
+        scores = [json.loads((folder / f"score-gpus{gpus}-seed{s}.json").read_text()) for s in (1, 2, 3)]
+        lines.append(
+            f"| {gpus} | {2000 * gpus:,} | {statistics.mean(s['gaussians'] for s in scores):,.0f} | "
+            + " | ".join(spread([s[f"psnr_{p}"] for s in scores]) for p in ("novel", "time", "aligned"))
+            + f" | {spread([s['celsius_mae_aligned'] for s in scores])} |"
+        )
+    lines += ["", "One GPU: surveys of 250 to 4,000 frames (experiments.survey_cost, plans cost-one and cost-4000)", ""]
+    lines += [
+        "| device | frames | site (m) | generate s | setup s | host peak GiB | Gaussians | ms/step | GPU peak GiB |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name in ("cost_h100_250_1000.json", "cost_h100_4000.json"):
+        result = json.loads((folder / name).read_text())
+        for survey in result["surveys"]:
+            head = (
+                f"| {result['device']} | {survey['frames']:,} | {survey['site_m'][0]} x {survey['site_m'][1]} "
+                f"| {survey['generate_s']} | {survey['setup_s']} | {survey['host_peak_gib']} "
+            )
+            for i, count in enumerate(survey["counts"]):
+                lead = head if i == 0 else "| | | | | | "
+                lines.append(f"{lead}| {count['gaussians']:,} | {count['ms_per_step']} | {count['gpu_peak_gib']} |")
+            limit = survey.get("first_limit", "")
+            lines.append(f"| | | | | | | {limit.split(': CUDA')[0]}: out of memory | | |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(main(Path(sys.argv[1] if len(sys.argv) > 1 else "docs/results/multi_gpu")))
