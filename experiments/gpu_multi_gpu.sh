@@ -6,7 +6,7 @@
 # the surveys are generated there. The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 #   install       the bundle
 #   cost-one      one GPU: survey_cost over 250 and 1000 frames (Gaussian counts until memory runs out)
-#   cost-4000     one GPU: the same over 4000 frames
+#   cost-4000     one GPU: the same over 4000 frames; cost-all: 250, 1000 and 4000; cost-1000: 1000
 #                 (GROWTH_STEPS=N: then N steps of unbounded growth from the largest count that fitted)
 #   two-vs-one    a 2-GPU host (install first): multi_gpu_cost on the 1,000-frame survey with 1 GPU, then
 #                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
@@ -14,7 +14,7 @@
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
 #   quality-two   the same on 2 GPUs per run
 set -uo pipefail
-plan=${1:?plan: install, cost-one, cost-4000, two-vs-one, quality-one, quality-two}
+plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -28,8 +28,9 @@ case "$plan" in
     source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
     tail -2 "$OUT/bundle_setup.log"
     ;;
-  cost-one|cost-4000)
-    frames=(250 1000); [ "$plan" = cost-4000 ] && frames=(4000)
+  cost-one|cost-4000|cost-all|cost-1000)
+    frames=(250 1000); [ "$plan" = cost-4000 ] && frames=(4000); [ "$plan" = cost-all ] && frames=(250 1000 4000)
+    [ "$plan" = cost-1000 ] && frames=(1000)
     timeout 560 python3 -m experiments.survey_cost --frames "${frames[@]}" --gaussians "${counts[@]}" \
       --growth-steps "${GROWTH_STEPS:-0}" --output-dir "/tmp/$plan" > "$OUT/$plan.log" 2>&1
     cp /tmp/$plan/cost.json "$OUT/$plan.json"; cp /tmp/$plan/cost.md "$OUT/$plan.md"; tail -25 "$OUT/$plan.log"

@@ -22,7 +22,7 @@ import torch.distributed as dist
 import tyro
 
 from experiments import device_name
-from experiments.survey_cost import resample_gaussians, timed_steps
+from experiments.survey_cost import initial_gaussians, resample_gaussians, timed_steps
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 from thermal_wild_ns.method_configs import method_trainer
@@ -64,11 +64,12 @@ def main(args: MultiGpuCostArgs) -> Dict:
     setup = time.perf_counter() - start
     strategy = trainer.pipeline.model.strategy
     strategy.refine_start_iter = strategy.reset_every = 10**9
+    seeds = initial_gaussians(trainer)
     rows, step, limit = [], 0, None
     for n in args.gaussians:
         fits = torch.ones(())
         try:
-            resample_gaussians(trainer, n // ranks.world, seed=ranks.rank)
+            resample_gaussians(trainer, seeds, n // ranks.world, seed=ranks.rank)
             if torch.cuda.is_available():
                 torch.cuda.empty_cache()
                 torch.cuda.reset_peak_memory_stats()

@@ -11,6 +11,7 @@ Writes `cost.json` and `cost.md` to `--output-dir` and prints the table.
 
 from __future__ import annotations
 
+import gc
 import json
 import resource
 import time
@@ -65,27 +66,37 @@ def survey_trainer(args: CostArgs, frames: int):
     return setup_trainer(config)
 
 
-def resample_gaussians(trainer, n: int, seed: int = 0) -> None:
-    """Replace the model's Gaussians by `n` copies drawn from the current ones (positions jittered by
-    their size), with fresh optimizer moments and densification statistics."""
+def resample_gaussians(trainer, seeds: Dict[str, torch.Tensor], n: int, seed: int = 0) -> None:
+    """Replace the model's Gaussians by `n` copies drawn from `seeds` (its Gaussians at setup; positions
+    jittered by their size), with fresh optimizer moments and densification statistics. The old ones,
+    and the guard's copy of them, are freed first."""
     model = trainer.pipeline.model
-    g = torch.Generator(device=model.device).manual_seed(n + seed)
-    count = model.num_points
-    pick = torch.randint(count, (n,), device=model.device, generator=g)
+    trainer._healthy = None
     with torch.no_grad():
-        for name, param in list(model.gauss_params.items()):
-            value = param.data[pick].clone()
-            if name == "means":
-                value += torch.randn(value.shape, device=value.device, generator=g) * torch.exp(
-                    model.gauss_params["scales"].data[pick]
-                )
-            model.gauss_params[name] = Parameter(value)
+        for name in list(model.gauss_params):
+            model.gauss_params[name] = Parameter(seeds[name][:0].clone())
     for optimizer in trainer.optimizers.optimizers.values():
         optimizer.state.clear()
-    repoint_optimizers(trainer.optimizers, trainer.pipeline.get_param_groups())
     for key in list(model.strategy_state):
         if isinstance(model.strategy_state[key], torch.Tensor):
             model.strategy_state[key] = None
+    gc.collect()
+    if torch.cuda.is_available():
+        torch.cuda.empty_cache()
+    g = torch.Generator(device=model.device).manual_seed(n + seed)
+    pick = torch.randint(seeds["means"].shape[0], (n,), device=model.device, generator=g)
+    with torch.no_grad():
+        for name, value in seeds.items():
+            value = value[pick]
+            if name == "means":
+                value += torch.randn(value.shape, device=value.device, generator=g) * torch.exp(seeds["scales"][pick])
+            model.gauss_params[name] = Parameter(value)
+    repoint_optimizers(trainer.optimizers, trainer.pipeline.get_param_groups())
+
+
+def initial_gaussians(trainer) -> Dict[str, torch.Tensor]:
+    """A copy of the model's Gaussians as set up (what `resample_gaussians` draws from)."""
+    return {name: p.detach().clone() for name, p in trainer.pipeline.model.gauss_params.items()}
 
 
 def training_step(trainer, step: int) -> None:
@@ -109,11 +120,11 @@ def timed_steps(trainer, first: int, steps: int) -> float:
     return 1000 * (time.perf_counter() - start) / steps
 
 
-def growth_to_the_limit(trainer, start: int, step: int, steps: int) -> Dict:
+def growth_to_the_limit(trainer, seeds: Dict[str, torch.Tensor], start: int, step: int, steps: int) -> Dict:
     """Train `steps` steps from `start` Gaussians, every Gaussian a growth candidate at every 10th step."""
     model = trainer.pipeline.model
     strategy = model.strategy
-    resample_gaussians(trainer, start)
+    resample_gaussians(trainer, seeds, start)
     strategy.max_gaussians = 10**10
     strategy.grow_grad2d = 1e-12
     strategy.refine_start_iter, strategy.refine_every, strategy.pause_refine_after_reset = step, 10, 0
@@ -144,6 +155,7 @@ def measure_survey(args: CostArgs, frames: int) -> Dict:
     model = trainer.pipeline.model
     strategy = model.strategy
     strategy.refine_start_iter = strategy.reset_every = 10**9  # the count holds while timed
+    seeds = initial_gaussians(trainer)
     row: Dict = {
         "frames": frames,
         "site_m": [round(x) for x in SurveySceneConfig(num_frames=frames).site_size],
@@ -157,7 +169,7 @@ def measure_survey(args: CostArgs, frames: int) -> Dict:
     step = 0
     for n in args.gaussians:
         try:
-            resample_gaussians(trainer, n)
+            resample_gaussians(trainer, seeds, n)
             if torch.cuda.is_available():
                 torch.cuda.empty_cache()
                 torch.cuda.reset_peak_memory_stats()
@@ -171,7 +183,7 @@ def measure_survey(args: CostArgs, frames: int) -> Dict:
             print(row["first_limit"], flush=True)
             break
     if args.growth_steps and row["counts"]:
-        row["growth"] = growth_to_the_limit(trainer, row["counts"][-1]["gaussians"], step, args.growth_steps)
+        row["growth"] = growth_to_the_limit(trainer, seeds, row["counts"][-1]["gaussians"], step, args.growth_steps)
         print(json.dumps({"frames": frames, "growth": row["growth"]}), flush=True)
     row["host_peak_gib"] = round(_host_peak_gib(), 2)
     del trainer, model

@@ -148,3 +148,21 @@ def test_the_lean_step_gives_way_to_nerfstudios_where_it_cannot_stand_in(tmp_pat
     before = trainer.pipeline.model.opacities.detach().clone()
     trainer.train()
     assert not torch.equal(trainer.pipeline.model.opacities, before)  # it trained, through nerfstudio's step
+
+
+def test_a_large_snapshot_goes_to_host_memory(monkeypatch):
+    """The guard's healthy copy and the automatic stop's best one stay on the GPU while small next to
+    the memory it has left, and go to the host when large (a survey's Gaussians would be held twice)."""
+    from thermal_wild_ns.training import checkpoints
+
+    gpu = torch.device("cuda")
+    monkeypatch.setattr(torch.cuda, "mem_get_info", lambda device: (8 * 2**30, 80 * 2**30))
+    monkeypatch.setattr(torch.cuda, "memory_reserved", lambda device: 10 * 2**30)
+    monkeypatch.setattr(torch.cuda, "memory_allocated", lambda device: 10 * 2**30)
+    assert checkpoints.snapshot_device(1 * 2**30, gpu) == gpu  # an eighth of the 8 GiB left
+    assert checkpoints.snapshot_device(3 * 2**30, gpu) == torch.device("cpu")
+    assert checkpoints.snapshot_device(3 * 2**30, torch.device("cpu")) == torch.device("cpu")
+    state = {"a": torch.ones(3), "rng": torch.get_rng_state(), "nested": [torch.zeros(2)], "n": 4}
+    copied = checkpoints._copied(state, torch.device("cpu"))
+    assert copied["n"] == 4 and torch.equal(copied["rng"], state["rng"])
+    assert copied["a"].data_ptr() != state["a"].data_ptr() and torch.equal(copied["nested"][0], state["nested"][0])

@@ -210,6 +210,7 @@ class AutoStopRun:
             return False
         score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
         if self.progress.update(step, score) and self.config.keep_best:
+            self._best = None  # the older copy goes before the new one is made
             best = self._best = snapshot(self.pipeline, self.optimizers, step)
             write_atomically(self.state_path("best", step), lambda tmp: torch.save(best, tmp), self.partial_dir)
         stops = self.progress.plateaued and self.stop_reason is None

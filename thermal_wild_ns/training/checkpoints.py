@@ -38,14 +38,52 @@ def save_checkpoint(state: dict, checkpoint_dir: Path, step: int, partial_dir: P
                 old.unlink()
 
 
+SNAPSHOT_GPU_SHARE = 0.25
+"""A snapshot stays on the GPU while it takes at most this share of the memory the GPU has left, else
+it goes to host memory: a large survey's parameters and Adam moments would otherwise be held twice or
+three times on the GPU (the guard's healthy state, the automatic stop's best)."""
+
+
+def snapshot_device(nbytes: int, device: torch.device) -> torch.device:
+    """Where a snapshot of `nbytes` of the state on `device` is kept (`SNAPSHOT_GPU_SHARE`)."""
+    if device.type != "cuda":
+        return device
+    free, _ = torch.cuda.mem_get_info(device)
+    spare = free + torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device)
+    return device if nbytes <= SNAPSHOT_GPU_SHARE * spare else torch.device("cpu")
+
+
+def _tensors(obj) -> list:
+    if isinstance(obj, torch.Tensor):
+        return [obj]
+    if isinstance(obj, dict):
+        return [t for value in obj.values() for t in _tensors(value)]
+    if isinstance(obj, (list, tuple)):
+        return [t for value in obj for t in _tensors(value)]
+    return []
+
+
+def _copied(obj, device: torch.device):
+    """A deep copy of `obj` whose GPU tensors are on `device` (host tensors, the RNG state, stay)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().to(device if obj.is_cuda else obj.device, copy=True)
+    if isinstance(obj, dict):
+        return {key: _copied(value, device) for key, value in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_copied(value, device) for value in obj)
+    return copy.deepcopy(obj)
+
+
 def snapshot(pipeline, optimizers, step: int) -> dict:
     """A copy of everything a rollback restores: parameters (Gaussians, embeddings, MLPs),
-    densification statistics and RNG (the model's extra state), optimizer moments."""
-    return {
-        "step": step,
-        "model": copy.deepcopy(pipeline.model.state_dict()),
-        "optimizers": {name: copy.deepcopy(opt.state_dict()) for name, opt in optimizers.optimizers.items()},
+    densification statistics and RNG (the model's extra state), optimizer moments; on the GPU or, when
+    large for the memory left, on the host (`snapshot_device`)."""
+    state = {
+        "model": pipeline.model.state_dict(),
+        "optimizers": {name: opt.state_dict() for name, opt in optimizers.optimizers.items()},
     }
+    nbytes = sum(t.numel() * t.element_size() for t in _tensors(state) if t.is_cuda)
+    return {"step": step, **_copied(state, snapshot_device(nbytes, pipeline.model.device))}
 
 
 def restore(pipeline, optimizers, state: dict) -> None:

@@ -197,6 +197,7 @@ class GuardedTrainer(TrainerAfterLoad):
             result = self._iteration(step)
             if step % self.config.guard.check_every == 0:
                 self.guard.check_model(self.pipeline.model, step)
+                self._healthy = None  # the older copy goes before the new one is made
                 self._healthy = snapshot(self.pipeline, self.optimizers, step)
         except TrainingDiverged as err:
             healthy = self._healthy
