@@ -166,3 +166,36 @@ def test_a_large_snapshot_goes_to_host_memory(monkeypatch):
     copied = checkpoints._copied(state, torch.device("cpu"))
     assert copied["n"] == 4 and torch.equal(copied["rng"], state["rng"])
     assert copied["a"].data_ptr() != state["a"].data_ptr() and torch.equal(copied["nested"][0], state["nested"][0])
+
+
+def test_a_step_out_of_gpu_memory_rolls_back_and_caps_growth(tmp_path, demo_scene_dir):
+    """A step that runs out of GPU memory (raised here on CPU as torch raises it) goes back to the last
+    healthy state, whose Gaussian count becomes the most densification may reach; the run goes on."""
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=12, check_every=5)
+    model = trainer.pipeline.model
+    original = model.get_loss_dict
+
+    def out_of_memory_once(outputs, batch, metrics_dict=None):
+        if model.training and model.step == 8:
+            raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 7.63 GiB.")
+        return original(outputs, batch, metrics_dict)
+
+    model.get_loss_dict = out_of_memory_once
+    trainer.train()
+    healthy = trainer._healthy  # step 10's, made after the rollback to step 5's
+    assert trainer.guard.rollbacks == 1 and model.step == 11
+    assert model.strategy.max_gaussians < 3000  # the demo's budget, lowered to the count of step 5
+    assert model.num_points <= model.strategy.max_gaussians
+    assert healthy is not None and healthy["step"] == 10
+
+
+def test_out_of_gpu_memory_with_no_rollback_left_says_what_to_do(tmp_path, demo_scene_dir):
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=8, check_every=5, max_rollbacks=0)
+    model = trainer.pipeline.model
+
+    def out_of_memory(outputs, batch, metrics_dict=None):
+        raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 7.63 GiB.")
+
+    model.get_loss_dict = out_of_memory
+    with pytest.raises(SystemExit, match="out of GPU memory.*max-gaussians.*multi_gpu"):
+        trainer.train()

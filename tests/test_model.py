@@ -125,14 +125,28 @@ def test_gaussian_budget_caps_growth():
 
 def test_growth_stops_where_gpu_memory_ends_and_says_so():
     model = make_model(n=200, max_gaussians=1000)
-    model.strategy.memory_room = lambda n, device: 10  # the device holds 10 more Gaussians
+    model.strategy.memory_room = lambda n, device, row_bytes: 10  # the device holds 10 more Gaussians
     params = model.gauss_params
     optimizers = {k: torch.optim.Adam([p], lr=1e-3) for k, p in params.items()}
     model.strategy_state.update(grad2d=torch.ones(200), count=torch.ones(200), radii=torch.zeros(200))
     model.strategy._grow_gs(params, optimizers, model.strategy_state, step=model.strategy.refine_start_iter + 1)
     assert params["means"].shape[0] == 210
     assert model.strategy.memory_stopped_at == 200
-    assert make_model(n=20).strategy.memory_room(20, torch.device("cpu")) is None  # no limit known off CUDA
+    assert make_model(n=20).strategy.memory_room(20, torch.device("cpu"), 64) is None  # no limit known off CUDA
+
+
+def test_the_memory_estimate_leaves_room_for_the_peak_and_the_growth(monkeypatch):
+    """A device of 1,000 bytes whose peak at 100 Gaussians was 400 (4 per Gaussian), rows of 1 byte:
+    0.85 x 1000 - 400 - 2 x 1 x 100 = 250 bytes left, room for 62 more Gaussians."""
+    from types import SimpleNamespace
+
+    from thermal_wild_ns.model import strategy
+
+    monkeypatch.setattr(torch.cuda, "get_device_properties", lambda device: SimpleNamespace(total_memory=1000))
+    monkeypatch.setattr(torch.cuda, "max_memory_allocated", lambda device: 400)
+    assert strategy.gaussians_memory_holds(100, torch.device("cuda"), 1) == 62
+    monkeypatch.setattr(torch.cuda, "max_memory_allocated", lambda device: 900)
+    assert strategy.gaussians_memory_holds(100, torch.device("cuda"), 1) == 0  # past the headroom: no growth
 
 
 def test_bad_input_is_reported_or_skipped():

@@ -27,21 +27,20 @@ def screen_size_rule_applies(width: int, height: int, grow_scale2d: float) -> bo
     return max(width, height) * grow_scale2d >= MIN_SCREEN_RADIUS_PX
 
 
-MEMORY_HEADROOM = 0.8
-"""Share of the GPU memory left that growth may plan to use: the estimate per Gaussian is rough."""
+MEMORY_HEADROOM = 0.85
+"""Share of the GPU's memory that growth may plan to fill at a training step's peak."""
 
 
-def gaussians_memory_holds(n: int, device: torch.device) -> Optional[int]:
-    """How many more Gaussians the GPU's memory holds next to `n` (None off CUDA): the memory free on
-    the device, plus what torch reserved and does not use, over the peak allocation per Gaussian so far
-    (an overestimate of a Gaussian's share: frames and networks are counted in it, so it errs on the
-    side of stopping early)."""
+def gaussians_memory_holds(n: int, device: torch.device, row_bytes: int) -> Optional[int]:
+    """How many more Gaussians the GPU's memory holds next to `n` (None off CUDA): `MEMORY_HEADROOM` of
+    the device's memory, less the peak allocation so far and the growth's own transient (it concatenates
+    each parameter and its Adam moments anew: twice the widest parameter's `row_bytes` per Gaussian),
+    over the peak per Gaussian so far (frames and networks counted in it: it errs towards stopping early)."""
     if device.type != "cuda" or n == 0:
         return None
-    free, _ = torch.cuda.mem_get_info(device)
-    spare = free + torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device)
-    per_gaussian = torch.cuda.max_memory_allocated(device) / n
-    return int(MEMORY_HEADROOM * spare / per_gaussian)
+    total = torch.cuda.get_device_properties(device).total_memory
+    peak = torch.cuda.max_memory_allocated(device)
+    return max(0, int((MEMORY_HEADROOM * total - peak - 2 * row_bytes * n) / (peak / n)))
 
 
 @dataclass
@@ -55,7 +54,7 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """
 
     max_gaussians: int = 1_000_000
-    memory_room: Callable[[int, torch.device], Optional[int]] = gaussians_memory_holds
+    memory_room: Callable[[int, torch.device, int], Optional[int]] = gaussians_memory_holds
     """How many more Gaussians the device holds (None: no limit known); growth stops there, with a
     message, rather than at an out-of-memory error."""
     memory_stopped_at: Optional[int] = None
@@ -88,7 +87,8 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     def before_growth(self, params, state, step) -> None:
         n = params["means"].shape[0]
         room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian
-        fits = self.memory_room(n, params["means"].device)
+        widest = max(p[:1].numel() * p.element_size() for p in params.values())  # bytes of a Gaussian's widest row
+        fits = self.memory_room(n, params["means"].device, widest)
         if fits is not None and fits < room:
             room = fits
             if self.memory_stopped_at is None:

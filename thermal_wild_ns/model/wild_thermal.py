@@ -453,6 +453,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """The last training step's total loss (detached) and its training image (the divergence guard's)."""
         return self._last_training_loss
 
+    def limit_growth(self, count: int) -> None:
+        """Densification never grows past `count` Gaussians from now on (`max_gaussians` lowered)."""
+        self.strategy.max_gaussians = min(self.strategy.max_gaussians, count)
+
     def discard_step_statistics(self) -> None:
         """This step's gradients stay out of the densification statistics (a step the guard skipped)."""
         self._discard_statistics = True

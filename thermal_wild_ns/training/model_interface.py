@@ -32,3 +32,8 @@ class GuardedModel(Protocol):
     def interpolate_embeddings(self, rows: Sequence[int]) -> None:
         """Set the embeddings of held-back training images to the state their neighbours give."""
         ...
+
+    def limit_growth(self, count: int) -> None:
+        """Densification never grows the model past `count` Gaussians from now on (the trainer's answer
+        to a step that ran out of GPU memory)."""
+        ...

@@ -193,6 +193,39 @@ class GuardedTrainer(TrainerAfterLoad):
             return self._iteration(step)
         if self.guarded_model and self.pipeline.model.schedule_moves_loss(step):
             self.guard.rebaseline()
+        out_of_memory = None
+        try:
+            return self._checked_iteration(step)
+        except torch.OutOfMemoryError as err:  # handled below, once the failed step's tensors are released
+            out_of_memory = str(err).splitlines()[0]
+        return self._after_out_of_memory(step, out_of_memory)
+
+    def _after_out_of_memory(self, step: int, message: str):
+        """A step ran out of GPU memory: back to the last healthy state, whose Gaussian count is then
+        the most densification may reach (`limit_growth`), as a rollback (it counts as one)."""
+        healthy = self._healthy
+        count = None if healthy is None else int(healthy["model"]["gauss_params.means"].shape[0])
+        if count is None or not self.guarded_model or self.guard.rollbacks >= self.config.guard.max_rollbacks:
+            raise SystemExit(
+                f"step {step}: out of GPU memory ({message}). Lower --pipeline.model.max-gaussians or the "
+                "resolution, or train across GPUs (torchrun -m thermal_wild_ns.multi_gpu)"
+            )
+        torch.cuda.empty_cache()
+        restore(self.pipeline, self.optimizers, healthy)
+        model = self.pipeline.model
+        model.step = step
+        model.discard_step_statistics()
+        model.limit_growth(count)
+        self.guard.rollbacks += 1
+        CONSOLE.log(
+            f"[yellow]step {step}: out of GPU memory -> rolled back to step {healthy['step']} ({count:,} Gaussians), "
+            f"which densification will not grow past ({self.guard.rollbacks} of at most "
+            f"{self.config.guard.max_rollbacks} rollbacks)"
+        )
+        zero = torch.zeros((), device=self.pipeline.device)
+        return zero, {"rolled_back": zero}, {}
+
+    def _checked_iteration(self, step: int):
         try:
             result = self._iteration(step)
             if step % self.config.guard.check_every == 0:
