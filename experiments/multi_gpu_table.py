@@ -68,6 +68,38 @@ def main(folder: Path) -> str:
                 lines.append(f"{lead}| {count['gaussians']:,} | {count['ms_per_step']} | {count['gpu_peak_gib']} |")
             limit = survey.get("first_limit", "")
             lines.append(f"| | | | | | | {limit.split(': CUDA')[0]}: out of memory | | |")
+    for name, title in (
+        (
+            "cost_h100_host_snapshots.jsonl",
+            "H100 after the snapshots moved to the host (plan cost-all, GROWTH_STEPS=60; commit 1080822)",
+        ),
+        (
+            "cost_h200_gpu_snapshots.jsonl",
+            "H200, snapshots still on the GPU (plan cost-one, GROWTH_STEPS=60; commit f871391)",
+        ),
+    ):
+        lines += [
+            "",
+            f"{title}: the lines it printed",
+            "",
+            "| frames | Gaussians | ms/step | GPU peak GiB |",
+            "| --- | --- | --- | --- |",
+        ]
+        growth = []
+        for line in (folder / name).read_text().splitlines():
+            row = json.loads(line)
+            if "growth" in row:
+                growth.append(row)
+            else:
+                lines.append(
+                    f"| {row['frames']:,} | {row['gaussians']:,} | {row['ms_per_step']} | {row['gpu_peak_gib']} |"
+                )
+        for row in growth:
+            g = row["growth"]
+            lines.append(
+                f"\nGrowth from {g['start']:,} ({row['frames']:,} frames): message at {g['memory_stopped_at']:,}, "
+                f"largest {g['largest']:,}; {g['outcome'].split('. GPU 0')[0]}."
+            )
     return "\n".join(lines) + "\n"
 
 
