@@ -8,6 +8,8 @@ import statistics
 import sys
 from pathlib import Path
 
+from experiments.survey_cost import markdown
+
 
 def spread(values) -> str:
     return f"{statistics.mean(values):.2f} ({min(values):.2f}–{max(values):.2f})"
@@ -52,22 +54,8 @@ def main(folder: Path) -> str:
             + f" | {spread([s['celsius_mae_aligned'] for s in scores])} |"
         )
     lines += ["", "One GPU: surveys of 250 to 4,000 frames (experiments.survey_cost, plans cost-one and cost-4000)", ""]
-    lines += [
-        "| device | frames | site (m) | generate s | setup s | host peak GiB | Gaussians | ms/step | GPU peak GiB |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
     for name in ("cost_h100_250_1000.json", "cost_h100_4000.json"):
-        result = json.loads((folder / name).read_text())
-        for survey in result["surveys"]:
-            head = (
-                f"| {result['device']} | {survey['frames']:,} | {survey['site_m'][0]} x {survey['site_m'][1]} "
-                f"| {survey['generate_s']} | {survey['setup_s']} | {survey['host_peak_gib']} "
-            )
-            for i, count in enumerate(survey["counts"]):
-                lead = head if i == 0 else "| | | | | | "
-                lines.append(f"{lead}| {count['gaussians']:,} | {count['ms_per_step']} | {count['gpu_peak_gib']} |")
-            limit = survey.get("first_limit", "")
-            lines.append(f"| | | | | | | {limit.split(': CUDA')[0]}: out of memory | | |")
+        lines.append(markdown(json.loads((folder / name).read_text())))
     for name, title in (
         (
             "cost_h100_host_snapshots.jsonl",

@@ -208,7 +208,7 @@ def markdown(result: Dict) -> str:
             lead = head if i == 0 else "| | | | | "
             lines.append(f"{lead}| {c['gaussians']:,} | {c['ms_per_step']} | {c['gpu_peak_gib']} |")
         if "first_limit" in row:
-            lines.append(f"| | | | | | {row['first_limit']} | | |")
+            lines.append(f"| | | | | | {row['first_limit'].split(': CUDA')[0]}: out of memory | | |")
     return "\n".join(lines) + "\n"
 
 

@@ -105,3 +105,14 @@ def test_two_process_run_gives_one_checkpoint_that_loads_on_one_device(tmp_path)
     camera = pipeline.datamanager.eval_dataset.cameras[0:1]
     outputs = model.get_outputs_for_camera(camera)
     assert torch.isfinite(outputs["thermal"]).all() and outputs["accumulation"].mean() > 0.5
+
+    # resumed across GPUs: each rank takes its share of the checkpoint's Gaussians (none twice)
+    resume = [*args[: args.index("thermal-demo-data")], "--load-dir", str(checkpoints[-1].parent)]
+    resume += ["--pipeline.model.refine-every", "1000", *args[args.index("thermal-demo-data") :]]
+    resume[resume.index("70")] = "76"  # six more steps, no densification in them
+    run = subprocess.run([*TORCHRUN, *resume], cwd=tmp_path, capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    latest = max((tmp_path / "out").rglob("*.ckpt"), key=lambda path: path.stat().st_mtime)  # the resumed run's
+    resumed = torch.load(latest, map_location="cpu", weights_only=False)
+    assert resumed["step"] == 75
+    assert resumed["pipeline"]["_model.gauss_params.means"].shape[0] == gathered

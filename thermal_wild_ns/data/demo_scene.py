@@ -186,17 +186,26 @@ def render_view(c2w: np.ndarray, cfg: DemoSceneConfig, supersample: int = 2) -> 
     return temp, depth
 
 
+def drift(cfg, rng: np.random.Generator) -> Tuple[np.ndarray, np.ndarray]:
+    """Per-frame gain and offset (counts) of a scene config with `num_frames`, `drift_gain`,
+    `drift_counts`, `jitter_gain` and `jitter_counts`: a ramp over the capture plus frame-to-frame jitter."""
+    s = np.linspace(0.0, 1.0, cfg.num_frames)
+    gain = 1.0 + cfg.drift_gain * s + cfg.jitter_gain * rng.standard_normal(cfg.num_frames)
+    offset = cfg.drift_counts * s + cfg.jitter_counts * rng.standard_normal(cfg.num_frames)
+    return gain, offset
+
+
 def sensor_faults(cfg: DemoSceneConfig) -> Dict[str, np.ndarray]:
     """Per-frame gain/offset and the fixed patterns (vignetting, column noise) of the sensor."""
     rng = np.random.default_rng(cfg.seed)
-    s = np.linspace(0.0, 1.0, cfg.num_frames)
+    gain, offset = drift(cfg, rng)
     v, u = np.meshgrid(np.arange(cfg.height) + 0.5, np.arange(cfg.width) + 0.5, indexing="ij")
     r2 = ((u - cfg.width / 2) ** 2 + (v - cfg.height / 2) ** 2) / ((cfg.width / 2) ** 2 + (cfg.height / 2) ** 2)
     frames = np.arange(cfg.num_frames)
     sawtooth = cfg.ffc_step_counts * (frames % cfg.ffc_period) if cfg.ffc_period > 0 else np.zeros(cfg.num_frames)
     return {
-        "gain": 1.0 + cfg.drift_gain * s + cfg.jitter_gain * rng.standard_normal(cfg.num_frames),
-        "offset": cfg.drift_counts * s + cfg.jitter_counts * rng.standard_normal(cfg.num_frames) + sawtooth,
+        "gain": gain,
+        "offset": offset + sawtooth,
         "vignetting": 1.0 - cfg.vignetting * r2,
         "columns": cfg.column_noise_counts * rng.standard_normal(cfg.width)[None, :]
         + cfg.row_noise_counts * rng.standard_normal(cfg.height)[:, None],

@@ -32,6 +32,7 @@ from thermal_wild_ns.data.demo_scene import (
     COUNTS_RANGE,
     _ground_temp,
     _write_points_ply,
+    drift,
     scene_key,
     write_transforms,
 )
@@ -163,10 +164,7 @@ def generate_survey_scene(out_dir: Path, cfg: SurveySceneConfig = SurveySceneCon
         with open(meta_path) as f:
             if json.load(f).get("thermal_demo", {}).get("key") == key:
                 return out_dir
-    rng = np.random.default_rng(cfg.seed)
-    s = np.linspace(0.0, 1.0, cfg.num_frames)
-    gain = 1.0 + cfg.drift_gain * s + cfg.jitter_gain * rng.standard_normal(cfg.num_frames)
-    offset = cfg.drift_counts * s + cfg.jitter_counts * rng.standard_normal(cfg.num_frames)
+    gain, offset = drift(cfg, np.random.default_rng(cfg.seed))
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = make_work_folder(out_dir.parent, ".survey-")
     (tmp / "images").mkdir()

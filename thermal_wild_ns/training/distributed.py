@@ -9,7 +9,8 @@ copies take the same Adam step and stay equal; the photometric state is one on e
 A checkpoint is one file that loads on one GPU (ns-viewer, ns-render, ns-eval, wild-thermal-export):
 every rank's Gaussians gathered in rank order, the networks' optimizer state (the same on every
 rank), without the Gaussians' Adam moments and densification statistics, which are per rank. Resuming
-one with `ns-train --load-dir` on one GPU continues with fresh moments for the Gaussians.
+one (`--load-dir`, on one GPU through ns-train or on several through the launcher, each rank taking its
+share) continues with fresh moments for the Gaussians.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import List, Type
 import torch
 from torch.nn import Parameter
 
-from thermal_wild_ns._upstream import trainer_checkpoint_state
+from thermal_wild_ns._upstream import repoint_optimizers, trainer_checkpoint_state
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER
 from thermal_wild_ns.training.checkpoints import save_checkpoint
@@ -69,6 +70,20 @@ class DistributedTrainer(GuardedTrainer):
         self.gaussian_names = list(model.gauss_params.keys())
         # one copy per rank; the Gaussians are replaced at each densification, these never are
         self.shared: List[Parameter] = [p for n, p in model.named_parameters() if not n.startswith("gauss_params.")]
+
+    def after_checkpoint_load(self) -> None:
+        """A resumed run (`--load-dir`): the checkpoint holds every rank's Gaussians; each rank keeps
+        its share (the checkpoint has no Adam moments or statistics for them: they start afresh)."""
+        super().after_checkpoint_load()
+        model, ranks = self.pipeline.model, RankGroup.current()
+        own = ranks.own_rows({name: p.detach() for name, p in model.gauss_params.items()})
+        for name, value in own.items():
+            model.gauss_params[name] = Parameter(value)
+            self.optimizers.optimizers[name].state.clear()
+        repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())
+        for key, value in list(model.strategy_state.items()):
+            if isinstance(value, torch.Tensor):
+                model.strategy_state[key] = None
 
     def _iteration(self, step: int):
         return lean_iteration(
