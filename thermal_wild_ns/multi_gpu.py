@@ -99,6 +99,7 @@ def main(config: TrainerConfig) -> None:
             single.timestamp = split.timestamp
             single.save_config()
         dist.barrier()
+        split.logging.local_writer.enable = ranks.rank == 0  # one progress table, not one per GPU
         # rank 0 sets up alone first: it generates, preprocesses and caches what the others then read
         if ranks.rank != 0:
             dist.barrier()
