@@ -11,6 +11,7 @@ import yaml
 from multi_gpu_worker import scene
 from nerfstudio.utils.eval_utils import eval_setup
 
+from thermal_wild_ns.multi_gpu import join_process_group
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization
 
@@ -116,3 +117,11 @@ def test_two_process_run_gives_one_checkpoint_that_loads_on_one_device(tmp_path)
     resumed = torch.load(latest, map_location="cpu", weights_only=False)
     assert resumed["step"] == 75
     assert resumed["pipeline"]["_model.gauss_params.means"].shape[0] == gathered
+
+
+def test_more_processes_than_gpus_stop_with_the_reason(monkeypatch):
+    monkeypatch.setenv("RANK", "1")
+    monkeypatch.setenv("LOCAL_RANK", "1")
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    with pytest.raises(SystemExit, match="more processes than this host has GPUs \\(1\\)"):
+        join_process_group("cuda")

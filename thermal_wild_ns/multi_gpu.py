@@ -81,7 +81,10 @@ def join_process_group(device_type: str) -> RankGroup:
     if "RANK" not in os.environ:
         raise SystemExit("launch with torchrun: torchrun --nproc-per-node N -m thermal_wild_ns.multi_gpu METHOD ...")
     if device_type == "cuda":
-        torch.cuda.set_device(int(os.environ["LOCAL_RANK"]))
+        local, gpus = int(os.environ["LOCAL_RANK"]), torch.cuda.device_count()
+        if local >= gpus:
+            raise SystemExit(f"--nproc-per-node asks for more processes than this host has GPUs ({gpus})")
+        torch.cuda.set_device(local)
     dist.init_process_group("nccl" if device_type == "cuda" else "gloo")
     return RankGroup.current()
 

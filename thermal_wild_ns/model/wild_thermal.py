@@ -127,8 +127,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     emission_in_view_above: int = 1_000_000
     """Above this many Gaussians, training evaluates the emission MLP (and the view term) only for the
     Gaussians the camera can see (`in_view.py`): the same render, with memory and time that follow the
-    frame rather than the whole site (large surveys). Below it, the selection's host sync costs more
-    than it saves. Training across GPUs always selects."""
+    frame rather than the whole site (large surveys). Below it, where a frame sees much of a small
+    scene, the selection (a host sync per step) would save little. Training across GPUs always selects."""
     distributed: tyro.conf.Suppress[bool] = False
     """Set by the multi-GPU launcher (`training/distributed.py`): while training, each rank of
     torch.distributed's process group holds every world-th Gaussian (and that share of
