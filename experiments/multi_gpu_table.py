@@ -86,7 +86,12 @@ def main(folder: Path) -> str:
             g = row["growth"]
             lines.append(
                 f"\nGrowth from {g['start']:,} ({row['frames']:,} frames): message at {g['memory_stopped_at']:,}, "
-                f"largest {g['largest']:,}; {g['outcome'].split('. GPU 0')[0]}."
+                f"largest {g['largest']:,}; {g['outcome'].split('. GPU 0')[0]}"
+                + (
+                    f"; {g['out_of_memory_rollbacks']} rollbacks after running out."
+                    if "out_of_memory_rollbacks" in g
+                    else "."
+                )
             )
     return "\n".join(lines) + "\n"
 

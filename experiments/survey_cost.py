@@ -30,6 +30,7 @@ from thermal_wild_ns._upstream import repoint_optimizers
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 from thermal_wild_ns.method_configs import method_trainer
+from thermal_wild_ns.training.checkpoints import snapshot
 
 
 @dataclass
@@ -121,26 +122,30 @@ def timed_steps(trainer, first: int, steps: int) -> float:
 
 
 def growth_to_the_limit(trainer, seeds: Dict[str, torch.Tensor], start: int, step: int, steps: int) -> Dict:
-    """Train `steps` steps from `start` Gaussians, every Gaussian a growth candidate at every 10th step."""
+    """Train `steps` steps from `start` Gaussians, every Gaussian a growth candidate at every 10th step
+    (the guard's healthy copy taken first, as a run would have one): the memory estimate's cap, and the
+    rollbacks of steps that ran out of memory anyway (`GuardedTrainer`), are what it reports."""
     model = trainer.pipeline.model
     strategy = model.strategy
     resample_gaussians(trainer, seeds, start)
+    trainer._healthy = snapshot(trainer.pipeline, trainer.optimizers, step)
     strategy.max_gaussians = 10**10
     strategy.grow_grad2d = 1e-12
     strategy.refine_start_iter, strategy.refine_every, strategy.pause_refine_after_reset = step, 10, 0
-    counts = []
+    rollbacks, counts = trainer.guard.rollbacks, []
     try:
         for s in range(step, step + steps):
             training_step(trainer, s)
             counts.append(model.num_points)
         outcome = "trained every step"
-    except torch.OutOfMemoryError as err:
-        outcome = f"out of memory at {model.num_points:,} Gaussians: {str(err).splitlines()[0][:120]}"
+    except (torch.OutOfMemoryError, SystemExit) as err:
+        outcome = f"stopped at {model.num_points:,} Gaussians: {str(err).splitlines()[0][:160]}"
     return {
         "start": start,
         "end": model.num_points,
         "largest": max(counts, default=start),
         "memory_stopped_at": strategy.memory_stopped_at,
+        "out_of_memory_rollbacks": trainer.guard.rollbacks - rollbacks,
         "outcome": outcome,
     }
 
