@@ -1,6 +1,7 @@
 """One scene across GPUs (`thermal_wild_ns.multi_gpu`), tested on CPU: two processes joined by the gloo
 backend, rendering through the pure-torch rasterizer's distributed mode (gsplat's needs CUDA)."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from thermal_wild_ns.multi_gpu import join_process_group
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization
+from thermal_wild_ns.training.auto_stop import held_back_images, held_back_score
 
 ROOT = Path(__file__).resolve().parents[1]
 TORCHRUN = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
@@ -64,7 +66,8 @@ def test_split_render_and_gradients_equal_one_process(tmp_path_factory, packed):
 def test_two_process_run_gives_one_checkpoint_that_loads_on_one_device(tmp_path):
     """The launcher end to end (two CPU processes): one config.yml that a one-device command loads,
     one checkpoint with every rank's Gaussians, the shared networks equal on both ranks (checked at
-    every save: the run fails otherwise)."""
+    every save: the run fails otherwise), the automatic stop's score rendered by both ranks together,
+    and a resume across two processes."""
     args = [
         "-m",
         "thermal_wild_ns.multi_gpu",
@@ -106,6 +109,13 @@ def test_two_process_run_gives_one_checkpoint_that_loads_on_one_device(tmp_path)
     camera = pipeline.datamanager.eval_dataset.cameras[0:1]
     outputs = model.get_outputs_for_camera(camera)
     assert torch.isfinite(outputs["thermal"]).all() and outputs["accumulation"].mean() > 0.5
+
+    # the automatic stop's last score was rendered by both ranks together: one process renders the same
+    record = json.loads((configs[0].parent / "auto_stop.json").read_text())
+    images = held_back_images(len(pipeline.datamanager.train_dataset), 2)
+    assert len(images) == 2 and record["final_psnr"] is not None
+    assert abs(held_back_score(pipeline, images) - record["final_psnr"]) < 1e-3
+    assert not list((configs[0].parent / "auto_stop").glob("*rank*"))  # no check before the schedule settles
 
     # resumed across GPUs: each rank takes its share of the checkpoint's Gaussians (none twice)
     resume = [*args[: args.index("thermal-demo-data")], "--load-dir", str(checkpoints[-1].parent)]

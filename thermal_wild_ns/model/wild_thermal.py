@@ -130,9 +130,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     frame rather than the whole site (large surveys). Below it, where a frame sees much of a small
     scene, the selection (a host sync per step) would save little. Training across GPUs always selects."""
     distributed: tyro.conf.Suppress[bool] = False
-    """Set by the multi-GPU launcher (`training/distributed.py`): while training, each rank of
-    torch.distributed's process group holds every world-th Gaussian (and that share of
-    `max_gaussians`) and renders through gsplat's distributed rasterization."""
+    """Set by the multi-GPU launcher (`training/distributed.py`): each rank of torch.distributed's
+    process group holds every world-th Gaussian (and that share of `max_gaussians`) and renders through
+    gsplat's distributed rasterization, all ranks together."""
 
 
 class WildThermalModel(GreyColourAccessors, SplatfactoModel):
@@ -323,9 +323,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
         render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
         camera_position = view.camera_to_world[0, :3, 3]  # [3]
-        split = self.training and self.ranks.split  # the Gaussians are split across GPUs
+        # the Gaussians are split across GPUs: every render is one of all ranks together (outside
+        # training, the automatic stop's: every rank renders the same camera at the same state)
+        split = self.ranks.split
         with record_function("thermal/emission"):
-            if split:  # one channel per rank: every rank's camera sees this rank's Gaussians at its state
+            if split and self.training:  # one channel per rank: each rank's camera sees these Gaussians at its state
                 colors = self.emission_for_every_rank(frame_embed, cam_idx_of(camera), view)  # [N, W]
             elif self.training and self.num_points > self.config.emission_in_view_above:
                 colors = self.emission_in_view(frame_embed, view.viewmat[0], view.K[0], W, H, camera_position)
@@ -354,8 +356,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 rasterize_mode=self.config.rasterize_mode,
                 distributed=split,
                 backend=self.config.rasterizer,
-            )  # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split: this rank's channel is kept), [1, H, W, 1]
-        if split:
+            )  # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split in training: this rank's channel is kept), [1, H, W, 1]
+        if split and self.training:
             render = torch.cat(
                 [render[..., self.ranks.rank : self.ranks.rank + 1], render[..., self.ranks.world :]], -1
             )

@@ -93,3 +93,11 @@ class RankGroup:
         gap = (flat - reference).abs().max()
         dist.all_reduce(gap, op=dist.ReduceOp.MAX)
         return float(gap)
+
+    def from_rank_0(self, value: float) -> float:
+        """Rank 0's `value` on every rank (one decision for all, whatever each rank computed)."""
+        if not self.split:
+            return value
+        box = [value]
+        dist.broadcast_object_list(box, src=0)
+        return float(box[0])

@@ -38,6 +38,7 @@ from thermal_wild_ns.pipeline.photometric_state import (
     preprocessed_sequence,
     render,
 )
+from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
 from thermal_wild_ns.training.checkpoints import restore, snapshot
 from thermal_wild_ns.training.model_interface import GuardedModel
@@ -147,6 +148,9 @@ class AutoStopRun:
         self.last_step = 0
         self._best: Optional[dict] = None
         self._scores_settled_model = isinstance(pipeline.model, GuardedModel)  # it says when scores settle
+        # across GPUs every rank scores (renders are collective) and keeps its own Gaussians' best state;
+        # rank 0's score decides for all, and rank 0 writes the record
+        self.ranks = RankGroup.current()
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -171,7 +175,8 @@ class AutoStopRun:
         """Where a state of step `step` is kept beside the run's config (this run's, or `run`'s):
         'best', the best-scoring model so far, which a resumed run can still go back to; 'trained',
         the state trained last when the final checkpoint holds the best one instead."""
-        return (run or self.run_dir) / "auto_stop" / f"{kind}-{step:09d}.pt"
+        rank = f"-rank{self.ranks.rank}" if self.ranks.split else ""  # each rank's share of the Gaussians
+        return (run or self.run_dir) / "auto_stop" / f"{kind}-{step:09d}{rank}.pt"
 
     def resume(self, run: Path, start_step: int) -> None:
         """Continue the automatic stop of the run being resumed: its checks before the checkpoint,
@@ -208,7 +213,7 @@ class AutoStopRun:
         self.last_step = step
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
-        score = held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
+        score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
         if self.progress.update(step, score) and self.config.keep_best:
             self._best = None  # the older copy goes before the new one is made
             best = self._best = snapshot(self.pipeline, self.optimizers, step)
@@ -226,7 +231,7 @@ class AutoStopRun:
         if best is not None:
             for path in self.state_path("best", best).parent.glob("best-*.pt"):
                 if int(path.stem.split("-")[1]) < best:
-                    path.unlink()
+                    path.unlink(missing_ok=True)  # across GPUs another rank may have removed it
 
     def finish(self, step: int) -> None:
         """Before the final checkpoint of a run whose last trained step is `step`: keep the best
@@ -234,7 +239,11 @@ class AutoStopRun:
         self.last_step = step
         history = self.progress.history
         checked = bool(history) and history[-1][0] == step
-        final = history[-1][1] if checked else held_back_score(self.pipeline, self.pipeline.datamanager.held_back)
+        final = (
+            history[-1][1]
+            if checked
+            else self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
+        )
         kept = step
         if self._best is not None and self.progress.best > final + self.progress.min_improvement:
             # the state trained last, for a resume that goes on training (the final checkpoint holds the kept one)
@@ -263,4 +272,5 @@ class AutoStopRun:
             "final_psnr": final,
             "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
         }
-        write_text_atomically(self.run_dir / "auto_stop.json", json.dumps(record, indent=1), self.partial_dir)
+        if self.ranks.rank == 0:
+            write_text_atomically(self.run_dir / "auto_stop.json", json.dumps(record, indent=1), self.partial_dir)

@@ -56,8 +56,9 @@ class DistributedTrainerConfig(GuardedTrainerConfig):
 
 class DistributedTrainer(GuardedTrainer):
     """`GuardedTrainer` whose step sums the shared parameters' gradients over the ranks and whose
-    checkpoints gather the Gaussians (one file, written by rank 0). The divergence guard and the
-    automatic stop are off (their decisions would have to be taken by all ranks together)."""
+    checkpoints gather the Gaussians (one file, written by rank 0). The automatic stop scores on every
+    rank together and decides by rank 0's score; the divergence guard is off (each rank's check of its
+    own loss and gradients would have to become one decision)."""
 
     config: DistributedTrainerConfig
 
@@ -100,3 +101,5 @@ class DistributedTrainer(GuardedTrainer):
             base = self.config.get_base_dir()
             save_checkpoint(state, self.checkpoint_dir, step, base / PARTIAL_FOLDER, only_latest)
         torch.distributed.barrier()  # no rank runs ahead of a checkpoint being written
+        if self.auto_stop is not None:
+            self.auto_stop.forget_older_best()
