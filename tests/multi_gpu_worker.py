@@ -8,6 +8,7 @@ from pathlib import Path
 import torch
 import torch.distributed as dist
 
+from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization
 
 
@@ -54,6 +55,9 @@ def main(out: Path) -> None:
         saved.update(render=render.detach(), means2d_grad=meta["means2d"].grad, n_cameras=meta["n_cameras"])
         saved.update({k: meta[k] for k in ("radii", "camera_ids", "gaussian_ids")})
         torch.save(saved, out / f"rank{rank}-packed{packed}.pt")
+    ranks = RankGroup.current()  # the decisions taken once for all ranks (the guard's, the automatic stop's)
+    decisions = {"any": ranks.any(rank == 1, torch.device("cpu")), "from_rank_0": ranks.from_rank_0(10.0 + rank)}
+    torch.save(decisions, out / f"rank{rank}-decisions.pt")
     dist.destroy_process_group()
 
 

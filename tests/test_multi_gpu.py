@@ -30,15 +30,29 @@ def test_rank_shares_cover_everything_once():
     assert slots == list(range(8))
 
 
+def test_one_decision_for_all_ranks(tmp_path_factory):
+    """What the guard and the automatic stop decide across GPUs: a flag any rank raises, every rank
+    sees; rank 0's score is every rank's."""
+    out = split_render_run(tmp_path_factory)
+    for rank in range(2):
+        assert torch.load(out / f"rank{rank}-decisions.pt") == {"any": True, "from_rank_0": 10.0}
+
+
+def split_render_run(tmp_path_factory):
+    """The folder of one two-process run of `multi_gpu_worker.py` (made once for the session's tests)."""
+    out = tmp_path_factory.getbasetemp() / "split_render"
+    if not out.exists():
+        out.mkdir()
+        run = subprocess.run([*TORCHRUN, str(ROOT / "tests" / "multi_gpu_worker.py"), str(out)], cwd=ROOT)
+        assert run.returncode == 0
+    return out
+
+
 @pytest.mark.parametrize("packed", [False, True])
 def test_split_render_and_gradients_equal_one_process(tmp_path_factory, packed):
     """Each rank renders its camera with its half of the Gaussians; the render, every Gaussian's
     gradient and the densification statistics' inputs must be one process's with all of them."""
-    out = tmp_path_factory.getbasetemp() / "split_render"
-    if not out.exists():  # one two-process run writes both layouts
-        out.mkdir()
-        run = subprocess.run([*TORCHRUN, str(ROOT / "tests" / "multi_gpu_worker.py"), str(out)], cwd=ROOT)
-        assert run.returncode == 0
+    out = split_render_run(tmp_path_factory)  # one two-process run writes both layouts
     params, viewmats, Ks, weights = scene()
     full = {k: v.clone().requires_grad_() for k, v in params.items()}
     render, alpha, meta = rasterization(**full, viewmats=viewmats, Ks=Ks, width=48, height=32, packed=packed)

@@ -7,8 +7,8 @@ trains one image per step, through gsplat's distributed rasterization (`training
 What changes from a one-GPU run, each printed at start:
 - densification statistics without absgrad (gsplat's distributed rasterization has none): the
   growth threshold is scaled to the plain gradient (splatfacto's absgrad default 0.0008 -> 0.0002);
-- the divergence guard is off (every rank would have to decide together); the automatic stop scores
-  the held-back frames on all GPUs together and stops every rank at once;
+- the divergence guard and the automatic stop decide once for all GPUs (a step one GPU must skip,
+  every GPU skips); a step that runs out of GPU memory stops the run rather than rolling back;
 - no evaluation images or viewer during training;
 - each step trains N images (one per GPU): the same steps see N times the images.
 The run folder holds one config.yml and checkpoints that load on one GPU (ns-viewer, ns-render,
@@ -51,14 +51,13 @@ def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
         raise SystemExit(f"{config.method_name}: only this plugin's thermal methods train across GPUs")
     names = [f.name for f in dataclasses.fields(GuardedTrainerConfig) if f.name != "_target"]
     split = DistributedTrainerConfig(**{name: copy.deepcopy(getattr(config, name)) for name in names})
-    changes = ["one image per GPU per step", "divergence guard off", "no evaluation during training"]
+    changes = ["one image per GPU per step", "no evaluation during training"]
     model, datamanager = split.pipeline.model, split.pipeline.datamanager
     model.distributed = datamanager.distributed = True
     if model.use_absgrad:
         model.use_absgrad = False
         model.densify_grad_thresh *= PLAIN_GRADIENT_SCALE
         changes.append(f"growth on the plain gradient, densify_grad_thresh {model.densify_grad_thresh:g}")
-    split.guard.enabled = False
     split.steps_per_eval_image = split.steps_per_eval_batch = split.steps_per_eval_all_images = 0
     split.vis = "tensorboard"
     split.viewer.quit_on_train_completion = True

@@ -101,3 +101,11 @@ class RankGroup:
         box = [value]
         dist.broadcast_object_list(box, src=0)
         return float(box[0])
+
+    def any(self, flag: bool, device: torch.device) -> bool:
+        """Whether `flag` is set on any rank (every rank gets the same answer: one decision for all)."""
+        if not self.split:
+            return flag
+        value = torch.tensor(1.0 if flag else 0.0, device=device)
+        dist.all_reduce(value, op=dist.ReduceOp.MAX)
+        return bool(value > 0)

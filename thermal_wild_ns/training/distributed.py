@@ -16,7 +16,7 @@ share) continues with fresh moments for the Gaussians.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Type
+from typing import List, Optional, Type
 
 import torch
 from torch.nn import Parameter
@@ -25,6 +25,7 @@ from thermal_wild_ns._upstream import repoint_optimizers, trainer_checkpoint_sta
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER
 from thermal_wild_ns.training.checkpoints import save_checkpoint
+from thermal_wild_ns.training.divergence import TrainingDiverged
 from thermal_wild_ns.training.lean_step import lean_iteration
 from thermal_wild_ns.training.trainer import GuardedTrainer, GuardedTrainerConfig
 
@@ -57,8 +58,8 @@ class DistributedTrainerConfig(GuardedTrainerConfig):
 class DistributedTrainer(GuardedTrainer):
     """`GuardedTrainer` whose step sums the shared parameters' gradients over the ranks and whose
     checkpoints gather the Gaussians (one file, written by rank 0). The automatic stop scores on every
-    rank together and decides by rank 0's score; the divergence guard is off (each rank's check of its
-    own loss and gradients would have to become one decision)."""
+    rank together and decides by rank 0's score; the divergence guard's verdicts (skip a step, roll back)
+    are one for all ranks. A step out of GPU memory stops the run (the other ranks wait in collectives)."""
 
     config: DistributedTrainerConfig
 
@@ -87,8 +88,35 @@ class DistributedTrainer(GuardedTrainer):
                 model.strategy_state[key] = None
 
     def _iteration(self, step: int):
+        accept = self._accept_step if self.config.guard.enabled else None
         return lean_iteration(
-            self.pipeline, self.optimizers, step, None, after_backward=lambda: self.ranks.sum_gradients(self.shared)
+            self.pipeline, self.optimizers, step, accept, after_backward=lambda: self.ranks.sum_gradients(self.shared)
+        )
+
+    def _step_problem(self, param_groups) -> Optional[str]:
+        """The guard's verdict on this step, one for all ranks: a step any rank must skip, every rank skips
+        (the shared copies stay equal, and the guard's counters, which decide a rollback, agree)."""
+        reason = super()._step_problem(param_groups)
+        if self.ranks.any(reason is not None, self.pipeline.model.device) and reason is None:
+            reason = "skipped on another GPU"
+        return reason
+
+    def _check_model(self, step: int) -> None:
+        """The guard's model check, one for all ranks: where any rank's share is broken, every rank rolls
+        back (to its own healthy state)."""
+        try:
+            super()._check_model(step)
+            broken = None
+        except TrainingDiverged as err:
+            broken = str(err)
+        if self.ranks.any(broken is not None, self.pipeline.model.device):
+            raise TrainingDiverged(broken or f"step {step}: the model diverged on another GPU")
+
+    def _after_out_of_memory(self, step: int, message: str):
+        # the other ranks wait inside this step's collectives: no rollback can be agreed on; torchrun stops them
+        raise SystemExit(
+            f"step {step}, GPU {self.ranks.rank}: out of GPU memory ({message}). Lower "
+            "--pipeline.model.max-gaussians or the resolution, or use more GPUs"
         )
 
     def save_checkpoint(self, step: int) -> None:  # every rank: the gather is collective

@@ -127,13 +127,21 @@ class GuardedTrainer(TrainerAfterLoad):
         if self.auto_stop is not None and load_dir is not None:
             self.auto_stop.resume(Path(load_dir).parent, self._start_step)
 
+    def _step_problem(self, param_groups) -> Optional[str]:
+        """Why this step's update must not happen (the guard's checks on its loss and gradients), or None."""
+        loss, frame = self.pipeline.model.last_training_loss() if self.guarded_model else (None, None)
+        with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
+            return self.guard.check_step(loss, self.optimizers.parameters, param_groups, frame)
+
+    def _check_model(self, step: int) -> None:
+        """The guard's check of the model itself (`TrainingDiverged` when broken)."""
+        self.guard.check_model(self.pipeline.model, step)
+
     def _accept_step(self, param_groups) -> bool:
-        """Whether this step's update may happen (the guard's checks on its loss and gradients)."""
+        """Whether this step's update may happen (`_step_problem`), recorded by the guard."""
         model = self.pipeline.model
         guarded = self.guarded_model
-        loss, frame = model.last_training_loss() if guarded else (None, None)
-        with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
-            reason = self.guard.check_step(loss, self.optimizers.parameters, param_groups, frame)
+        reason = self._step_problem(param_groups)
         if reason is not None and guarded:
             model.discard_step_statistics()  # the strategy must not record this step's gradients either
         self.guard.record(self._step, reason)
@@ -229,7 +237,7 @@ class GuardedTrainer(TrainerAfterLoad):
         try:
             result = self._iteration(step)
             if step % self.config.guard.check_every == 0:
-                self.guard.check_model(self.pipeline.model, step)
+                self._check_model(step)
                 self._healthy = None  # the older copy goes before the new one is made
                 self._healthy = snapshot(self.pipeline, self.optimizers, step)
         except TrainingDiverged as err:
