@@ -4,13 +4,13 @@
 
 Every option is ns-train's. torchrun starts one process per GPU; each holds every N-th Gaussian and
 trains one image per step, through gsplat's distributed rasterization (`training/distributed.py`).
-What changes from a one-GPU run, each printed at start:
+What changes from a one-GPU run (the first three printed at start):
+- each step trains N images (one per GPU): the same steps see N times the images;
+- no evaluation images or viewer during training;
 - densification statistics without absgrad (gsplat's distributed rasterization has none): the
   growth threshold is scaled to the plain gradient (splatfacto's absgrad default 0.0008 -> 0.0002);
 - the divergence guard and the automatic stop decide once for all GPUs (a step one GPU must skip,
-  every GPU skips); a step that runs out of GPU memory stops the run rather than rolling back;
-- no evaluation images or viewer during training;
-- each step trains N images (one per GPU): the same steps see N times the images.
+  every GPU skips); a step that runs out of GPU memory stops the run rather than rolling back.
 The run folder holds one config.yml and checkpoints that load on one GPU (ns-viewer, ns-render,
 ns-eval, wild-thermal-export). On a CPU (tests) the processes use the gloo backend and the pure-torch
 rasterizer's distributed mode.
