@@ -23,6 +23,9 @@ def readme_commands():
             continue
         words = shlex.split(line.split("  #")[0].strip())
         words = [w.replace(".venv/bin/", "") for w in words]
+        if words and words[0] == "torchrun":  # the launcher's module, as one process runs it (it parses first)
+            commands.append(["python", *words[words.index("-m") :]])
+            continue
         for i, word in enumerate(words):  # `setup && .venv/bin/wild-thermal-demo`: the command after &&
             if word.startswith(PLUGIN_COMMANDS):
                 commands.append(words[i:])
@@ -46,7 +49,8 @@ def test_the_readme_shows_the_commands_a_user_needs():
 @pytest.mark.parametrize("command", readme_commands(), ids=lambda c: " ".join(c[:3]))
 def test_readme_command_parses(command, tmp_path):
     args = command[1:] or ["--help"]  # a command without arguments would run its whole job
-    result = subprocess.run([str(BIN / command[0]), *args], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    program = sys.executable if command[0] == "python" else str(BIN / command[0])
+    result = subprocess.run([program, *args], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     output = result.stdout + result.stderr
     assert result.returncode != 2 and "Unrecognized" not in output, f"{' '.join(command)}\n{output[-2000:]}"
     if command[1:]:
