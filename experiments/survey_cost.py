@@ -22,11 +22,10 @@ from typing import Dict, List, Tuple
 import torch
 import tyro
 from nerfstudio.engine.callbacks import TrainingCallbackLocation
-from torch.nn import Parameter
 
 from experiments import device_name, synchronize, write_report
 from experiments.bench import setup_trainer
-from thermal_wild_ns._upstream import repoint_optimizers
+from thermal_wild_ns._upstream import replace_gaussians
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 from thermal_wild_ns.method_configs import method_trainer
@@ -73,26 +72,18 @@ def resample_gaussians(trainer, seeds: Dict[str, torch.Tensor], n: int, seed: in
     and the guard's copy of them, are freed first."""
     model = trainer.pipeline.model
     trainer._healthy = None
-    with torch.no_grad():
-        for name in list(model.gauss_params):
-            model.gauss_params[name] = Parameter(seeds[name][:0].clone())
-    for optimizer in trainer.optimizers.optimizers.values():
-        optimizer.state.clear()
-    for key in list(model.strategy_state):
-        if isinstance(model.strategy_state[key], torch.Tensor):
-            model.strategy_state[key] = None
+    empty = {name: value[:0].clone() for name, value in seeds.items()}
+    replace_gaussians(trainer.pipeline, trainer.optimizers, empty)  # the old ones freed before the new exist
     gc.collect()
     if torch.cuda.is_available():
         torch.cuda.empty_cache()
     g = torch.Generator(device=model.device).manual_seed(n + seed)
     pick = torch.randint(seeds["means"].shape[0], (n,), device=model.device, generator=g)
-    with torch.no_grad():
-        for name, value in seeds.items():
-            value = value[pick]
-            if name == "means":
-                value += torch.randn(value.shape, device=value.device, generator=g) * torch.exp(seeds["scales"][pick])
-            model.gauss_params[name] = Parameter(value)
-    repoint_optimizers(trainer.optimizers, trainer.pipeline.get_param_groups())
+    values = {name: value[pick] for name, value in seeds.items()}
+    values["means"] += torch.randn(values["means"].shape, device=model.device, generator=g) * torch.exp(
+        values["scales"]
+    )
+    replace_gaussians(trainer.pipeline, trainer.optimizers, values)
 
 
 def initial_gaussians(trainer) -> Dict[str, torch.Tensor]:

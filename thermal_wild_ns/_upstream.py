@@ -209,6 +209,21 @@ def guard_optimizer_steps(optimizers, before_step: Callable[[list], bool]) -> No
     optimizers.optimizer_scaler_step_some = guarded
 
 
+def replace_gaussians(pipeline, optimizers, values: Dict[str, torch.Tensor]) -> None:
+    """Give the model `values` [N', ...] as its Gaussian parameters (the same keys as its `gauss_params`),
+    with fresh Adam moments and densification statistics for them, every optimizer pointed at them
+    (nerfstudio 1.1.5's optimizers hold the parameter tensors; splatfacto keeps its statistics in
+    `strategy_state`, sized by the Gaussian count)."""
+    model = pipeline.model
+    for name, value in values.items():
+        model.gauss_params[name] = torch.nn.Parameter(value)
+        optimizers.optimizers[name].state.clear()
+    repoint_optimizers(optimizers, pipeline.get_param_groups())
+    for key, value in list(model.strategy_state.items()):
+        if isinstance(value, torch.Tensor):
+            model.strategy_state[key] = None
+
+
 def repoint_optimizers(optimizers, param_groups: Dict[str, list]) -> None:
     """Point every optimizer at the model's current parameters, moving their state along.
 

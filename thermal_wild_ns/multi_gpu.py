@@ -49,8 +49,7 @@ def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
         and isinstance(datamanager, ThermalDatamanagerConfig)
     ):
         raise SystemExit(f"{config.method_name}: only this plugin's thermal methods train across GPUs")
-    names = [f.name for f in dataclasses.fields(GuardedTrainerConfig) if f.name != "_target"]
-    split = DistributedTrainerConfig(**{name: copy.deepcopy(getattr(config, name)) for name in names})
+    split = _copied_as(DistributedTrainerConfig, config)
     changes = ["one image per GPU per step", "no evaluation during training"]
     model, datamanager = split.pipeline.model, split.pipeline.datamanager
     model.distributed = datamanager.distributed = True
@@ -68,10 +67,15 @@ def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
 def one_gpu_config(config: DistributedTrainerConfig) -> GuardedTrainerConfig:
     """The config a one-GPU command loads the run with (its config.yml): the same model and data,
     not split (its densification settings kept, so a resumed run grows as this one did)."""
-    names = [f.name for f in dataclasses.fields(GuardedTrainerConfig) if f.name != "_target"]
-    single = GuardedTrainerConfig(**{name: copy.deepcopy(getattr(config, name)) for name in names})
+    single = _copied_as(GuardedTrainerConfig, config)
     single.pipeline.model.distributed = single.pipeline.datamanager.distributed = False
     return single
+
+
+def _copied_as(kind, config: GuardedTrainerConfig):
+    """A deep copy of `config`'s settings as a `kind` (its trainer: `_target` is the class's own)."""
+    names = [f.name for f in dataclasses.fields(GuardedTrainerConfig) if f.name != "_target"]
+    return kind(**{name: copy.deepcopy(getattr(config, name)) for name in names})
 
 
 def join_process_group(device_type: str) -> RankGroup:

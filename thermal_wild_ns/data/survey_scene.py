@@ -6,9 +6,9 @@ training one scene across GPUs, on a capture whose size is a parameter (`experim
 The site is a plane (z = 0) textured with fields, roads, warm roofs with hot vents and the demo's
 paving, so every frame differs from its neighbours and a held-out frame has content to score.
 
-Each frame is rendered and written by a pool of processes (its noise drawn from (seed, frame)), so a
-4,000-frame survey takes minutes on a many-core host. The layout and the published-when-complete
-folder are the demo scene's (`demo_scene.write_transforms`); held-out truth frames are written, depth
+Each frame is rendered and written by a pool of processes (its noise drawn from (seed, frame)): a
+survey of thousands of frames uses every core. The layout and the published-when-complete folder are
+the demo scene's (`demo_scene.write_transforms`); held-out truth frames are written, depth
 maps are not (a plane's depth is the altitude).
 """
 

@@ -21,7 +21,7 @@ from typing import List, Optional, Type
 import torch
 from torch.nn import Parameter
 
-from thermal_wild_ns._upstream import repoint_optimizers, trainer_checkpoint_state
+from thermal_wild_ns._upstream import replace_gaussians, trainer_checkpoint_state
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER
 from thermal_wild_ns.training.checkpoints import save_checkpoint
@@ -77,15 +77,8 @@ class DistributedTrainer(GuardedTrainer):
         """A resumed run (`--load-dir`): the checkpoint holds every rank's Gaussians; each rank keeps
         its share (the checkpoint has no Adam moments or statistics for them: they start afresh)."""
         super().after_checkpoint_load()
-        model, ranks = self.pipeline.model, RankGroup.current()
-        own = ranks.own_rows({name: p.detach() for name, p in model.gauss_params.items()})
-        for name, value in own.items():
-            model.gauss_params[name] = Parameter(value)
-            self.optimizers.optimizers[name].state.clear()
-        repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())
-        for key, value in list(model.strategy_state.items()):
-            if isinstance(value, torch.Tensor):
-                model.strategy_state[key] = None
+        gaussians = {name: p.detach() for name, p in self.pipeline.model.gauss_params.items()}
+        replace_gaussians(self.pipeline, self.optimizers, RankGroup.current().own_rows(gaussians))
 
     def _iteration(self, step: int):
         accept = self._accept_step if self.config.guard.enabled else None
