@@ -13,8 +13,13 @@
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
 #   quality-two   the same on 2 GPUs per run
+#   large-two     a 2-GPU host: the 1,000-frame survey trained on 2 GPUs at a count one of its GPUs does not
+#                 hold (256M on H200s, 192M on H100s), 600 steps, held-back frames scored on the way, and its
+#                 checkpoint; then that checkpoint scored on one GPU (experiments.score_checkpoint)
+#   stop-two      a 2-GPU host: the 250-frame survey through the launcher with its defaults (automatic stop,
+#                 divergence guard) to its stop, scored on one GPU
 set -uo pipefail
-plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two}
+plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two, large-two, stop-two}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -46,6 +51,30 @@ case "$plan" in
     timeout 300 torchrun --standalone --nproc-per-node 2 -m experiments.multi_gpu_cost \
       --frames 1000 --gaussians "${both[@]}" 256000000 320000000 384000000 --output-dir /tmp/mgc > "$OUT/two.log" 2>&1
     cp /tmp/mgc/multi_gpu_cost_*.json "$OUT/"; grep -h '^{"gaussians' "$OUT/one.log" "$OUT/two.log"
+    ;;
+  large-two)
+    survey 1000
+    mkdir -p /tmp/mgl && ln -sfn /tmp/survey_1000 /tmp/mgl/survey_1000
+    gib=$(nvidia-smi --query-gpu=memory.total --format=csv,noheader,nounits | head -1)
+    count=192000000; [ "$gib" -gt 100000 ] && count=256000000
+    timeout 420 torchrun --standalone --nproc-per-node 2 -m experiments.multi_gpu_cost --frames 1000 \
+      --gaussians 4000000 --steps 5 --train-at $count --train-steps 600 --score-every 200 \
+      --output-dir /tmp/mgl > "$OUT/large-two.log" 2>&1
+    cp /tmp/mgl/multi_gpu_train_2.json "$OUT/"; tail -n 30 "$OUT/large-two.log"
+    CUDA_VISIBLE_DEVICES=0 timeout 150 python3 -m experiments.score_checkpoint /tmp/mgl/runs/unnamed/wild-thermal/cost/config.yml \
+      > "$OUT/score-large-one-gpu.json" 2> "$OUT/score-large-one-gpu.log"
+    cat "$OUT/score-large-one-gpu.json"; nvidia-smi --query-gpu=name,memory.total --format=csv > "$OUT/gpus.csv"
+    ;;
+  stop-two)
+    survey 250
+    timeout 450 torchrun --standalone --nproc-per-node 2 -m thermal_wild_ns.multi_gpu wild-thermal \
+      --output-dir /tmp/stop --experiment-name survey --timestamp run --pipeline.model.max-gaussians 1000000 \
+      --pipeline.datamanager.preprocessing-cache /tmp/stop/cache \
+      thermal-demo-data --data /tmp/survey_250 --scene survey --survey-frames 250 > "$OUT/stop-two.log" 2>&1
+    cp /tmp/stop/survey/wild-thermal/run/auto_stop.json "$OUT/stop-two-auto_stop.json"
+    timeout 90 python3 -m experiments.score_checkpoint /tmp/stop/survey/wild-thermal/run/config.yml \
+      > "$OUT/score-stop-two.json" 2> "$OUT/score-stop-two.log"
+    grep -i "stops\|kept\|skipped\|rolled" "$OUT/stop-two.log" | tail -5; cat "$OUT/score-stop-two.json"
     ;;
   quality-one|quality-two)
     survey 250

@@ -42,18 +42,29 @@ class RankGroup:
         `world` consecutive images of the order, one per rank."""
         return step * self.world + self.rank
 
-    def gather_rows(self, tensor: Tensor) -> Tensor:
-        """Every rank's `tensor` [N_r, ...] (row counts may differ) concatenated in rank order [sum N_r, ...]."""
+    def gather_rows_on_host(self, tensor: Tensor, chunk_rows: int = 1 << 22) -> Tensor:
+        """Every rank's `tensor` [N_r, ...] (row counts may differ) concatenated in rank order
+        [sum N_r, ...], in host memory, on rank 0 (the other ranks get an empty tensor: they take part
+        in the collective only). `chunk_rows` rows of each rank travel at a time: a model split across
+        GPUs because it does not fit one does not fit one GPU gathered either."""
         if not self.split:
-            return tensor
+            return tensor.cpu()
         counts = [torch.zeros((), dtype=torch.int64, device=tensor.device) for _ in range(self.world)]
         dist.all_gather(counts, torch.tensor(tensor.shape[0], dtype=torch.int64, device=tensor.device))
         sizes: List[int] = [int(c) for c in counts]
-        padded = tensor.new_zeros((max(sizes), *tensor.shape[1:]))
-        padded[: tensor.shape[0]] = tensor
-        parts = [torch.empty_like(padded) for _ in range(self.world)]
-        dist.all_gather(parts, padded.contiguous())
-        return torch.cat([part[:n] for part, n in zip(parts, sizes)])
+        starts = [sum(sizes[:r]) for r in range(self.world)]
+        out = torch.empty((sum(sizes) if self.rank == 0 else 0, *tensor.shape[1:]), dtype=tensor.dtype)
+        for first in range(0, max(sizes), chunk_rows):
+            own = tensor[first : first + chunk_rows]
+            piece = tensor.new_zeros((chunk_rows, *tensor.shape[1:]))
+            piece[: own.shape[0]] = own
+            parts = [torch.empty_like(piece) for _ in range(self.world)]
+            dist.all_gather(parts, piece)
+            if self.rank == 0:
+                for r, part in enumerate(parts):
+                    n = min(max(sizes[r] - first, 0), chunk_rows)
+                    out[starts[r] + first : starts[r] + first + n] = part[:n].cpu()
+        return out
 
     def gather_stack(self, tensor: Tensor) -> Tensor:
         """Every rank's `tensor` (one shape on every rank) stacked in rank order [world, ...]."""

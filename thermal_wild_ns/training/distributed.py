@@ -36,12 +36,13 @@ GAUSSIANS = "_model.gauss_params."
 def gathered_checkpoint_state(trainer, step: int, ranks: RankGroup, gaussian_names: List[str]) -> dict:
     """The run's checkpoint as one GPU would have written it (`trainer_checkpoint_state`), with every
     rank's Gaussians (`gaussian_names`: the per-Gaussian parameters) gathered. Every rank must call
-    it (it is a collective); rank 0's result is the one to write."""
+    it (it is a collective); rank 0's result is the one to write (the Gaussians gathered in host memory,
+    a share at a time: a model split because it does not fit one GPU is never whole on one)."""
     state = trainer_checkpoint_state(trainer, step)
     pipeline = state["pipeline"]
     for key in sorted(pipeline):
         if key.startswith(GAUSSIANS):
-            pipeline[key] = ranks.gather_rows(pipeline[key])
+            pipeline[key] = ranks.gather_rows_on_host(pipeline[key])
         elif key.endswith("_extra_state"):  # per-rank densification statistics: not kept
             pipeline[key] = {**pipeline[key], "strategy_state": {}}
     state["optimizers"] = {k: v for k, v in state["optimizers"].items() if k not in gaussian_names}
