@@ -9,6 +9,7 @@ from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.scene_box import SceneBox
 
 from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.model import wild_thermal
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.config_checks import UNUSED_OPTIONS
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
@@ -195,11 +196,13 @@ def test_every_attribute_nerfstudio_tools_read_is_available():
     assert model.features_dc.shape == (model.num_points, 3) and model.shs_rest.shape == (model.num_points, 0, 3)
 
 
-def test_baked_emission_matches_and_is_invalidated():
+def test_baked_emission_matches_and_is_invalidated(monkeypatch):
     """Outside training the emission MLP runs once per embedding and parameter state; the baked
     render equals the unbaked one and follows any change of either. (No background MLP: its own
-    baked map has its own test.)"""
+    baked map has its own test.) The bake runs a few Gaussians at a time, as a model of hundreds of
+    millions needs."""
     model, camera = make_model(use_background_mlp=False), make_camera()
+    monkeypatch.setattr(wild_thermal, "BAKE_ROWS", model.num_points // 3 + 1)  # three parts, the last shorter
     with torch.no_grad():  # a zero output layer would make every embedding render alike
         model.emission_mlp.net[-1].weight.normal_(0, 0.1)
     model.eval()

@@ -42,6 +42,9 @@ from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
+BAKE_ROWS = 1 << 22
+"""Gaussians per evaluation of the emission MLP when its output is baked (`baked_emission`)."""
+
 
 @dataclass
 class WildThermalModelConfig(SplatfactoModelConfig):
@@ -266,12 +269,20 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def baked_emission(self, frame_embed: Tensor) -> Tensor:
         """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], kept until the
-        embedding or any parameter it depends on changes (`BakedValues`)."""
+        embedding or any parameter it depends on changes (`BakedValues`). Evaluated `BAKE_ROWS`
+        Gaussians at a time: the hidden activations of a model of hundreds of millions at once
+        would need more memory than the model."""
         embed = self.gauss_params["gauss_embed"]
         tensors = (self.emission, embed, *self.baked.parameters_of(self.emission_mlp), frame_embed)
-        return self.baked.get(
-            "emission", tensors, self.step, lambda: self.emission_mlp(self.emission, embed, frame_embed)
-        )
+
+        def bake() -> Tensor:
+            rows = range(0, embed.shape[0], BAKE_ROWS)
+            parts = [
+                self.emission_mlp(self.emission[i : i + BAKE_ROWS], embed[i : i + BAKE_ROWS], frame_embed) for i in rows
+            ]
+            return parts[0] if len(parts) == 1 else torch.cat(parts)
+
+        return self.baked.get("emission", tensors, self.step, bake)
 
     def get_outputs(self, camera: Cameras, frame_embedding: Optional[Tensor] = None) -> Dict[str, Union[Tensor, List]]:
         """The render of `camera`: in training, at its training frame's state; otherwise at the
