@@ -150,6 +150,34 @@ def test_the_memory_estimate_leaves_room_for_the_peak_and_the_growth(monkeypatch
     assert strategy.gaussians_memory_holds(100, torch.device("cuda"), 1) == 0  # past the headroom: no growth
 
 
+def test_pruning_is_skipped_where_its_copies_do_not_fit(monkeypatch):
+    """A pruning copies each parameter and its Adam moments: where that does not fit beside what the
+    GPU holds, the round prunes nothing (instead of running out of memory with half the parameters
+    pruned) and says so; where it fits, it prunes."""
+    from types import SimpleNamespace
+
+    from thermal_wild_ns.model import strategy
+
+    model = make_model(n=200)
+    params = model.gauss_params
+    optimizers = {k: torch.optim.Adam([p], lr=1e-3) for k, p in params.items()}
+    with torch.no_grad():
+        params["opacities"][:50] = -10.0  # 50 transparent Gaussians: pruned whenever pruning runs
+    step = model.strategy.refine_start_iter + 1
+    model.strategy.copies_fit = lambda n, device, row_bytes: False
+    assert model.strategy._prune_gs(params, optimizers, model.strategy_state, step) == 0
+    assert params["means"].shape[0] == 200 and model.strategy.prunes_skipped == 1
+    model.strategy.copies_fit = lambda n, device, row_bytes: True
+    assert model.strategy._prune_gs(params, optimizers, model.strategy_state, step) >= 50
+    # the rule: 1,000 bytes of device, 0.85 of it usable; rows of 1 byte, 100 Gaussians: 300 bytes of copies
+    monkeypatch.setattr(torch.cuda, "get_device_properties", lambda device: SimpleNamespace(total_memory=1000))
+    monkeypatch.setattr(torch.cuda, "memory_allocated", lambda device: 550)
+    assert strategy.refinement_copies_fit(100, torch.device("cuda"), 1)  # 550 + 300 <= 850
+    monkeypatch.setattr(torch.cuda, "memory_allocated", lambda device: 551)
+    assert not strategy.refinement_copies_fit(100, torch.device("cuda"), 1)
+    assert strategy.refinement_copies_fit(10**9, torch.device("cpu"), 64)  # no limit known off CUDA
+
+
 def test_bad_input_is_reported_or_skipped():
     model = make_model()
     model.train()

@@ -260,13 +260,22 @@ class ViewerControlOnConnect(ViewerControl):
 
 
 class DefaultStrategyWithHooks(DefaultStrategy):
-    """gsplat 1.4.0's `DefaultStrategy` grows and accounts Gaussians in its private `_grow_gs` and
-    `_update_state`, with no public hook. This subclass calls `before_growth(params, state, step)`
-    before gsplat grows (to leave candidates out) and `update_statistics(params, state, info, packed)`
-    in place of `_update_state` (return False to let gsplat's own run)."""
+    """gsplat 1.4.0's `DefaultStrategy` grows, prunes and accounts Gaussians in its private `_grow_gs`,
+    `_prune_gs` and `_update_state`, with no public hook. This subclass calls `before_growth(params,
+    state, step)` before gsplat grows (to leave candidates out), `prune_allowed(params, step)` before it
+    prunes (False: no pruning this round) and `update_statistics(params, state, info, packed)` in place
+    of `_update_state` (return False to let gsplat's own run)."""
 
     def before_growth(self, params, state, step) -> None:
         pass
+
+    def prune_allowed(self, params, step) -> bool:
+        return True
+
+    def _prune_gs(self, params, optimizers, state, step):
+        if not self.prune_allowed(params, step):
+            return 0
+        return super()._prune_gs(params, optimizers, state, step)
 
     def update_statistics(self, params, state, info, packed: bool) -> bool:
         return False

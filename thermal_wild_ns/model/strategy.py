@@ -43,6 +43,21 @@ def gaussians_memory_holds(n: int, device: torch.device, row_bytes: int) -> Opti
     return max(0, int((MEMORY_HEADROOM * total - peak - 2 * row_bytes * n) / (peak / n)))
 
 
+def refinement_copies_fit(n: int, device: torch.device, row_bytes: int) -> bool:
+    """Whether a pruning's copies fit beside what the GPU holds now (True off CUDA): it copies each
+    parameter and its two Adam moments in turn, so up to three times the widest parameter's
+    `row_bytes` per Gaussian, on top of the memory allocated between steps, within `MEMORY_HEADROOM`."""
+    if device.type != "cuda":
+        return True
+    total = torch.cuda.get_device_properties(device).total_memory
+    return torch.cuda.memory_allocated(device) + 3 * row_bytes * n <= MEMORY_HEADROOM * total
+
+
+def widest_row_bytes(params) -> int:
+    """Bytes of one Gaussian's row in its widest parameter."""
+    return max(p[:1].numel() * p.element_size() for p in params.values())
+
+
 @dataclass
 class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """DefaultStrategy whose growth step keeps only the strongest candidates within `max_gaussians`.
@@ -59,6 +74,10 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     message, rather than at an out-of-memory error."""
     memory_stopped_at: Optional[int] = None
     """The Gaussian count at which GPU memory first stopped growth (None: it never did)."""
+    copies_fit: Callable[[int, torch.device, int], bool] = refinement_copies_fit
+    """Whether a pruning's copies of the parameters fit in GPU memory now; where not, that round
+    prunes nothing (with a message) rather than running out of memory halfway through."""
+    prunes_skipped: int = 0
 
     @classmethod
     def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":
@@ -87,8 +106,7 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     def before_growth(self, params, state, step) -> None:
         n = params["means"].shape[0]
         room = max(self.max_gaussians - n, 0)  # each duplicate or split adds one Gaussian
-        widest = max(p[:1].numel() * p.element_size() for p in params.values())  # bytes of a Gaussian's widest row
-        fits = self.memory_room(n, params["means"].device, widest)
+        fits = self.memory_room(n, params["means"].device, widest_row_bytes(params))
         if fits is not None and fits < room:
             room = fits
             if self.memory_stopped_at is None:
@@ -111,6 +129,19 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
             state["grad2d"] = torch.where(keep, state["grad2d"], torch.zeros_like(state["grad2d"]))
             if uses_radii:
                 state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
+
+    def prune_allowed(self, params, step) -> bool:
+        n = params["means"].shape[0]
+        if self.copies_fit(n, params["means"].device, widest_row_bytes(params)):
+            return True
+        self.prunes_skipped += 1
+        if self.prunes_skipped == 1:
+            CONSOLE.log(
+                f"[yellow]step {step}: GPU memory: pruning skipped at {n:,} Gaussians (its copies of the "
+                "parameters do not fit); it resumes where memory allows. Train across GPUs (torchrun -m "
+                "thermal_wild_ns.multi_gpu) or lower --pipeline.model.max-gaussians for room"
+            )
+        return False
 
     def update_statistics(self, params, state, info, packed: bool) -> bool:
         """gsplat's running statistics, computed with masks instead of gathering the visible
