@@ -69,6 +69,7 @@ case "$plan" in
     survey 250
     timeout 450 torchrun --standalone --nproc-per-node 2 -m thermal_wild_ns.multi_gpu wild-thermal \
       --output-dir /tmp/stop --experiment-name survey --timestamp run --pipeline.model.max-gaussians 1000000 \
+      --max-num-iterations "${STOP_STEPS:-30000}" \
       --pipeline.datamanager.preprocessing-cache /tmp/stop/cache \
       thermal-demo-data --data /tmp/survey_250 --scene survey --survey-frames 250 > "$OUT/stop-two.log" 2>&1
     cp /tmp/stop/survey/wild-thermal/run/auto_stop.json "$OUT/stop-two-auto_stop.json"

@@ -174,7 +174,7 @@ def measure_survey(args: CostArgs, frames: int) -> Dict:
             peak = torch.cuda.max_memory_allocated() / 2**30 if torch.cuda.is_available() else None
             row["counts"].append({"gaussians": n, "ms_per_step": round(ms, 2), "gpu_peak_gib": peak and round(peak, 2)})
             print(json.dumps({"frames": frames, **row["counts"][-1]}), flush=True)
-        except torch.OutOfMemoryError as err:
+        except (torch.OutOfMemoryError, SystemExit) as err:  # the trainer's own message, where it stops the run
             row["first_limit"] = f"GPU memory at {n:,} Gaussians: {str(err).splitlines()[0][:160]}"
             print(row["first_limit"], flush=True)
             break
