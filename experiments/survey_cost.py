@@ -15,6 +15,7 @@ import gc
 import json
 import resource
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Tuple
@@ -130,7 +131,9 @@ def growth_to_the_limit(trainer, seeds: Dict[str, torch.Tensor], start: int, ste
             counts.append(model.num_points)
         outcome = "trained every step"
     except (torch.OutOfMemoryError, SystemExit) as err:
-        outcome = f"stopped at {model.num_points:,} Gaussians: {str(err).splitlines()[0][:160]}"
+        frames = traceback.extract_tb(err.__traceback__)[-6:]  # where it ran out: the frames nearest the error
+        where = " < ".join(f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in reversed(frames))
+        outcome = f"stopped at {model.num_points:,} Gaussians: {str(err).splitlines()[0][:160]} (in {where})"
     return {
         "start": start,
         "end": model.num_points,
