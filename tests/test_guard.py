@@ -181,7 +181,17 @@ def test_a_step_out_of_gpu_memory_rolls_back_and_caps_growth(tmp_path, demo_scen
         return original(outputs, batch, metrics_dict)
 
     model.get_loss_dict = out_of_memory_once
+    load = model.load_state_dict
+    held_at_restore = []
+
+    def recording_load(state, *args, **kwargs):  # what the model still holds when the healthy copy arrives
+        held_at_restore.append(model.num_points)
+        return load(state, *args, **kwargs)
+
+    model.load_state_dict = recording_load
     trainer.train()
+    # the failed state's Gaussians were let go first: where memory ran out, both copies do not fit
+    assert held_at_restore == [0]
     healthy = trainer._healthy  # step 10's, made after the rollback to step 5's
     assert trainer.guard.rollbacks == 1 and model.step == 11
     assert model.strategy.max_gaussians < 3000  # the demo's budget, lowered to the count of step 5

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from thermal_wild_ns._upstream import repoint_optimizers
+from thermal_wild_ns._upstream import replace_gaussians, repoint_optimizers
 from thermal_wild_ns.pipeline.run_check import CheckpointNotSaved, checkpoints_in, write_atomically
 
 SAVES_PER_RUN = 10
@@ -87,7 +87,12 @@ def snapshot(pipeline, optimizers, step: int) -> dict:
 
 
 def restore(pipeline, optimizers, state: dict) -> None:
-    """Put back a `snapshot` (the model's step stays the caller's to set)."""
+    """Put back a `snapshot` (the model's step stays the caller's to set). The current Gaussians and
+    their Adam moments go first: a rollback happens where memory ran out, and the old and the restored
+    copies side by side did not fit (an H100 at 128M Gaussians)."""
+    gaussians = getattr(pipeline.model, "gauss_params", None)
+    if gaussians is not None:
+        replace_gaussians(pipeline, optimizers, {name: p.detach()[:0].clone() for name, p in gaussians.items()})
     pipeline.model.load_state_dict(copy.deepcopy(state["model"]))
     repoint_optimizers(optimizers, pipeline.get_param_groups())  # the load replaced the Gaussian parameters
     for name, optimizer in optimizers.optimizers.items():
