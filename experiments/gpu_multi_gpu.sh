@@ -69,10 +69,11 @@ case "$plan" in
     survey 250
     timeout 450 torchrun --standalone --nproc-per-node 2 -m thermal_wild_ns.multi_gpu wild-thermal \
       --output-dir /tmp/stop --experiment-name survey --timestamp run --pipeline.model.max-gaussians 1000000 \
-      --max-num-iterations "${STOP_STEPS:-30000}" \
+      --max-num-iterations "${STOP_STEPS:-30000}" --vis tensorboard \
       --pipeline.datamanager.preprocessing-cache /tmp/stop/cache \
       thermal-demo-data --data /tmp/survey_250 --scene survey --survey-frames 250 > "$OUT/stop-two.log" 2>&1
     cp /tmp/stop/survey/wild-thermal/run/auto_stop.json "$OUT/stop-two-auto_stop.json"
+    cp /tmp/stop/survey/wild-thermal/run/events.out.tfevents.* "$OUT/"  # the Gaussian count, loss and PSNR per step
     timeout 90 python3 -m experiments.score_checkpoint /tmp/stop/survey/wild-thermal/run/config.yml \
       > "$OUT/score-stop-two.json" 2> "$OUT/score-stop-two.log"
     grep -i "stops\|kept\|skipped\|rolled" "$OUT/stop-two.log" | tail -5; cat "$OUT/score-stop-two.json"

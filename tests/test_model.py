@@ -13,6 +13,7 @@ from thermal_wild_ns.model import wild_thermal
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.config_checks import UNUSED_OPTIONS
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.pipeline.ranks import RankGroup
 
 
 def background(model, *args, **kwargs):
@@ -176,6 +177,34 @@ def test_pruning_is_skipped_where_its_copies_do_not_fit(monkeypatch):
     monkeypatch.setattr(torch.cuda, "memory_allocated", lambda device: 551)
     assert not strategy.refinement_copies_fit(100, torch.device("cuda"), 1)
     assert strategy.refinement_copies_fit(10**9, torch.device("cpu"), 64)  # no limit known off CUDA
+
+
+def test_densification_reads_the_render_layout_it_was_given():
+    """Across GPUs the render is packed (one row per visible splat): the statistics must count each
+    splat for its own Gaussian. Read as [cameras, Gaussians] (splatfacto passes packed=False) every
+    splat was summed into every Gaussian, the screen-size rule pruned all of them, and two-GPU runs
+    collapsed after the first opacity reset."""
+    model = make_model(n=4, frames=2, use_absgrad=False)  # gsplat's distributed mode has no absgrad
+    strategy, state = model.strategy, model.strategy_state
+    means2d = torch.zeros(3, 2, requires_grad=True)
+    (means2d * torch.tensor([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])).sum().backward()
+    packed = {"gaussian_ids": torch.tensor([0, 0, 2]), "radii": torch.tensor([3, 5, 4]), "means2d": means2d}
+    info = {**packed, "width": 100, "height": 50, "n_cameras": 1}
+    strategy._update_state(model.gauss_params, state, info, packed=True)
+    assert state["count"].tolist() == [2.0, 0.0, 1.0, 0.0]  # Gaussian 0 seen twice (two cameras), 2 once
+    torch.testing.assert_close(state["radii"], torch.tensor([0.05, 0.0, 0.04, 0.0]))  # over the longer side
+    with pytest.raises(ValueError, match=r"radii \(3,\) are not \[C, N\]"):
+        strategy._update_state(model.gauss_params, state, info, packed=False)
+    # the model hands the strategy the layout it rendered with
+    seen = {}
+    strategy.step_post_backward = lambda **kwargs: seen.update(kwargs)
+    model.info = info  # the last render's, as the training step leaves it
+    model.ranks = RankGroup(0, 2)
+    model.step_post_backward(model.step)
+    assert seen["packed"] is True
+    model.ranks = RankGroup()
+    model.step_post_backward(model.step)
+    assert seen["packed"] is False
 
 
 def test_bad_input_is_reported_or_skipped():

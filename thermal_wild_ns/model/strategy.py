@@ -151,6 +151,8 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
         camera per rank) gives this rank's Gaussians in every rank's camera [W, N, ...]: summed as gsplat."""
         if packed or info["n_cameras"] != 1:
             return False  # gsplat's own
+        if info["radii"].dim() != 2:  # a packed render said to be unpacked would be summed into every Gaussian
+            raise ValueError(f"densification statistics: radii {tuple(info['radii'].shape)} are not [C, N]")
         gradient = info[self.key_for_gradient]
         grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [C, N, 2], C = 1 or ranks
         grads[..., 0] *= info["width"] / 2.0 * info["n_cameras"]

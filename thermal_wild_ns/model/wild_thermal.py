@@ -497,8 +497,19 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if self._discard_statistics:  # the guard skipped this step: no statistics from it
             self._discard_statistics = False
             return
-        with record_function("thermal/densify"):
-            super().step_post_backward(step)
+        assert step == self.step
+        with record_function("thermal/densify"):  # splatfacto's, but with the layout this model rendered
+            # splatfacto passes packed=False; across GPUs the render is packed ([nnz] per visible splat), and
+            # statistics read as [C, N] summed every splat into every Gaussian: each rank's screen-size
+            # rule then pruned all its Gaussians within a few refinements after the first opacity reset
+            self.strategy.step_post_backward(
+                params=self.gauss_params,
+                optimizers=self.optimizers,
+                state=self.strategy_state,
+                step=step,
+                info=self.info,
+                packed=self.ranks.split,
+            )
 
     @property
     def settled_step(self) -> int:
