@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from torch.nn import Parameter
 from torch.profiler import record_function
 
+from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
 from thermal_wild_ns.model.background import ThermalBackground
@@ -465,6 +466,29 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def last_training_loss(self) -> Tuple[Optional[Tensor], Optional[int]]:
         """The last training step's total loss (detached) and its training image (the divergence guard's)."""
         return self._last_training_loss
+
+    def decisions(self) -> List[Decision]:
+        """The model's size and parts for this run, and why (`training/decisions.py` reports them):
+        the budget and every part are the config's; GPU memory, where it stopped growth, is the data's."""
+        cfg = self.config
+        share = f" (this GPU's share of {self.ranks.world})" if self.ranks.split else ""
+        entries = [
+            Decision(
+                "Gaussians", f"{self.num_points:,} now{share}, at most {cfg.max_gaussians:,}", "max_gaussians", "config"
+            )
+        ]
+        if self.strategy.memory_stopped_at is not None:
+            why = f"GPU memory: growth stopped at {self.strategy.memory_stopped_at:,}{share}"
+            entries.append(Decision("Gaussians", "capped by GPU memory", why, "data"))
+        parts = (
+            ("emission MLP", cfg.use_emission_mlp, "use_emission_mlp"),
+            ("background MLP", cfg.use_background_mlp, "use_background_mlp"),
+            ("heat-aware SSIM", cfg.heat_aware_ssim, "heat_aware_ssim"),
+            ("alpha regulariser", cfg.alpha_lambda > 0, f"alpha_lambda {cfg.alpha_lambda:g}"),
+            ("view-dependent emission", cfg.view_sh_degree > 0, f"view_sh_degree {cfg.view_sh_degree}"),
+        )
+        entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
+        return entries
 
     def limit_growth(self, count: int) -> None:
         """Densification never grows past `count` Gaussians from now on (`max_gaussians` lowered)."""

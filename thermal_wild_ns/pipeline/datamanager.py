@@ -22,6 +22,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from thermal_wild_ns._upstream import SingleChannelFullImageDatamanager, undistorted_as_cached
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
+from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
@@ -177,6 +178,19 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
 
     preprocessing_used: str = ""
     """What the training frames went through, and why (set with `preprocessed`)."""
+
+    def decisions(self) -> List[Decision]:
+        """The preprocessing of this capture and why (`preprocessed` decides): by the data where the
+        method lets its stability rule measure the capture (`skip_when_stable`), else by the config."""
+        _ = self.preprocessed  # decides on first use
+        config = self.config.preprocessing
+        variant, _, reason = self.preprocessing_used.partition(": ")
+        by_rule = config.variant != "none" and config.skip_when_stable
+        return [
+            Decision(
+                "preprocessing", variant, reason or "the method preprocesses nothing", "data" if by_rule else "config"
+            )
+        ]
 
     def _with_metadata(self, outputs: DataparserOutputs, preprocessed: bool) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed if preprocessed else None

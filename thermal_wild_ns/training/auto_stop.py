@@ -145,6 +145,8 @@ class AutoStopRun:
         self.partial_dir = run_dir / PARTIAL_FOLDER  # where its files are written before their rename
         self.progress = PlateauRule(config.patience, config.min_improvement)
         self.stop_reason: Optional[str] = None
+        self.kept_step: Optional[int] = None
+        """The step whose model the run ended with (set by `finish`)."""
         self.last_step = 0
         self._best: Optional[dict] = None
         self._scores_settled_model = isinstance(pipeline.model, GuardedModel)  # it says when scores settle
@@ -256,6 +258,7 @@ class AutoStopRun:
                 f"[bold]kept the model of step {kept} ({self.progress.best:.2f} dB on the held-back frames, "
                 f"{final:.2f} at the end)"
             )
+        self.kept_step = kept
         self.write_record(kept, final)
 
     def write_record(self, kept: Optional[int], final: Optional[float] = None) -> None:

@@ -10,6 +10,8 @@
   a non-zero exit code from `ns-train`);
 - the automatic stop (`auto_stop.AutoStopRun`): stops once the scene stops improving, says why,
   keeps the best model and records the decision in `auto_stop.json` beside the run's config;
+- the run's decisions (`decisions.RunDecisions`): what the run chose and why (preprocessing, the
+  model's size and parts, its length), printed at the start and the end and kept in `decisions.json`;
 - checkpoints (`checkpoints.py`) written atomically, at least `SAVES_PER_RUN` times a run, and
   `--max-num-iterations` as the run's total step count, resumed or not.
 
@@ -41,10 +43,12 @@ from thermal_wild_ns._upstream import (
     trainer_checkpoint_state,
 )
 from thermal_wild_ns.errors import IncompleteConfig, InputError
+from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, check_checkpoint, write_text_atomically
 from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipelineConfig
 from thermal_wild_ns.training.auto_stop import AutoStopConfig, AutoStopRun
 from thermal_wild_ns.training.checkpoints import SAVES_PER_RUN, restore, save_checkpoint, snapshot
+from thermal_wild_ns.training.decisions import RunDecisions
 from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
 from thermal_wild_ns.training.lean_step import lean_iteration, lean_step_unsupported
 from thermal_wild_ns.training.model_interface import GuardedModel
@@ -126,6 +130,8 @@ class GuardedTrainer(TrainerAfterLoad):
         )
         if self.auto_stop is not None and load_dir is not None:
             self.auto_stop.resume(Path(load_dir).parent, self._start_step)
+        self.decisions = RunDecisions(self.config.get_base_dir(), RankGroup.current().rank)
+        self.decisions.start(self)
 
     def _step_problem(self, param_groups) -> Optional[str]:
         """Why this step's update must not happen (the guard's checks on its loss and gradients), or None."""
@@ -184,10 +190,10 @@ class GuardedTrainer(TrainerAfterLoad):
             self.auto_stop.forget_older_best()
 
     def before_final_checkpoint(self) -> None:
-        if self.auto_stop is None:
-            return
-        self.step = self._step  # the last step trained (nerfstudio's loop counted one past it at a stop)
-        self.auto_stop.finish(self._step)
+        if self.auto_stop is not None:
+            self.step = self._step  # the last step trained (nerfstudio's loop counted one past it at a stop)
+            self.auto_stop.finish(self._step)
+        self.decisions.finish(self, self._step)
 
     def _iteration(self, step: int):
         if self.lean:

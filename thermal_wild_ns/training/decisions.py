@@ -1,0 +1,81 @@
+"""What a run chose and why, in one place: printed when training starts and again when it ends, and
+written to `decisions.json` beside the run's config (ns-train and the multi-GPU launcher alike).
+
+Each entry is a part of the method (preprocessing, the Gaussian budget, the model's parts, the
+automatic stop), the choice the run made, why, and whether the capture's own evidence decided it
+('data': a rule measured on this capture) or the method's configuration did ('config': a default or
+an option the user set). A user reads at a glance which parts this capture switched on or off, and a
+reviewer sees which defaults no measurement of the scene backs.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import List, Optional
+
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from thermal_wild_ns.decisions import Decision
+from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_text_atomically
+
+DECISIONS_FILE = "decisions.json"
+
+
+def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) -> Decision:
+    """The automatic stop at the start (on or off, the frames it holds back) or, given the last step
+    trained, how the run ended."""
+    if auto_stop is None:
+        return Decision(
+            "training length", f"{steps_asked:,} steps", "--max-num-iterations (no automatic stop)", "config"
+        )
+    frames = [
+        auto_stop.pipeline.datamanager.train_dataset.frame_index(k) for k in auto_stop.pipeline.datamanager.held_back
+    ]
+    if last_step is None:
+        why = f"automatic stop: capture frames {frames} held back to score it; at most {steps_asked:,} steps"
+        return Decision("training length", "until the held-back frames stop improving", why, "data")
+    kept = auto_stop.kept_step
+    model = "" if kept in (None, last_step) else f"; kept the model of step {kept:,}, the best on the held-back frames"
+    if auto_stop.stop_reason is not None:
+        return Decision("training length", f"stopped after step {last_step:,}", auto_stop.stop_reason + model, "data")
+    return Decision(
+        "training length", f"{last_step + 1:,} steps", "--max-num-iterations reached first" + model, "config"
+    )
+
+
+class RunDecisions:
+    """The decisions of one run: `start(trainer)` after set-up, `finish(trainer, last_step)` before
+    the final checkpoint; each prints them and writes `decisions.json` (rank 0 only across GPUs)."""
+
+    def __init__(self, run_dir: Path, rank: int = 0) -> None:
+        self.run_dir, self.rank = run_dir, rank
+        self.entries: List[Decision] = []
+
+    def collect(self, trainer, last_step: Optional[int] = None) -> List[Decision]:
+        pipeline = trainer.pipeline
+        model = pipeline.model
+        entries: List[Decision] = []
+        for chooser in (pipeline.datamanager, model):  # stock nerfstudio's datamanager and splatfacto say none
+            decisions = getattr(chooser, "decisions", None)
+            if callable(decisions):
+                entries += decisions()
+        entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
+        return entries
+
+    def start(self, trainer) -> None:
+        self.entries = self.collect(trainer)
+        self._report("this run's choices")
+
+    def finish(self, trainer, last_step: int) -> None:
+        self.entries = self.collect(trainer, last_step)
+        self._report("what this run decided")
+
+    def _report(self, title: str) -> None:
+        if self.rank != 0:
+            return
+        lines = [f"  {d.part}: {d.choice} ({d.decided_by}: {d.why})" for d in self.entries]
+        CONSOLE.log(f"[bold]{title}[/bold] (decisions.json beside the config)\n" + "\n".join(lines))
+        text = json.dumps([asdict(d) for d in self.entries], indent=1)
+        write_text_atomically(self.run_dir / DECISIONS_FILE, text, self.run_dir / PARTIAL_FOLDER)
