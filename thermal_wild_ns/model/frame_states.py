@@ -5,12 +5,15 @@ this owns what is computed from them, and the one cache of it."""
 
 from __future__ import annotations
 
-from typing import List, Optional, Sequence
+from typing import Callable, List, Optional, Sequence
 
 import torch
 from torch import Tensor, nn
 
 from thermal_wild_ns.preprocessing.photometric import time_weights
+
+Emission = Callable[[Tensor], Tensor]
+"""A frame embedding [Df] -> the emissions [N] it gives some Gaussians."""
 
 
 class FrameStates:
@@ -40,10 +43,12 @@ class FrameStates:
             for row in rows:
                 self.embedding.weight[row] = self.at(self.frame_times[row], without=rows)
 
-    def named(self, choice: str, step: int) -> Tensor:
-        """The frame embedding [Df] `choice` names ('mean', 'zero', a training image's index, or
-        'time:T'), kept outside autograd until the embeddings change (`step`: fused Adam does not
-        bump tensor versions)."""
+    def named(self, choice: str, step: int, emission_of: Optional[Callable[[], Optional[Emission]]] = None) -> Tensor:
+        """The frame embedding [Df] `choice` names ('mean', 'typical', 'zero', a training image's
+        index, or 'time:T'), kept outside autograd until the embeddings change (`step`: fused Adam
+        does not bump tensor versions). 'typical' (`typical_state`) asks `emission_of` for the
+        emission it matches, only when it computes; where there is none (no emission MLP: the state
+        does not change the Gaussians) it is the mean."""
         weight = self.embedding.weight  # [F, Df]
         key = (choice, step, weight._version)
         cached = self._cache
@@ -51,6 +56,9 @@ class FrameStates:
             return cached[2]
         if choice.startswith("time:"):
             value = self.at(float(choice[5:]))
+        elif choice == "typical":
+            emission = None if emission_of is None else emission_of()
+            value = weight.mean(dim=0) if emission is None else typical_state(weight.detach(), emission)
         elif choice == "mean":
             value = weight.mean(dim=0)
         elif choice == "zero":
@@ -59,9 +67,35 @@ class FrameStates:
             value = weight[int(choice)]
         else:
             raise ValueError(
-                f"inference_embedding must be 'mean', 'zero' or a training-frame index below {weight.shape[0]}, "
+                f"inference_embedding must be 'mean', 'typical', 'zero' or a training-frame index below "
+                f"{weight.shape[0]}, "
                 f"got {choice!r}"
             )
         if not torch.is_grad_enabled():
             self._cache = (key, weight, value)
         return value
+
+
+def typical_state(states: Tensor, emission: Emission, steps: int = 100) -> Tensor:
+    """The single photometric state that renders a capture's Gaussians as its training frames do on
+    average: the embedding e [Df] minimising the expected squared emission error over the training
+    frames' states `states` [F, Df], sum_i E_t (c_i(e) - c_i(e_t))^2 = sum_i (c_i(e) - mean_t c_i(e_t))^2
+    + a term no single state changes, where `emission(e)` gives the emissions c(e) [N] (weighted as
+    the caller wants). The mean embedding is that state only where the emission is linear in it; here
+    Adam minimises the first term from the mean embedding (the emission's parameters get no gradient).
+    Defined in docs/design.md ("The canonical state")."""
+    with torch.no_grad():
+        target = torch.stack([emission(e) for e in states]).mean(dim=0)  # [N]
+    start = states.mean(dim=0)
+    spread = float(states.std(dim=0).mean()) if states.shape[0] > 1 else 0.0
+    if spread == 0.0:
+        return start
+    state = start.clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([state], lr=0.05 * spread)
+    with torch.enable_grad():
+        for _ in range(steps):
+            loss = (emission(state) - target).square().mean()
+            (grad,) = torch.autograd.grad(loss, state)
+            state.grad = grad
+            optimizer.step()
+    return state.detach()

@@ -32,7 +32,7 @@ from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_views import TrainingViews
 from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
-from thermal_wild_ns.model.frame_states import FrameStates
+from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
 from thermal_wild_ns.model.in_view import in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
@@ -42,6 +42,9 @@ from thermal_wild_ns.model.view_emission import view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering import Backend, rasterization
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
+
+TYPICAL_STATE_GAUSSIANS = 16_384
+"""Gaussians the 'typical' canonical state is fitted on (`typical_state_emission`)."""
 
 BAKE_ROWS = 1 << 22
 """Gaussians per evaluation of the emission MLP when its output is baked (`baked_emission`)."""
@@ -81,7 +84,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     direction encoding (spherical harmonics up to degree 3) varies far more slowly than that."""
     inference_embedding: str = "mean"
     """Frame embedding used outside training (evaluation, viewer, renders): 'mean' (average of the
-    training frames' embeddings), 'zero', or a training-frame index such as '12'."""
+    training frames' embeddings), 'typical' (the state whose emission is closest on average to every
+    training frame's: docs/design.md), 'zero', or a training-frame index such as '12'."""
     colormap: Literal["iron", "inferno", "grey"] = "iron"
     """Thermal colormap of the `rgb` output outside training (ns-viewer, ns-render videos); the
     viewer has a control for it. `thermal` stays the scalar image."""
@@ -253,7 +257,20 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def inference_embedding(self) -> Tensor:
         """The canonical frame embedding [Df] (`inference_embedding`; the training frames' mean by
         default), the same tensor until the embeddings change, so the baked emission keyed on it holds."""
-        return self.frame_states.named(self.config.inference_embedding, self.step)
+        return self.frame_states.named(self.config.inference_embedding, self.step, self.typical_state_emission)
+
+    def typical_state_emission(self) -> Optional[Emission]:
+        """What the 'typical' canonical state matches (`frame_states.typical_state`): the emission of
+        up to `TYPICAL_STATE_GAUSSIANS` Gaussians (a fixed draw) under a state, each weighted by its
+        opacity (a faint Gaussian barely shows in a render). None without the emission MLP."""
+        if self.emission_mlp is None or self.num_points == 0:
+            return None
+        g = torch.Generator(device="cpu").manual_seed(0)
+        n = min(self.num_points, TYPICAL_STATE_GAUSSIANS)
+        pick = torch.randperm(self.num_points, generator=g)[:n].to(self.device)
+        base, embed = self.emission[pick].detach(), self.gauss_params["gauss_embed"][pick].detach()  # [n, 1], [n, Dg]
+        weight = torch.sigmoid(self.opacities[pick].detach()).squeeze(-1)  # [n]
+        return lambda state: self.emission_mlp(base, embed, state).squeeze(-1) * weight
 
     def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
         """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]. Outside
