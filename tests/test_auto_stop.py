@@ -10,7 +10,7 @@ from demo_trainers import demo_trainer
 
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.training import auto_stop
-from thermal_wild_ns.training.auto_stop import PlateauRule, held_back_images
+from thermal_wild_ns.training.auto_stop import HeldBackBudget, PlateauRule, held_back_images
 
 
 def test_the_rule_stops_a_plateau_and_not_a_rise():
@@ -29,6 +29,36 @@ def test_a_non_finite_score_is_never_a_best():
     rule = PlateauRule(patience=2, min_improvement=0.0)
     assert not rule.update(0, float("nan"))
     assert rule.update(1, 10.0) and not rule.update(2, float("inf") * 0)
+
+
+def test_the_budget_grows_only_at_the_budget_while_the_held_back_frames_gain():
+    rule = HeldBackBudget(limit=1000)
+    assert rule.update(0, improved=True, count=500, budget=1000) is None  # at the limit already
+    rule = HeldBackBudget(limit=1000)
+    assert rule.update(1, improved=True, count=100, budget=200) is None  # below its budget: room left
+    assert rule.update(2, improved=False, count=200, budget=200) is None  # at it, but no gain
+    assert rule.update(3, improved=True, count=190, budget=200) == 400  # at it (90 %) and gaining
+    assert rule.update(4, improved=True, count=400, budget=400) == 800
+    assert rule.update(5, improved=True, count=800, budget=800) == 1000  # never past the limit
+    assert rule.raises == [(3, 400), (4, 800), (5, 1000)]
+
+
+def test_a_run_whose_held_back_frames_gain_at_its_budget_grows_it(tmp_path, demo_scene_dir, monkeypatch):
+    """Through a run: the budget doubles at a check that finds the model at it with a gain, it is
+    recorded (auto_stop.json, decisions.json) and said to be the data's choice."""
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=12, check_every=4, patience=5, grow_budget=True)
+    model = trainer.pipeline.model
+    model.strategy.max_gaussians = model.num_points  # at its budget from the start
+    _scores(monkeypatch, [20.0, 20.01, 25.0])  # no gain at the 2nd check, a gain at the 3rd
+    start = model.num_points
+    trainer.train()
+    record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
+    raises = record["budget_raises"]
+    assert raises[0]["step"] == 3 and raises[0]["budget"] == 2 * start  # the first check is a gain (a first score)
+    assert all(r["step"] != 7 for r in raises)  # the second check gained nothing
+    decisions = json.loads((trainer.config.get_base_dir() / "decisions.json").read_text())
+    budget = next(d for d in decisions if d["part"] == "Gaussian budget")
+    assert budget["decided_by"] == "data" and f"{2 * start:,} at step 3" in budget["why"]
 
 
 def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():

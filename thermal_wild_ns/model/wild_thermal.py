@@ -197,6 +197,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.thermal_loss = ThermalLoss(cfg, inverse_lut_table(sequence, self.frame_times) if use_luts else None)
         self.strategy = BudgetedDefaultStrategy.for_splatfacto(cfg, self.num_train_data, self.ranks.world)
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
+        self._growth_ceiling: Optional[int] = None  # where a step ran out of GPU memory (`limit_growth`)
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
 
@@ -507,9 +508,22 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
         return entries
 
+    def gaussian_budget(self) -> Tuple[int, int]:
+        """(Gaussians now, `max_gaussians` as densification applies it) on this GPU."""
+        return self.num_points, self.strategy.max_gaussians
+
+    def raise_budget(self, count: int) -> None:
+        """Densification may grow to `count` Gaussians from now on, never past a count at which a step
+        ran out of GPU memory (`limit_growth`)."""
+        ceiling = self._growth_ceiling
+        self.strategy.max_gaussians = max(
+            self.strategy.max_gaussians, count if ceiling is None else min(count, ceiling)
+        )
+
     def limit_growth(self, count: int) -> None:
         """Densification never grows past `count` Gaussians from now on (`max_gaussians` lowered)."""
         self.strategy.max_gaussians = min(self.strategy.max_gaussians, count)
+        self._growth_ceiling = count if self._growth_ceiling is None else min(self._growth_ceiling, count)
 
     def discard_step_statistics(self) -> None:
         """This step's gradients stay out of the densification statistics (a step the guard skipped)."""

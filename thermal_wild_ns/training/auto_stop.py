@@ -59,6 +59,12 @@ class AutoStopConfig:
     keep_best: bool = True
     """At a stop, and at the end of a run, go back to the model of the best-scoring check when the
     last check scored lower."""
+    grow_budget: bool = False
+    """Let the held-back frames set the Gaussian budget: a check that finds the model at its budget
+    (`max_gaussians`) while their score still rises doubles the budget, up to `budget_limit`; the model
+    grows past its start budget only while frames it never trained on still gain (`HeldBackBudget`)."""
+    budget_limit: int = 1_000_000
+    """The most Gaussians `grow_budget` may reach (over every GPU)."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
@@ -95,6 +101,27 @@ class PlateauRule:
             f"the held-back frames' PSNR has not risen by {self.min_improvement:g} dB in {self.patience} checks "
             f"({self.patience * check_every} steps); best {self.best:.2f} dB at step {self.best_step}"
         )
+
+
+@dataclass
+class HeldBackBudget:
+    """The Gaussian budget the held-back frames set (`AutoStopConfig.grow_budget`). `update` takes one
+    check: where the model is at its budget (`at_budget` of it or more) and the check improved the
+    score, the budget doubles, up to `limit`. A model below its budget, or one whose held-back score
+    no longer rises, keeps the budget it has."""
+
+    limit: int
+    at_budget: float = 0.9
+    raises: List[Tuple[int, int]] = field(default_factory=list)
+    """(step, new budget) of every raise so far."""
+
+    def update(self, step: int, improved: bool, count: int, budget: int) -> Optional[int]:
+        """The budget after the check of `step` (`count` Gaussians, budget `budget`), where it changes; else None."""
+        if not improved or count < self.at_budget * budget or budget >= self.limit:
+            return None
+        raised = min(2 * budget, self.limit)
+        self.raises.append((step, raised))
+        return raised
 
 
 def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
@@ -153,6 +180,8 @@ class AutoStopRun:
         # across GPUs every rank scores (renders are collective) and keeps its own Gaussians' best state;
         # rank 0's score decides for all, and rank 0 writes the record
         self.ranks = RankGroup.current()
+        grows = config.grow_budget and self._scores_settled_model  # the model says its count and budget
+        self.budget = HeldBackBudget(config.budget_limit // self.ranks.world) if grows else None
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -200,6 +229,10 @@ class AutoStopRun:
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
+        raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", []) if r["step"] < start_step]
+        if self.budget is not None and raises:  # the budget the run had reached
+            self.budget.raises = raises
+            self.pipeline.model.raise_budget(raises[-1][1])
         best = self.progress.best_step
         if best is not None and self.config.keep_best:
             path = self.state_path("best", best, run)
@@ -216,7 +249,10 @@ class AutoStopRun:
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
         score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
-        if self.progress.update(step, score) and self.config.keep_best:
+        improved = self.progress.update(step, score)
+        if self.budget is not None:
+            self._grow_budget(step, improved)
+        if improved and self.config.keep_best:
             self._best = None  # the older copy goes before the new one is made
             best = self._best = snapshot(self.pipeline, self.optimizers, step)
             write_atomically(self.state_path("best", step), lambda tmp: torch.save(best, tmp), self.partial_dir)
@@ -226,6 +262,20 @@ class AutoStopRun:
             CONSOLE.log(f"[bold]step {step}: training stops: {self.stop_reason}")
         self.write_record(kept=None)
         return stops
+
+    def _grow_budget(self, step: int, improved: bool) -> None:
+        """Apply `HeldBackBudget` to this check (each rank to its share of the Gaussians)."""
+        model = self.pipeline.model
+        count, budget = model.gaussian_budget()
+        raised = self.budget.update(step, improved, count, budget)
+        if raised is not None:
+            model.raise_budget(raised)
+            if self.ranks.rank == 0:
+                share = f" per GPU ({self.ranks.world})" if self.ranks.split else ""
+                CONSOLE.log(
+                    f"step {step}: the held-back frames still gain at {count:,} Gaussians{share}: "
+                    f"the budget grows to {raised:,}"
+                )
 
     def forget_older_best(self) -> None:
         """After a checkpoint: a resume from it (or a later one) needs no best model older than the best so far."""
@@ -275,5 +325,7 @@ class AutoStopRun:
             "final_psnr": final,
             "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
         }
+        if self.budget is not None:  # per GPU across GPUs
+            record["budget_raises"] = [{"step": s, "budget": b} for s, b in self.budget.raises]
         if self.ranks.rank == 0:
             write_text_atomically(self.run_dir / "auto_stop.json", json.dumps(record, indent=1), self.partial_dir)

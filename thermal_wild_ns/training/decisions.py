@@ -45,6 +45,15 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
     )
 
 
+def budget_decision(budget, now: int) -> Decision:
+    """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's."""
+    if not budget.raises:
+        why = "the held-back frames set it: not raised so far (never at the budget while still gaining)"
+        return Decision("Gaussian budget", f"{now:,}", why, "data")
+    steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
+    return Decision("Gaussian budget", f"{now:,}", f"raised while the held-back frames still gained: {steps}", "data")
+
+
 class RunDecisions:
     """The decisions of one run: `start(trainer)` after set-up, `finish(trainer, last_step)` before
     the final checkpoint; each prints them and writes `decisions.json` (rank 0 only across GPUs)."""
@@ -62,6 +71,9 @@ class RunDecisions:
             if callable(decisions):
                 entries += decisions()
         entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
+        budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
+        if budget is not None:
+            entries.append(budget_decision(budget, model.gaussian_budget()[1]))
         return entries
 
     def start(self, trainer) -> None:

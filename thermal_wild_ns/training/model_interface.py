@@ -33,6 +33,15 @@ class GuardedModel(Protocol):
         """Set the embeddings of held-back training images to the state their neighbours give."""
         ...
 
+    def gaussian_budget(self) -> Tuple[int, int]:
+        """(Gaussians now, the most densification may grow them to), on this GPU."""
+        ...
+
+    def raise_budget(self, count: int) -> None:
+        """Densification may grow the model to `count` Gaussians (on this GPU) from now on (the
+        automatic stop's answer to held-back frames that still gain at the budget)."""
+        ...
+
     def limit_growth(self, count: int) -> None:
         """Densification never grows the model past `count` Gaussians from now on (the trainer's answer
         to a step that ran out of GPU memory)."""
