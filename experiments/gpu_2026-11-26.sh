@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -66,6 +66,11 @@ case "$plan" in
   flight2-budget)  # issue 33's growth question on flight2: the full method with 3x and 10x its Gaussian budget
     bench flight2-300k "$PWD/.data/flight2" --methods wild-thermal --max-gaussians 300000 "${flight2[@]}" &
     bench flight2-1m "$PWD/.data/flight2" --methods wild-thermal --max-gaussians 1000000 "${flight2[@]}" &
+    wait
+    ;;
+  grow-budget)  # the budget the held-back frames set (--auto-stop.grow-budget): flight2 and DUNR, from 100k up to 1M
+    bench flight2-grow "$PWD/.data/flight2" --methods wild-thermal --set auto_stop.grow_budget=True "${flight2[@]}" &
+    bench dunr-grow "$PWD/.data/dunr" --methods wild-thermal --set auto_stop.grow_budget=True "${dunr[@]}" &
     wait
     ;;
   dunr-sh2-splatfacto)
