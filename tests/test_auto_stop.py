@@ -11,6 +11,7 @@ from demo_trainers import demo_trainer
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.training import auto_stop
 from thermal_wild_ns.training.auto_stop import HeldBackBudget, PlateauRule, held_back_images
+from thermal_wild_ns.training.trainer import seeded_trainer
 
 
 def test_the_rule_stops_a_plateau_and_not_a_rise():
@@ -49,7 +50,7 @@ def test_a_run_whose_held_back_frames_gain_at_its_budget_grows_it(tmp_path, demo
     trainer = _trainer(tmp_path, demo_scene_dir, steps=12, check_every=4, patience=5, grow_budget=True)
     model = trainer.pipeline.model
     model.strategy.max_gaussians = model.num_points  # at its budget from the start
-    _scores(monkeypatch, [20.0, 20.01, 25.0])  # no gain at the 2nd check, a gain at the 3rd
+    _scores(monkeypatch, [20.0, 20.01, 25.0, 25.0])  # no gain at the 2nd check, a gain at the 3rd
     start = model.num_points
     trainer.train()
     record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
@@ -59,6 +60,12 @@ def test_a_run_whose_held_back_frames_gain_at_its_budget_grows_it(tmp_path, demo
     decisions = json.loads((trainer.config.get_base_dir() / "decisions.json").read_text())
     budget = next(d for d in decisions if d["part"] == "Gaussian budget")
     assert budget["decided_by"] == "data" and f"{2 * start:,} at step 3" in budget["why"]
+    # a resumed run starts from the budget the run had reached, not from its config's
+    config = trainer.config
+    config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 16
+    config.pipeline.model.max_gaussians = start
+    resumed = seeded_trainer(config)
+    assert resumed.pipeline.model.gaussian_budget()[1] == raises[-1]["budget"]
 
 
 def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():
