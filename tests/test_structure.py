@@ -7,7 +7,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "thermal_wild_ns"
 FLOORS = [
-    ["errors", "progress", "image_metrics", "install"],
+    ["errors", "progress", "image_metrics", "decisions", "install"],
     ["_upstream"],
     ["data"],
     ["preprocessing"],
