@@ -8,7 +8,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from experiments.survey_cost import markdown
+from experiments.survey_cost import growth_line, markdown
 
 
 def spread(values) -> str:
@@ -84,16 +84,14 @@ def main(folder: Path) -> str:
                     f"| {row['frames']:,} | {row['gaussians']:,} | {row['ms_per_step']} | {row['gpu_peak_gib']} |"
                 )
         for row in growth:
-            g = row["growth"]
-            lines.append(
-                f"\nGrowth from {g['start']:,} ({row['frames']:,} frames): message at {g['memory_stopped_at']:,}, "
-                f"largest {g['largest']:,}; {g['outcome'].split('. GPU 0')[0]}"
-                + (
-                    f"; {g['out_of_memory_rollbacks']} rollbacks after running out."
-                    if "out_of_memory_rollbacks" in g
-                    else "."
-                )
-            )
+            lines.append("\n" + growth_line(row["frames"], row["growth"]))
+    lines += [
+        "",
+        "H100, 1,000 frames, with the pruning that skips where its copies do not fit (plan cost-1000, "
+        "GROWTH_STEPS=60; commit 3e4321b)",
+        "",
+        markdown(json.loads((folder / "cost_h100_1000_growth.json").read_text())),
+    ]
     return "\n".join(lines) + "\n"
 
 

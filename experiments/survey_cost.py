@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import gc
 import json
+import re
 import resource
 import time
 import traceback
@@ -206,9 +207,25 @@ def markdown(result: Dict) -> str:
         for i, c in enumerate(row["counts"]):
             lead = head if i == 0 else "| | | | | "
             lines.append(f"{lead}| {c['gaussians']:,} | {c['ms_per_step']} | {c['gpu_peak_gib']} |")
-        if "first_limit" in row:
-            lines.append(f"| | | | | | {row['first_limit'].split(': CUDA')[0]}: out of memory | | |")
+        if row.get("first_limit"):
+            limit = re.split(r":? \(?CUDA", row["first_limit"])[0]  # the count and the step, not torch's text
+            lines.append(f"| | | | | | {limit if 'out of' in limit else limit + ': out of memory'} | | |")
+    for row in result["surveys"]:
+        if "growth" in row:
+            lines.append("\n" + growth_line(row["frames"], row["growth"]))
     return "\n".join(lines) + "\n"
+
+
+def growth_line(frames: int, growth: Dict) -> str:
+    """One sentence on `growth_to_the_limit`'s outcome."""
+    stopped = growth["memory_stopped_at"]
+    rollbacks = growth.get("out_of_memory_rollbacks")
+    return (
+        f"Growth from {growth['start']:,} ({frames:,} frames): message at "
+        f"{'none' if stopped is None else f'{stopped:,}'}, largest {growth['largest']:,}; "
+        f"{growth['outcome'].split('. GPU 0')[0]}"
+        + ("." if rollbacks is None else f"; {rollbacks} rollbacks after running out.")
+    )
 
 
 def main(args: CostArgs) -> Dict:
