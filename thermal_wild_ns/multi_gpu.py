@@ -84,8 +84,8 @@ def join_process_group(device_type: str) -> RankGroup:
         raise SystemExit("launch with torchrun: torchrun --nproc-per-node N -m thermal_wild_ns.multi_gpu METHOD ...")
     if device_type == "cuda":
         # before CUDA starts: a split model's densification and renders allocate blocks of changing
-        # size, and the fixed-size segments of the default allocator left a quarter of an H100 reserved
-        # but unusable (out of memory at 96M Gaussians per GPU); a user's own setting wins
+        # size, which the default allocator's fixed segments leave reserved but unusable (out of memory
+        # with much of the GPU free: docs/results/multi_gpu); a user's own setting wins
         os.environ.setdefault("PYTORCH_CUDA_ALLOC_CONF", "expandable_segments:True")
         local, gpus = int(os.environ["LOCAL_RANK"]), torch.cuda.device_count()
         if local >= gpus:

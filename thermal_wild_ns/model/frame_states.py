@@ -67,9 +67,8 @@ class FrameStates:
             value = weight[int(choice)]
         else:
             raise ValueError(
-                f"inference_embedding must be 'mean', 'typical', 'zero' or a training-frame index below "
-                f"{weight.shape[0]}, "
-                f"got {choice!r}"
+                "inference_embedding must be 'mean', 'typical', 'zero' or a training-frame index below "
+                f"{weight.shape[0]}, got {choice!r}"
             )
         if not torch.is_grad_enabled():
             self._cache = (key, weight, value)

@@ -78,6 +78,7 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """Whether a pruning's copies of the parameters fit in GPU memory now; where not, that round
     prunes nothing (with a message) rather than running out of memory halfway through."""
     prunes_skipped: int = 0
+    """Refinements whose pruning `copies_fit` turned down (the first one says so on the console)."""
 
     @classmethod
     def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":

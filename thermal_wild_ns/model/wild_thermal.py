@@ -490,10 +490,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         the budget and every part are the config's; GPU memory, where it stopped growth, is the data's."""
         cfg = self.config
         share = f" (this GPU's share of {self.ranks.world})" if self.ranks.split else ""
-        budget = self.strategy.max_gaussians  # this GPU's, as densification applies it now
-        raised = budget > cfg.max_gaussians // self.ranks.world  # by the held-back frames (`raise_budget`)
-        why = f"max_gaussians {cfg.max_gaussians:,}" + (", raised by the held-back frames" if raised else "")
-        entries = [Decision("Gaussians", f"{self.num_points:,} now{share}, at most {budget:,}", why, "config")]
+        budget = self.strategy.max_gaussians  # this GPU's, as densification applies it now (raises: the stop's entry)
+        choice = f"{self.num_points:,} now{share}, at most {budget:,}"
+        entries = [Decision("Gaussians", choice, f"max_gaussians {cfg.max_gaussians:,}", "config")]
         if self.strategy.memory_stopped_at is not None:
             why = f"GPU memory: growth stopped at {self.strategy.memory_stopped_at:,}{share}"
             entries.append(Decision("Gaussians", "capped by GPU memory", why, "data"))

@@ -53,6 +53,7 @@ class RankGroup:
         dist.all_gather(counts, torch.tensor(tensor.shape[0], dtype=torch.int64, device=tensor.device))
         sizes: List[int] = [int(c) for c in counts]
         starts = [sum(sizes[:r]) for r in range(self.world)]
+        chunk_rows = max(1, min(chunk_rows, max(sizes)))  # a small model travels in one piece of its own size
         out = torch.empty((sum(sizes) if self.rank == 0 else 0, *tensor.shape[1:]), dtype=tensor.dtype)
         for first in range(0, max(sizes), chunk_rows):
             own = tensor[first : first + chunk_rows]

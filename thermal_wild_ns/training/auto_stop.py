@@ -198,9 +198,15 @@ class AutoStopRun:
             )
             return None
         datamanager.hold_back(images)
-        frames = [datamanager.train_dataset.frame_index(k) for k in images]
-        CONSOLE.log(f"automatic stop: capture frames {frames} are held back from training to score it")
-        return cls(config, pipeline, optimizers, run_dir, steps_asked)
+        run = cls(config, pipeline, optimizers, run_dir, steps_asked)
+        CONSOLE.log(f"automatic stop: capture frames {run.held_back_frames} are held back from training to score it")
+        return run
+
+    @property
+    def held_back_frames(self) -> List[int]:
+        """The capture positions of the frames held back to score the run."""
+        datamanager = self.pipeline.datamanager
+        return [datamanager.train_dataset.frame_index(k) for k in datamanager.held_back]
 
     def state_path(self, kind: str, step: int, run: Optional[Path] = None) -> Path:
         """Where a state of step `step` is kept beside the run's config (this run's, or `run`'s):
@@ -314,9 +320,8 @@ class AutoStopRun:
     def write_record(self, kept: Optional[int], final: Optional[float] = None) -> None:
         """auto_stop.json beside the run's config: the checks so far (a resumed run replays them)
         and, at the end, the model kept and why the run ended."""
-        datamanager = self.pipeline.datamanager
         record = {
-            "held_back_frames": [datamanager.train_dataset.frame_index(k) for k in datamanager.held_back],
+            "held_back_frames": self.held_back_frames,
             "steps_asked": self.steps_asked,
             "last_step": self.last_step,
             "stopped_early": self.stop_reason is not None,

@@ -88,8 +88,8 @@ def snapshot(pipeline, optimizers, step: int) -> dict:
 
 def restore(pipeline, optimizers, state: dict) -> None:
     """Put back a `snapshot` (the model's step stays the caller's to set). The current Gaussians and
-    their Adam moments go first: a rollback happens where memory ran out, and the old and the restored
-    copies side by side did not fit (an H100 at 128M Gaussians)."""
+    their Adam moments go first: a rollback happens where memory ran out, where the old and the restored
+    copies side by side may not fit."""
     gaussians = getattr(pipeline.model, "gauss_params", None)
     if gaussians is not None:
         replace_gaussians(pipeline, optimizers, {name: p.detach()[:0].clone() for name, p in gaussians.items()})

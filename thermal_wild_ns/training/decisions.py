@@ -18,7 +18,9 @@ from typing import List, Optional
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.decisions import Decision
+from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_text_atomically
+from thermal_wild_ns.training.model_interface import GuardedModel
 
 DECISIONS_FILE = "decisions.json"
 
@@ -30,10 +32,8 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
         return Decision(
             "training length", f"{steps_asked:,} steps", "--max-num-iterations (no automatic stop)", "config"
         )
-    frames = [
-        auto_stop.pipeline.datamanager.train_dataset.frame_index(k) for k in auto_stop.pipeline.datamanager.held_back
-    ]
     if last_step is None:
+        frames = auto_stop.held_back_frames
         why = f"automatic stop: capture frames {frames} held back to score it; at most {steps_asked:,} steps"
         return Decision("training length", "until the held-back frames stop improving", why, "data")
     kept = auto_stop.kept_step
@@ -66,10 +66,10 @@ class RunDecisions:
         pipeline = trainer.pipeline
         model = pipeline.model
         entries: List[Decision] = []
-        for chooser in (pipeline.datamanager, model):  # stock nerfstudio's datamanager and splatfacto say none
-            decisions = getattr(chooser, "decisions", None)
-            if callable(decisions):
-                entries += decisions()
+        if isinstance(pipeline.datamanager, ThermalDatamanager):  # stock nerfstudio's makes no choice
+            entries += pipeline.datamanager.decisions()
+        if isinstance(model, GuardedModel):  # stock splatfacto says none
+            entries += model.decisions()
         entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
         if budget is not None:

@@ -5,9 +5,11 @@ model-side checks: no loss check per step, scores from step 0, no embeddings to 
 
 from __future__ import annotations
 
-from typing import Optional, Protocol, Sequence, Tuple, runtime_checkable
+from typing import List, Optional, Protocol, Sequence, Tuple, runtime_checkable
 
 from torch import Tensor
+
+from thermal_wild_ns.decisions import Decision
 
 
 @runtime_checkable
@@ -31,6 +33,10 @@ class GuardedModel(Protocol):
 
     def interpolate_embeddings(self, rows: Sequence[int]) -> None:
         """Set the embeddings of held-back training images to the state their neighbours give."""
+        ...
+
+    def decisions(self) -> List[Decision]:
+        """The model's size and parts for this run, and why (`training/decisions.py` reports them)."""
         ...
 
     def gaussian_budget(self) -> Tuple[int, int]:
