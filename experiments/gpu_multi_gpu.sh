@@ -12,7 +12,7 @@
 #                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
-#   quality-two   the same on 2 GPUs per run
+#   quality-two   the same on 2 GPUs per run (SEEDS="1 2": only those seeds)
 #   large-two     a 2-GPU host: the 1,000-frame survey trained on 2 GPUs at a count one of its GPUs does not
 #                 hold (256M on H200s, 192M on H100s), 600 steps, held-back frames scored on the way, and its
 #                 checkpoint; then that checkpoint scored on one GPU (experiments.score_checkpoint)
@@ -93,7 +93,7 @@ case "$plan" in
       train 1 1 0 & train 1 2 1 & wait
       train 1 3 0
     else
-      for seed in 1 2 3; do train 2 $seed 0,1; done
+      for seed in ${SEEDS:-1 2 3}; do train 2 $seed 0,1; done
     fi
     tail -n1 "$OUT"/score-*.json
     ;;

@@ -310,10 +310,10 @@ def test_ns_eval_shows_its_progress_through_scoring(trained_run, tmp_path):
         "ns-eval", "--load-config", str(run / "config.yml"), "--output-path", str(tmp_path / "e.json"), cwd=tmp_path
     )
     assert result.returncode == 0, result.stderr[-2000:]
-    lines = [line for line in result.stdout.splitlines() if line.startswith("Scoring held-out views")]
+    lines = [line for line in result.stderr.splitlines() if line.startswith("Scoring held-out views")]
     views = json.loads((tmp_path / "e.json").read_text())["results"]["views"]
     assert lines[0].endswith(f": 0/{views}") and lines[-1].split(": ")[1].startswith(f"{views}/{views}")
-    assert "\r" not in result.stdout  # plain lines off a terminal, no redrawn bar
+    assert "\r" not in result.stderr  # plain lines off a terminal, no redrawn bar
 
 
 @pytest.mark.slow
@@ -322,7 +322,7 @@ def test_the_demo_shows_its_progress_through_scoring(tmp_path):
     (minutes on a CPU), and says where it is meanwhile."""
     result = _command("wild-thermal-demo", "--steps", "20", "--output-dir", str(tmp_path / "demo"), cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
-    lines = [line for line in result.stdout.splitlines() if line.startswith("Scoring held-out views")]
+    lines = [line for line in result.stderr.splitlines() if line.startswith("Scoring held-out views")]
     assert any(line.startswith("Scoring held-out views (novel, time, aligned, half, oracle): 0/") for line in lines)
     done = lines[-1].split(": ")[1].split(" ")[0]
     assert done.split("/")[0] == done.split("/")[1]  # the last line says every view is scored

@@ -2,11 +2,13 @@
 way for every command: a rich progress bar on a terminal (rich is what nerfstudio's own commands
 draw with), plain lines elsewhere (a log file, a pipe, CI), where a redrawn bar would only fill the
 log with carriage returns. The lines say where the phase is at its start, about every tenth of the
-way and at its end, so a long silent phase is never taken for a hang."""
+way and at its end, so a long silent phase is never taken for a hang. They go to stderr: a command
+whose stdout is its result (a score as JSON) stays parseable with its progress on."""
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from typing import Iterable, Iterator, Optional, TypeVar
 
@@ -37,10 +39,14 @@ def track(items: Iterable[T], description: str, total: Optional[int] = None, min
         return
     every = max(1, math.ceil(total / LINES_PER_PHASE))
     start = time.monotonic()
-    CONSOLE.print(f"{description}: 0/{total}")
+    _line(f"{description}: 0/{total}")
     done = 0
     for item in items:
         yield item
         done += 1
         if done % every == 0 or done == total:
-            CONSOLE.print(f"{description}: {done}/{total} ({time.monotonic() - start:.0f} s)")
+            _line(f"{description}: {done}/{total} ({time.monotonic() - start:.0f} s)")
+
+
+def _line(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
