@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -68,9 +68,11 @@ case "$plan" in
     bench flight2-1m "$PWD/.data/flight2" --methods wild-thermal --max-gaussians 1000000 "${flight2[@]}" &
     wait
     ;;
-  grow-budget)  # the budget the held-back frames set (--auto-stop.grow-budget): flight2 and DUNR, from 100k up to 1M
-    bench flight2-grow "$PWD/.data/flight2" --methods wild-thermal --set auto_stop.grow_budget=True "${flight2[@]}" &
-    bench dunr-grow "$PWD/.data/dunr" --methods wild-thermal --set auto_stop.grow_budget=True "${dunr[@]}" &
+  grow-budget-flight2|grow-budget-dunr)  # the budget the held-back frames set (--auto-stop.grow-budget, from 100k
+    # up to 1M) beside the defaults; one scene per call: both scenes and the cache do not travel together
+    scene=${plan#grow-budget-}; steps=("${flight2[@]}"); [ "$scene" = dunr ] && steps=("${dunr[@]}")
+    bench "$scene-default" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" &
+    bench "$scene-grow" "$PWD/.data/$scene" --methods wild-thermal --set auto_stop.grow_budget=True "${steps[@]}" &
     wait
     ;;
   dunr-sh2-splatfacto)
