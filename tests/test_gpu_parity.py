@@ -72,3 +72,34 @@ def test_torch_backend_matches_gsplat():
         assert s["image_max_abs"] <= IMAGE_ATOL and s["alpha_max_abs"] <= IMAGE_ATOL
         for name, (max_rel, norm_rel) in s["grads"].items():
             assert norm_rel <= GRAD_RTOL, (s["seed"], name, max_rel, norm_rel)
+
+
+def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
+    """Outside training the model replays the pieces around gsplat as CUDA graphs
+    (`rendering/captured.py`): each render equals the same render run kernel by kernel, for
+    cameras of two sizes in turn and a change of state, and an earlier render's outputs are not
+    overwritten by a later replay."""
+    from test_model import make_camera, make_model, perturb_output_layers
+
+    torch.manual_seed(0)
+    model = make_model().cuda()
+    perturb_output_layers(model)
+    model.eval()
+    cameras = [make_camera(1, width=160, height=128), make_camera(2, width=96, height=64)]
+    eager = make_model().cuda()
+    eager.load_state_dict(model.state_dict())
+    eager.eval()
+    eager.captured = lambda key, fn, *inputs, copy_outputs=False: fn(*inputs)  # kernel by kernel
+    with torch.no_grad():
+        first = model.get_outputs_for_camera(cameras[0].to("cuda"))
+        kept = {name: value.clone() for name, value in first.items()}
+        for round_ in range(3):
+            state = None if round_ < 2 else model.frame_embed.weight[3]
+            for camera in cameras:
+                camera = camera.to("cuda")
+                replayed = model.get_outputs_for_camera(camera, frame_embedding=state)
+                reference = eager.get_outputs(camera, state)
+                for name, value in reference.items():
+                    assert torch.equal(replayed[name], value), (round_, name)
+    assert len(model.captured.graphs) == 4  # two sizes, each a view and a finishing graph
+    assert all(torch.equal(first[name], kept[name]) for name in kept)

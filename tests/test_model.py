@@ -322,6 +322,29 @@ def test_baked_emission_matches_and_is_invalidated(monkeypatch):
     assert model.baked.slots["emission"][2] is not third and not after_step.equal(before_step)
 
 
+def test_a_render_outside_training_equals_the_general_path():
+    """Renders a user waits for take their own path (`viewing_view_and_background`, `viewing_outputs`:
+    on a GPU replayed as CUDA graphs); every output equals the general path's, which a crop box that
+    holds every Gaussian takes, with and without the background MLP."""
+    from nerfstudio.data.scene_box import OrientedBox
+
+    torch.manual_seed(0)
+    for background_mlp in (True, False):
+        model = make_model(use_background_mlp=background_mlp)
+        perturb_output_layers(model) if background_mlp else model.emission_mlp.net[-1].weight.data.normal_(0, 0.1)
+        model.eval()
+        everything = OrientedBox(R=torch.eye(3), T=torch.zeros(3), S=torch.full((3,), 100.0))
+        for camera in (make_camera(1, width=64, height=48), make_camera(2, width=40, height=24)):
+            camera.camera_to_worlds[0, 0, 3] = 0.3 * camera.width.item() / 64  # another pose each
+            with torch.no_grad():
+                viewing = model.get_outputs_for_camera(camera)
+                general = model.get_outputs_for_camera(camera, obb_box=everything)
+            assert set(viewing) == set(general)
+            for name, value in general.items():
+                assert viewing[name].shape == value.shape and torch.equal(viewing[name], value), name
+            assert float(viewing["accumulation"].max()) > 0.1  # Gaussians in view: a render, not only background
+
+
 def test_mismatched_checkpoints_are_refused_with_the_reason():
     state = make_model().state_dict()
     with pytest.raises(

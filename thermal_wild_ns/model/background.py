@@ -125,10 +125,8 @@ class ThermalBackground:
             return torch.full((height, width, 1), self.config.background_value, device=device)
         stride = self.config.background_stride
         if not training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
-            if pinhole is None:
-                pinhole = tuple(K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())  # fx, fy, cx, cy
-            dirs = self._frame_directions(K, pinhole, width, height, stride) @ camera_to_world[:3, :3].T  # [h, w, 3]
-            return upsampled(sample_map(self.baked_map(frame_embed, step), dirs), width, height)
+            dirs = self.frame_directions(K, width, height, pinhole)
+            return self.from_map(self.baked_map(frame_embed, step), dirs, camera_to_world, width, height)
         key = (cam_idx, width, height)
         encoded = self._encoded_directions.get(key) if cam_idx is not None else None
         if encoded is None:
@@ -137,3 +135,18 @@ class ThermalBackground:
             if cam_idx is not None:
                 self._encoded_directions[key] = encoded
         return upsampled(self.mlp.from_encoded(encoded, frame_embed), width, height)
+
+    def frame_directions(
+        self, K: Tensor, width: int, height: int, pinhole: Optional[Tuple[float, float, float, float]] = None
+    ) -> Tensor:
+        """The unrotated pixel directions [h, w, 3] of intrinsics `K` [3, 3] on the background's grid
+        (`CameraFrameDirections`); `pinhole`: `K`'s fx, fy, cx, cy on the host, else read from `K`."""
+        if pinhole is None:
+            pinhole = tuple(K[[0, 1, 0, 1], [0, 1, 2, 2]].tolist())  # fx, fy, cx, cy
+        return self._frame_directions(K, pinhole, width, height, self.config.background_stride)
+
+    @staticmethod
+    def from_map(baked: Tensor, frame_dirs: Tensor, camera_to_world: Tensor, width: int, height: int) -> Tensor:
+        """[H, W, 1]: the baked map `baked` (`baked_map`) along the pixel directions `frame_dirs`
+        (`frame_directions`) turned to the pose `camera_to_world` [3, 4]."""
+        return upsampled(sample_map(baked, frame_dirs @ camera_to_world[:3, :3].T), width, height)

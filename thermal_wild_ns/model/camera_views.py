@@ -15,7 +15,7 @@ class View(NamedTuple):
     """A render's camera, on the model's device, at the resolution it renders."""
 
     camera_to_world: Tensor  # [1, 3, 4]
-    viewmat: Tensor  # [1, 4, 4], gsplat's world-to-camera
+    viewmat: Optional[Tensor]  # [1, 4, 4], gsplat's world-to-camera (None: its caller computes it)
     K: Tensor  # [1, 3, 3]
     width: int
     height: int
@@ -38,8 +38,7 @@ def make_view(camera: Cameras, camera_to_world: Tensor, scale: int, device) -> V
     (as nerfstudio's `Cameras.rescale_output_resolution`: intrinsics times the factor, sizes floored)."""
     camera_to_world = camera_to_world.to(device)
     factor = 1.0 / scale
-    sizes = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
-    width, height, *pinhole = torch.cat([v.reshape(-1) for v in sizes]).tolist()  # one read
+    width, height, pinhole = host_sizes(camera)
     return View(
         camera_to_world,
         world_to_camera(camera_to_world),
@@ -48,6 +47,35 @@ def make_view(camera: Cameras, camera_to_world: Tensor, scale: int, device) -> V
         int(height * factor),
         tuple(value * factor for value in pinhole),
     )
+
+
+def host_sizes(camera: Cameras) -> Tuple[float, float, Tuple[float, float, float, float]]:
+    """The camera's width, height and (fx, fy, cx, cy), read to the host in one transfer."""
+    sizes = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
+    width, height, *pinhole = torch.cat([v.reshape(-1) for v in sizes]).tolist()
+    return width, height, tuple(pinhole)
+
+
+class ViewingViews:
+    """The views of renders outside training (full resolution, any pose), whose view matrix their
+    caller computes (`View.viewmat` None): the intrinsics [1, 3, 3] kept per (fx, fy, cx, cy), built
+    from the values read to the host anyway, as a viewer renders with the same few again."""
+
+    KEPT = 8
+
+    def __init__(self) -> None:
+        self.kept: Dict[tuple, Tensor] = {}
+
+    def get(self, camera: Cameras, device) -> View:
+        width, height, pinhole = host_sizes(camera)
+        K = self.kept.pop(pinhole, None)
+        if K is None:  # the values `intrinsics` stacks, from the same float32 numbers
+            fx, fy, cx, cy = pinhole
+            K = torch.tensor([[[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]], dtype=camera.fx.dtype, device=device)
+        self.kept[pinhole] = K  # the most recent last
+        while len(self.kept) > self.KEPT:
+            self.kept.pop(next(iter(self.kept)))
+        return View(camera.camera_to_worlds.to(device), None, K, int(width), int(height), pinhole)
 
 
 def ray_directions(K: Tensor, camera_to_world: Tensor, width: int, height: int, stride: int = 1) -> Tensor:

@@ -29,7 +29,7 @@ from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
 from thermal_wild_ns.model.background import ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
-from thermal_wild_ns.model.camera_views import TrainingViews
+from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews
 from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
@@ -40,7 +40,8 @@ from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.model.view_emission import view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.rendering import Backend, rasterization
+from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
+from thermal_wild_ns.rendering.captured import CapturedCalls
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
 TYPICAL_STATE_GAUSSIANS = 16_384
@@ -48,6 +49,19 @@ TYPICAL_STATE_GAUSSIANS = 16_384
 
 BAKE_ROWS = 1 << 22
 """Gaussians per evaluation of the emission MLP when its output is baked (`baked_emission`)."""
+
+
+def composite(render: Tensor, alpha: Tensor, background: Tensor) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
+    """gsplat's render [1, H, W, 1(+1)] (emission, and depth where asked) with its alpha [1, H, W, 1]
+    over `background` [H, W, 1]: the thermal image (premultiplied render over the background), the
+    alpha [H, W, 1] and the depth [H, W, 1] (the farthest rendered depth where nothing was drawn) or None."""
+    alpha = alpha[0]
+    thermal = render[0, ..., :1] + (1.0 - alpha) * background
+    depth = None
+    if render.shape[-1] > 1:
+        depth = render[0, ..., 1:2]
+        depth = torch.where(alpha > 0, depth, depth.detach().max())
+    return thermal, alpha, depth
 
 
 @dataclass
@@ -192,6 +206,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self.baked = BakedValues()  # outside training: `baked_emission`
         self.training_views = TrainingViews()
+        self.viewing_views = ViewingViews()  # outside training, with `captured`: `get_outputs`
+        self.captured = CapturedCalls()  # outside training: `viewing_view_and_background`, `viewing_outputs`
         sequence = (self.kwargs.get("metadata") or {}).get("preprocessed")  # the training frames' LUTs
         use_luts = sequence is not None and cfg.loss_space == "original"
         self.thermal_loss = ThermalLoss(cfg, inverse_lut_table(sequence, self.frame_times) if use_luts else None)
@@ -318,27 +334,36 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             and "cam_idx" in camera.metadata
         )
         cam_idx = int(camera.metadata["cam_idx"]) if fixed_pose else None
-        pose = lambda: self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
-        view = self.training_views.get(camera, pose, self._get_downscale_factor(), self.device, cam_idx)
-        viewmat, K, W, H = view.viewmat, view.K, view.width, view.height
-        self.last_size = (H, W)
         frame_embed = self.frame_embedding(camera, frame_embedding)
-        with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
-            background = self.background_field(
-                K[0],
-                view.camera_to_world[0],
-                frame_embed,
-                W,
-                H,
-                cam_idx,
-                view.pinhole,
-                training=self.training,
-                step=self.step,
-            )  # [H, W, 1]
-
         ids = None
         if self.crop_box is not None and not self.training:
             ids = self.crop_box.within(self.means).squeeze()
+        # a render a user waits for: its fixed-shape pieces replayed as CUDA graphs (`rendering/captured.py`)
+        viewing = not self.training and not torch.is_grad_enabled() and ids is None and not self.ranks.split
+        if viewing:  # full resolution; its view matrix comes with the background (`viewing_view_and_background`)
+            view = self.viewing_views.get(camera, self.device)
+        else:
+            pose = lambda: self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
+            view = self.training_views.get(camera, pose, self._get_downscale_factor(), self.device, cam_idx)
+        W, H = view.width, view.height
+        self.last_size = (H, W)
+        with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
+            if viewing:
+                viewmat, background = self.viewing_view_and_background(view, frame_embed)
+            else:
+                viewmat = view.viewmat
+                background = self.background_field(
+                    view.K[0],
+                    view.camera_to_world[0],
+                    frame_embed,
+                    W,
+                    H,
+                    cam_idx,
+                    view.pinhole,
+                    training=self.training,
+                    step=self.step,
+                )  # [H, W, 1]
+
         if self.num_points == 0 or (ids is not None and ids.sum() == 0):
             if self.training:
                 raise RuntimeError(
@@ -346,6 +371,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                     "check the data (constant or NaN frames)."
                 )
             CONSOLE.log("[yellow]WildThermalModel: no Gaussians to render; returning the background only.")
+            background = background.clone()  # outside training, a CUDA graph's buffer until its next replay
             return self._outputs(background, torch.zeros_like(background), background, None)
 
         def crop(x: Tensor) -> Tensor:
@@ -366,14 +392,19 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
                     colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
         with record_function("thermal/rasterize"):
+            activated = (
+                self.baked.get("activated", (self.scales, self.opacities), self.step, self.activated_splats)
+                if viewing
+                else self.activated_splats(ids)
+            )  # [N, 3], [N]
             render, alpha, self.info = rasterization(
                 means=crop(self.means),
                 quats=crop(self.quats),  # rasterization normalises internally
-                scales=torch.exp(crop(self.scales)),
-                opacities=torch.sigmoid(crop(self.opacities)).squeeze(-1),
+                scales=activated[0],
+                opacities=activated[1],
                 colors=colors,
                 viewmats=viewmat,
-                Ks=K,
+                Ks=view.K,
                 width=W,
                 height=H,
                 packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
@@ -395,13 +426,56 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.strategy.step_pre_backward(
                 self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
             )
-        alpha = alpha[0]
-        thermal = render[0, ..., :1] + (1.0 - alpha) * background  # premultiplied render over background
-        depth = None
-        if render_mode == "RGB+ED":
-            depth = render[0, ..., 1:2]
-            depth = torch.where(alpha > 0, depth, depth.detach().max())
+        if viewing:
+            return self.viewing_outputs(render, alpha, background)
+        thermal, alpha, depth = composite(render, alpha, background)
         return self._outputs(thermal, alpha, background, depth)
+
+    def activated_splats(self, ids: Optional[Tensor] = None) -> Tuple[Tensor, Tensor]:
+        """gsplat's scales [N, 3] and opacities [N] of every (or the selected) Gaussian (outside training
+        baked, as the emission: `get_outputs`)."""
+        scales, opacities = (self.scales, self.opacities) if ids is None else (self.scales[ids], self.opacities[ids])
+        return torch.exp(scales), torch.sigmoid(opacities).squeeze(-1)
+
+    def viewing_view_and_background(self, view: View, frame_embed: Tensor) -> Tuple[Tensor, Tensor]:
+        """gsplat's view matrix [1, 4, 4] and the background [H, W, 1] of a render outside training
+        (`get_outputs`): one CUDA graph per camera size and intrinsics on a GPU, the baked background
+        map (`ThermalBackground.baked_map`) one of its inputs, so a new state needs no new graph."""
+        field = self.background_field
+        key = ("view", view.width, view.height, view.pinhole)
+        if self.background_mlp is None:  # a constant background
+            prepare = lambda camera_to_world, K: (
+                world_to_camera(camera_to_world),
+                field(K[0], camera_to_world[0], None, view.width, view.height, training=False, step=self.step),
+            )
+            return self.captured(key, prepare, view.camera_to_world, view.K)
+
+        def prepare(camera_to_world: Tensor, baked: Tensor, frame_dirs: Tensor) -> Tuple[Tensor, Tensor]:
+            background = field.from_map(baked, frame_dirs, camera_to_world[0], view.width, view.height)
+            return world_to_camera(camera_to_world), background
+
+        baked = field.baked_map(frame_embed, self.step)
+        frame_dirs = field.frame_directions(view.K[0], view.width, view.height, view.pinhole)
+        return self.captured(key, prepare, view.camera_to_world, baked, frame_dirs)
+
+    def viewing_outputs(self, render: Tensor, alpha: Tensor, background: Tensor) -> Dict[str, Tensor]:
+        """`_outputs` of a render outside training from gsplat's render [1, H, W, 2] (emission, depth)
+        and alpha [1, H, W, 1]: composited and coloured in one CUDA graph on a GPU, copied out of it."""
+        colormap = self.viewer_controls.colormap
+
+        def finish(render: Tensor, alpha: Tensor, background: Tensor) -> Tuple[Tensor]:
+            thermal, alpha, depth = composite(render, alpha, background)
+            return (torch.cat([thermal_rgb(thermal, colormap), thermal, alpha, background, depth], -1),)  # [H, W, 7]
+
+        key = ("finish", tuple(render.shape), colormap)
+        packed = self.captured(key, finish, render, alpha, background, copy_outputs=True)[0]
+        return {  # as `_outputs`, views of one tensor
+            "rgb": packed[..., :3],
+            "thermal": packed[..., 3:4],
+            "accumulation": packed[..., 4:5],
+            "background": packed[..., 5:6],
+            "depth": packed[..., 6:7],
+        }
 
     def emission_in_view(
         self, frame_embed: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int, camera_position: Tensor

@@ -1,0 +1,84 @@
+"""Fixed-shape pieces of a render outside training, replayed on a GPU as CUDA graphs.
+
+A render a user waits for (the viewer, `wild-thermal-render`, the export commands) is bound by the
+host: dozens of small kernels, each launched from Python. The pieces around gsplat's rasterization
+(the camera's view matrix and background before it; compositing, depth and colormap after it) have
+the same shapes for every frame of one camera size, so each is recorded once as a CUDA graph and
+replayed: one launch instead of its kernels, with the same kernels' results. gsplat's rasterization
+itself sizes its buffers from the data (a host read) and stays outside. On a CPU, or where `enabled`
+is False, the function simply runs.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Dict, Hashable, Tuple
+
+import torch
+from nerfstudio.utils.rich_utils import CONSOLE
+from torch import Tensor
+
+KEPT_GRAPHS = 4
+"""Graphs kept per `CapturedCalls` (a viewer switching between a few sizes or states replays them;
+each holds its own memory)."""
+
+
+UNRECORDABLE = ()
+"""The entry of a key whose graph could not be recorded."""
+
+
+class CapturedCalls:
+    """`fn(*inputs)` for tensors `inputs` of fixed shapes, replayed as a CUDA graph per `key`.
+
+    `fn` reads tensors only from `inputs` (copied into the graph's own at each replay) and constants
+    that live as long as the process; the key names every value besides `inputs` that `fn` depends
+    on (sizes, intrinsics, a colormap): a graph replays the kernels and buffers it recorded. The
+    outputs of a replay are the graph's own buffers, overwritten by its next replay: a caller keeps
+    a copy (`copy_outputs`).
+    """
+
+    def __init__(self) -> None:
+        self.graphs: Dict[Hashable, tuple] = {}
+        """key -> (graph, static inputs, static outputs, (tensor, version) last copied into each static
+        input) or UNRECORDABLE, the most recent last"""
+
+    def __call__(
+        self, key: Hashable, fn: Callable[..., Tuple[Tensor, ...]], *inputs: Tensor, copy_outputs: bool = False
+    ) -> Tuple[Tensor, ...]:
+        """`fn(*inputs)`; on a GPU outside autograd the replay of its graph for `key` (recorded at the
+        key's first call). `copy_outputs`: copies of a replay's outputs rather than its buffers."""
+        if inputs[0].device.type != "cuda" or torch.is_grad_enabled():
+            return fn(*inputs)
+        entry = self.graphs.pop(key, None)
+        if entry is None:
+            try:
+                entry = self._capture(fn, inputs)
+            except RuntimeError as error:  # a kernel this GPU's driver cannot record: run as is from now on
+                entry = UNRECORDABLE
+                CONSOLE.log(f"[yellow]Renders run kernel by kernel: a CUDA graph could not record them ({error})")
+        self.graphs[key] = entry
+        if entry is UNRECORDABLE:
+            return fn(*inputs)
+        while len(self.graphs) > KEPT_GRAPHS:
+            self.graphs.pop(next(iter(self.graphs)))
+        graph, static_inputs, outputs, copied = entry
+        for i, (static, value) in enumerate(zip(static_inputs, inputs)):
+            last, version = copied[i]
+            if last is not value or version != value._version:  # else unchanged since copied (a baked map)
+                static.copy_(value)
+                copied[i] = (value, value._version)
+        graph.replay()
+        return tuple(output.clone() for output in outputs) if copy_outputs else outputs
+
+    @staticmethod
+    def _capture(fn, inputs) -> tuple:
+        static_inputs = tuple(value.clone() for value in inputs)
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(side):  # first calls outside the graph: lazy initialisations, cached values
+            fn(*static_inputs)
+        torch.cuda.current_stream().wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        # thread_local: a viewer thread's capture does not fail another thread's CUDA calls
+        with torch.cuda.graph(graph, capture_error_mode="thread_local"):
+            outputs = fn(*static_inputs)
+        return graph, static_inputs, outputs, [(value, value._version) for value in inputs]
