@@ -7,7 +7,8 @@
 #   install       the bundle
 #   cost-one      one GPU: survey_cost over 250 and 1000 frames (Gaussian counts until memory runs out)
 #   cost-4000     one GPU: the same over 4000 frames; cost-all: 250, 1000 and 4000; cost-1000: 1000
-#                 (GROWTH_STEPS=N: then N steps of unbounded growth from the largest count that fitted)
+#                 (GROWTH_STEPS=N: then N steps of unbounded growth from the largest count that fitted;
+#                 GAUSSIANS="N ...": only those counts)
 #   two-vs-one    a 2-GPU host (install first): multi_gpu_cost on the 1,000-frame survey with 1 GPU, then
 #                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
@@ -23,7 +24,7 @@ plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, q
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
-counts=(1000000 4000000 16000000 64000000 128000000 192000000 256000000 320000000 384000000)
+counts=(${GAUSSIANS:-1000000 4000000 16000000 64000000 128000000 192000000 256000000 320000000 384000000})
 survey() {  # survey FRAMES: generate the synthetic survey once (every core)
   python3 -c "from pathlib import Path; from thermal_wild_ns.data.survey_scene import *; generate_survey_scene(Path('/tmp/survey_$1'), SurveySceneConfig(num_frames=$1))" > "$OUT/generate_$1.log" 2>&1
 }

@@ -91,6 +91,11 @@ def main(folder: Path) -> str:
         "GROWTH_STEPS=60; commit 3e4321b)",
         "",
         markdown(json.loads((folder / "cost_h100_1000_growth.json").read_text())),
+        "",
+        "H100, 1,000 frames, 128M Gaussians only, with the rollback that frees the failed state first (plan "
+        "cost-1000, GAUSSIANS=128000000 GROWTH_STEPS=60; the package of commit 0d5ff91, which has b304b28)",
+        "",
+        markdown(json.loads((folder / "cost_h100_1000_rollback.json").read_text())),
     ]
     return "\n".join(lines) + "\n"
 
