@@ -78,14 +78,20 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
     """Outside training the model replays the pieces around gsplat as CUDA graphs
     (`rendering/captured.py`): each render equals the same render run kernel by kernel, for
     cameras of two sizes in turn and a change of state, and an earlier render's outputs are not
-    overwritten by a later replay."""
+    overwritten by a later replay; a graph's output passed to another graph is copied at every
+    replay (it changes without a new tensor version)."""
     from test_model import make_camera, make_model, perturb_output_layers
 
     torch.manual_seed(0)
     model = make_model().cuda()
     perturb_output_layers(model)
     model.eval()
-    cameras = [make_camera(1, width=160, height=128), make_camera(2, width=96, height=64)]
+    turned = make_camera(3, width=160, height=128)  # the first camera's size, turned: another background
+    angle = torch.tensor(0.4)
+    turned.camera_to_worlds[0, :3, :3] = torch.tensor(
+        [[angle.cos(), 0.0, angle.sin()], [0.0, 1.0, 0.0], [-angle.sin(), 0.0, angle.cos()]]
+    )
+    cameras = [make_camera(1, width=160, height=128), turned, make_camera(2, width=96, height=64)]
     eager = make_model().cuda()
     eager.load_state_dict(model.state_dict())
     eager.eval()
@@ -103,3 +109,21 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
                     assert torch.equal(replayed[name], value), (round_, name)
     assert len(model.captured.graphs) == 4  # two sizes, each a view and a finishing graph
     assert all(torch.equal(first[name], kept[name]) for name in kept)
+    with torch.no_grad():  # the turned camera sees another background: a stale copy would show
+        assert not torch.equal(model.get_outputs_for_camera(turned.to("cuda"))["background"], first["background"])
+    # another thread (the viewer's) renders through graphs of its own
+    import threading
+
+    from_thread = {}
+
+    def render_in_thread():
+        with torch.no_grad():
+            from_thread.update(model.get_outputs_for_camera(turned.to("cuda")))
+
+    worker = threading.Thread(target=render_in_thread)
+    worker.start()
+    worker.join()
+    with torch.no_grad():
+        reference = eager.get_outputs(turned.to("cuda"))
+    assert len(model.captured.per_thread) == 2 and len(model.captured.graphs) == 4
+    assert all(torch.equal(from_thread[name], value) for name, value in reference.items())

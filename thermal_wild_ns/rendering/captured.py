@@ -11,6 +11,7 @@ is False, the function simply runs.
 
 from __future__ import annotations
 
+import threading
 from typing import Callable, Dict, Hashable, Tuple
 
 import torch
@@ -18,7 +19,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 
 KEPT_GRAPHS = 4
-"""Graphs kept per `CapturedCalls` (a viewer switching between a few sizes or states replays them;
+"""Graphs kept per `CapturedCalls` and thread (a viewer switching between a few sizes replays them;
 each holds its own memory)."""
 
 
@@ -37,9 +38,13 @@ class CapturedCalls:
     """
 
     def __init__(self) -> None:
-        self.graphs: Dict[Hashable, tuple] = {}
-        """key -> (graph, static inputs, static outputs, (tensor, version) last copied into each static
-        input) or UNRECORDABLE, the most recent last"""
+        self.per_thread: Dict[int, Dict[Hashable, tuple]] = {}
+        """thread -> key -> (graph, static inputs, static outputs, (tensor, version) last copied into
+        each static input) or UNRECORDABLE, the most recent last. Each thread (the viewer's, the
+        trainer's evaluation) has graphs of its own: one thread's replay cannot overwrite buffers
+        another is still reading, nor free them."""
+        self.output_ids: set = set()
+        """ids of the outputs handed out as the graphs' own buffers"""
 
     def __call__(
         self, key: Hashable, fn: Callable[..., Tuple[Tensor, ...]], *inputs: Tensor, copy_outputs: bool = False
@@ -48,26 +53,37 @@ class CapturedCalls:
         key's first call). `copy_outputs`: copies of a replay's outputs rather than its buffers."""
         if inputs[0].device.type != "cuda" or torch.is_grad_enabled():
             return fn(*inputs)
-        entry = self.graphs.pop(key, None)
+        graphs = self.graphs
+        entry = graphs.pop(key, None)
         if entry is None:
             try:
                 entry = self._capture(fn, inputs)
             except RuntimeError as error:  # a kernel this GPU's driver cannot record: run as is from now on
                 entry = UNRECORDABLE
                 CONSOLE.log(f"[yellow]Renders run kernel by kernel: a CUDA graph could not record them ({error})")
-        self.graphs[key] = entry
+        graphs[key] = entry
         if entry is UNRECORDABLE:
             return fn(*inputs)
-        while len(self.graphs) > KEPT_GRAPHS:
-            self.graphs.pop(next(iter(self.graphs)))
+        while len(graphs) > KEPT_GRAPHS:
+            graphs.pop(next(iter(graphs)))
         graph, static_inputs, outputs, copied = entry
         for i, (static, value) in enumerate(zip(static_inputs, inputs)):
             last, version = copied[i]
-            if last is not value or version != value._version:  # else unchanged since copied (a baked map)
+            # unchanged since its last copy (a baked map): no copy. A graph's output changes at each of its
+            # replays without a new version: always copied
+            if last is not value or version != value._version or id(value) in self.output_ids:
                 static.copy_(value)
                 copied[i] = (value, value._version)
         graph.replay()
-        return tuple(output.clone() for output in outputs) if copy_outputs else outputs
+        if copy_outputs:
+            return tuple(output.clone() for output in outputs)
+        self.output_ids.update(id(output) for output in outputs)  # the graph holds them: ids stay theirs
+        return outputs
+
+    @property
+    def graphs(self) -> Dict[Hashable, tuple]:
+        """This thread's graphs."""
+        return self.per_thread.setdefault(threading.get_ident(), {})
 
     @staticmethod
     def _capture(fn, inputs) -> tuple:
