@@ -56,6 +56,9 @@ class CapturedCalls:
         graphs = self.graphs
         entry = graphs.pop(key, None)
         if entry is None:
+            alive = {thread.ident for thread in threading.enumerate()}
+            for ident in [ident for ident in self.per_thread if ident not in alive]:  # a viewer client gone
+                del self.per_thread[ident]
             try:
                 entry = self._capture(fn, inputs)
             except RuntimeError as error:  # a kernel this GPU's driver cannot record: run as is from now on
@@ -77,7 +80,7 @@ class CapturedCalls:
         graph.replay()
         if copy_outputs:
             return tuple(output.clone() for output in outputs)
-        self.output_ids.update(id(output) for output in outputs)  # the graph holds them: ids stay theirs
+        self.output_ids.update(id(output) for output in outputs)  # (an id reused later: one copy too many)
         return outputs
 
     @property
