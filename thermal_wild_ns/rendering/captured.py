@@ -51,7 +51,7 @@ class CapturedCalls:
     ) -> Tuple[Tensor, ...]:
         """`fn(*inputs)`; on a GPU outside autograd the replay of its graph for `key` (recorded at the
         key's first call). `copy_outputs`: copies of a replay's outputs rather than its buffers."""
-        if inputs[0].device.type != "cuda" or torch.is_grad_enabled():
+        if not self.records(inputs):
             return fn(*inputs)
         graphs = self.graphs
         entry = graphs.pop(key, None)
@@ -82,6 +82,11 @@ class CapturedCalls:
             return tuple(output.clone() for output in outputs)
         self.output_ids.update(id(output) for output in outputs)  # (an id reused later: one copy too many)
         return outputs
+
+    @staticmethod
+    def records(inputs: Tuple[Tensor, ...]) -> bool:
+        """Whether a call with `inputs` goes through a graph: CUDA tensors, outside autograd."""
+        return inputs[0].device.type == "cuda" and not torch.is_grad_enabled()
 
     @property
     def graphs(self) -> Dict[Hashable, tuple]:
