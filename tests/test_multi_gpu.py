@@ -30,6 +30,20 @@ def test_rank_shares_cover_everything_once():
     assert slots == list(range(8))
 
 
+def test_adams_moment_rates_are_a_setting_and_a_config_saved_without_them_keeps_torchs():
+    """Runs across GPUs may set Adam for their batch as gsplat's trainer does (betas, lr, eps: all on
+    the command line); a config.yml written before the setting existed loads with torch's rates."""
+    from thermal_wild_ns.training.optimizers import FusedAdamOptimizerConfig
+
+    param = torch.nn.Parameter(torch.zeros(3))
+    scaled = FusedAdamOptimizerConfig(lr=2e-3, eps=1e-15, betas=(0.8, 0.998)).setup([param])
+    assert scaled.defaults["betas"] == (0.8, 0.998) and scaled.defaults["lr"] == 2e-3
+    lines = yaml.dump(FusedAdamOptimizerConfig(lr=1e-3)).splitlines()
+    start = lines.index("betas: !!python/tuple")
+    older = yaml.load("\n".join(lines[:start] + lines[start + 3 :]), Loader=yaml.Loader)  # no betas saved
+    assert "betas" not in vars(older) and older.setup([param]).defaults["betas"] == (0.9, 0.999)
+
+
 def test_one_decision_for_all_ranks(tmp_path_factory):
     """What the guard and the automatic stop decide across GPUs: a flag any rank raises, every rank
     sees; rank 0's score is every rank's. And a checkpoint's gather of shares of unequal size."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Tuple
 
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 
@@ -14,3 +15,7 @@ class FusedAdamOptimizerConfig(AdamOptimizerConfig):
 
     fused: bool = True
     """Use torch.optim.Adam(fused=True) (CUDA and CPU, torch >= 2.4)."""
+    betas: Tuple[float, float] = (0.9, 0.999)
+    """Adam's decay rates of its moment estimates (torch's defaults). Trainers that take several images
+    per step set them for the batch: gsplat's multi-GPU trainer uses 1 - N(1 - beta) for N images, with
+    the learning rate times sqrt(N) and eps over sqrt(N)."""
