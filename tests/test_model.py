@@ -331,7 +331,10 @@ def test_a_render_outside_training_equals_the_general_path():
     torch.manual_seed(0)
     for background_mlp in (True, False):
         model = make_model(use_background_mlp=background_mlp)
-        perturb_output_layers(model) if background_mlp else model.emission_mlp.net[-1].weight.data.normal_(0, 0.1)
+        if background_mlp:
+            perturb_output_layers(model)
+        else:
+            model.emission_mlp.net[-1].weight.data.normal_(0, 0.1)
         model.eval()
         everything = OrientedBox(R=torch.eye(3), T=torch.zeros(3), S=torch.full((3,), 100.0))
         for camera in (make_camera(1, width=64, height=48), make_camera(2, width=40, height=24)):

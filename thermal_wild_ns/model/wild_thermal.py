@@ -460,7 +460,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def viewing_outputs(self, render: Tensor, alpha: Tensor, background: Tensor) -> Dict[str, Tensor]:
         """`_outputs` of a render outside training from gsplat's render [1, H, W, 2] (emission, depth)
-        and alpha [1, H, W, 1]: composited and coloured in one CUDA graph on a GPU, copied out of it."""
+        and alpha [1, H, W, 1]: composited and coloured in one CUDA graph on a GPU, copied out of it
+        in one piece (the outputs are views of it)."""
         colormap = self.viewer_controls.colormap
 
         def finish(render: Tensor, alpha: Tensor, background: Tensor) -> Tuple[Tensor]:
@@ -469,13 +470,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
         key = ("finish", tuple(render.shape), colormap)
         packed = self.captured(key, finish, render, alpha, background, copy_outputs=True)[0]
-        return {  # as `_outputs`, views of one tensor
-            "rgb": packed[..., :3],
-            "thermal": packed[..., 3:4],
-            "accumulation": packed[..., 4:5],
-            "background": packed[..., 5:6],
-            "depth": packed[..., 6:7],
-        }
+        return self._outputs(packed[..., 3:4], packed[..., 4:5], packed[..., 5:6], packed[..., 6:7], packed[..., :3])
 
     def emission_in_view(
         self, frame_embed: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int, camera_position: Tensor
@@ -518,9 +513,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.set_crop(obb_box)
         return self.get_outputs(camera if camera.device == self.device else camera.to(self.device), frame_embedding)
 
-    def _outputs(self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor]) -> Dict:
-        # nothing reads rgb while training: the cheapest grey view; else the colormap (viewer, ns-render)
-        rgb = thermal_rgb(thermal, None if self.training else self.viewer_controls.colormap)  # [H, W, 3]
+    def _outputs(
+        self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor], rgb: Optional[Tensor] = None
+    ) -> Dict:
+        # `rgb` where the caller coloured it already (`viewing_outputs`); nothing reads rgb while training:
+        # the cheapest grey view; else the colormap (viewer, ns-render)
+        if rgb is None:
+            rgb = thermal_rgb(thermal, None if self.training else self.viewer_controls.colormap)  # [H, W, 3]
         return {  # rgb first: the viewer shows the first output by default
             "rgb": rgb,
             "thermal": thermal,  # [H, W, 1], normalised dataset units (training space)

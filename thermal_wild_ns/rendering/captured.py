@@ -5,8 +5,8 @@ host: dozens of small kernels, each launched from Python. The pieces around gspl
 (the camera's view matrix and background before it; compositing, depth and colormap after it) have
 the same shapes for every frame of one camera size, so each is recorded once as a CUDA graph and
 replayed: one launch instead of its kernels, with the same kernels' results. gsplat's rasterization
-itself sizes its buffers from the data (a host read) and stays outside. On a CPU, or where `enabled`
-is False, the function simply runs.
+itself sizes its buffers from the data (a host read) and stays outside. On a CPU, or under
+autograd, the function simply runs.
 """
 
 from __future__ import annotations
