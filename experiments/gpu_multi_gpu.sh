@@ -13,16 +13,14 @@
 #                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
-#   quality-two   the same on 2 GPUs per run (SEEDS="1 2": only those seeds)
-#   quality-two-scaled  quality-two with every Adam set for two images per step as gsplat's multi-GPU
-#                 trainer sets it (lr x sqrt 2, eps / sqrt 2, betas 1 - 2(1 - beta)): score-gpus2-scaled-seed*.json
+#   quality-two   the same on 2 GPUs per run (SEEDS="1 2": only those seeds; TAG=-x: a suffix on its files)
 #   large-two     a 2-GPU host: the 1,000-frame survey trained on 2 GPUs at a count one of its GPUs does not
 #                 hold (256M on H200s, 192M on H100s), 600 steps, held-back frames scored on the way, and its
 #                 checkpoint; then that checkpoint scored on one GPU (experiments.score_checkpoint)
 #   stop-two      a 2-GPU host: the 250-frame survey through the launcher with its defaults (automatic stop,
 #                 divergence guard) to its stop, scored on one GPU
 set -uo pipefail
-plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two, quality-two-scaled, large-two, stop-two}
+plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two, large-two, stop-two}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -81,25 +79,17 @@ case "$plan" in
       > "$OUT/score-stop-two.json" 2> "$OUT/score-stop-two.log"
     grep -i "stops\|kept\|skipped\|rolled" "$OUT/stop-two.log" | tail -5; cat "$OUT/score-stop-two.json"
     ;;
-  quality-one|quality-two|quality-two-scaled)
+  quality-one|quality-two)
     survey 250
-    scaled=()  # quality-two-scaled: every Adam set for two images per step as gsplat's multi-GPU trainer does
-    [ "$plan" = quality-two-scaled ] && read -ra scaled <<< "$(python3 -c "
-import math
-from thermal_wild_ns.method_configs import wild_thermal_optimizers
-for name, group in wild_thermal_optimizers().items():
-    o = group['optimizer']
-    print(f'--optimizers.{name}.optimizer.lr {o.lr * math.sqrt(2)!r} --optimizers.{name}.optimizer.eps '
-          f'{o.eps / math.sqrt(2)!r} --optimizers.{name}.optimizer.betas {1 - 2 * 0.1:g} {1 - 2 * 0.001:g}', end=' ')")"
-    tag=""; [ "$plan" = quality-two-scaled ] && tag="-scaled"
+    tag=${TAG:-}  # a suffix of the run's files, to keep the runs of an earlier commit apart
     train() {  # train GPUS SEED CUDA_VISIBLE_DEVICES
       CUDA_VISIBLE_DEVICES=$3 timeout 240 torchrun --standalone --nproc-per-node "$1" -m thermal_wild_ns.multi_gpu \
         wild-thermal --output-dir "/tmp/q/gpus$1$tag-seed$2" --experiment-name survey --timestamp run \
         --max-num-iterations 2000 --machine.seed "$2" --pipeline.datamanager.train-order-seed "$2" \
-        --pipeline.model.max-gaussians 1000000 --pipeline.datamanager.preprocessing-cache /tmp/q/cache "${scaled[@]}" \
+        --pipeline.model.max-gaussians 1000000 --pipeline.datamanager.preprocessing-cache /tmp/q/cache \
         thermal-demo-data --data /tmp/survey_250 --scene survey --survey-frames 250 > "$OUT/train-gpus$1$tag-seed$2.log" 2>&1
       timeout 90 python3 -m experiments.score_checkpoint "/tmp/q/gpus$1$tag-seed$2/survey/wild-thermal/run/config.yml" \
-        > "$OUT/score-gpus$1$tag-seed$2.json" 2> "$OUT/score-gpus$1$tag-seed$2.log"
+        2> "$OUT/score-gpus$1$tag-seed$2.log" | tail -1 > "$OUT/score-gpus$1$tag-seed$2.json"  # its last line: the scores
     }
     if [ "$plan" = quality-one ]; then  # one GPU each, two at a time
       train 1 1 0 & train 1 2 1 & wait

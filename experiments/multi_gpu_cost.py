@@ -64,7 +64,7 @@ def main(args: MultiGpuCostArgs) -> Dict:
     )
     config.pipeline.datamanager.preprocessing_cache = args.output_dir / "cache"
     config.pipeline.model.max_gaussians = max(args.gaussians)
-    split = multi_gpu_config(config)
+    split = multi_gpu_config(config, ranks.world)
     split.timestamp = "cost"
     start = time.perf_counter()
     if ranks.rank != 0:  # rank 0 first: it preprocesses and caches what the others read (as multi_gpu.main)

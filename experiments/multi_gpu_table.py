@@ -15,6 +15,41 @@ def spread(values) -> str:
     return f"{statistics.mean(values):.2f} ({min(values):.2f}–{max(values):.2f})"
 
 
+QUALITY_RUNS = (
+    ("quality_h100_a19f191", "two H100s of one host, commit a19f191"),
+    ("quality_h200_e14f018", "two H200s of one host, commit e14f018"),
+)
+"""The quality runs' folders (plans quality-one and quality-two; files score-gpus{N}{tag}-seed{1,2,3}.json)."""
+RUN_KINDS = (
+    ("score-gpus1", 1, "1"),
+    ("score-gpus2", 2, "2, Adam as for one image"),
+    ("score-gpus2-scaled", 2, "2, Adam set for two images (the launcher's default since)"),
+)
+
+
+def quality_table(folder: Path, title: str) -> list:
+    """One table of the quality runs in `folder`: a row for each kind of run it holds."""
+    lines = [
+        f"250-frame survey, 2,000 steps through `torchrun -m thermal_wild_ns.multi_gpu` (plans quality-one, "
+        f"quality-two), {title}, scored by experiments.score_checkpoint: mean (min–max) of seeds 1–3",
+        "",
+        "| GPUs | images seen | Gaussians | `novel` PSNR | `time` PSNR | `aligned` PSNR (fit on the frame) "
+        "| `aligned` °C MAE (fit on the frame) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for stem, gpus, label in RUN_KINDS:
+        files = [folder / f"{stem}-seed{seed}.json" for seed in (1, 2, 3)]
+        if not all(path.exists() for path in files):
+            continue
+        scores = [json.loads(path.read_text()) for path in files]
+        lines.append(
+            f"| {label} | {2000 * gpus:,} | {statistics.mean(s['gaussians'] for s in scores):,.0f} | "
+            + " | ".join(spread([s[f"psnr_{p}"] for s in scores]) for p in ("novel", "time", "aligned"))
+            + f" | {spread([s['celsius_mae_aligned'] for s in scores])} |"
+        )
+    return lines
+
+
 def main(folder: Path) -> str:
     one, two = (json.loads((folder / f"multi_gpu_cost_{n}.json").read_text()) for n in (1, 2))
     by_count = {row["gaussians"]: row for row in one["counts"]}
@@ -39,21 +74,8 @@ def main(folder: Path) -> str:
             f"| {max(row['gpu_peak_gib_per_rank'])} | {ratio} |"
         )
     lines += ["", f"One GPU's first limit: {one['first_limit'].split('. Including')[0]}.", ""]
-    lines += [
-        "250-frame survey, 2,000 steps through `torchrun -m thermal_wild_ns.multi_gpu` (plans quality-one, "
-        "quality-two), scored by experiments.score_checkpoint: mean (min–max) of seeds 1–3",
-        "",
-        "| GPUs | images seen | Gaussians | `novel` PSNR | `time` PSNR | `aligned` PSNR (fit on the frame) "
-        "| `aligned` °C MAE (fit on the frame) |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for gpus in (1, 2):
-        scores = [json.loads((folder / f"score-gpus{gpus}-seed{s}.json").read_text()) for s in (1, 2, 3)]
-        lines.append(
-            f"| {gpus} | {2000 * gpus:,} | {statistics.mean(s['gaussians'] for s in scores):,.0f} | "
-            + " | ".join(spread([s[f"psnr_{p}"] for s in scores]) for p in ("novel", "time", "aligned"))
-            + f" | {spread([s['celsius_mae_aligned'] for s in scores])} |"
-        )
+    for name, title in QUALITY_RUNS:
+        lines += quality_table(folder / name, title) + [""]
     lines += ["", "One GPU: surveys of 250 to 4,000 frames (experiments.survey_cost, plans cost-one and cost-4000)", ""]
     for name in ("cost_h100_250_1000.json", "cost_h100_4000.json"):
         lines.append(markdown(json.loads((folder / name).read_text())))

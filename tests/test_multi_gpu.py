@@ -44,6 +44,30 @@ def test_adams_moment_rates_are_a_setting_and_a_config_saved_without_them_keeps_
     assert "betas" not in vars(older) and older.setup([param]).defaults["betas"] == (0.9, 0.999)
 
 
+def test_the_launcher_sets_every_adam_for_its_images_per_step():
+    """Across N GPUs every Adam takes gsplat's settings for N images per step, from the one-image
+    settings the user gave (the method's or the command line's); one process keeps them as given."""
+    import math
+
+    from thermal_wild_ns.method_configs import method_trainer
+    from thermal_wild_ns.multi_gpu import multi_gpu_config
+
+    config = method_trainer("wild-thermal")
+    config.optimizers["means"]["optimizer"].lr = 1e-3  # as from the command line
+    two, one = multi_gpu_config(config, 2), multi_gpu_config(config, 1)
+    for name, group in config.optimizers.items():
+        given, scaled = group["optimizer"], two.optimizers[name]["optimizer"]
+        assert scaled.lr == pytest.approx(given.lr * math.sqrt(2)) and scaled.eps == pytest.approx(
+            given.eps / math.sqrt(2)
+        )
+        assert scaled.betas == pytest.approx((0.8, 0.998))
+        assert one.optimizers[name]["optimizer"] == given
+    assert two.optimizers["means"]["optimizer"].lr == pytest.approx(1e-3 * math.sqrt(2))
+    assert config.optimizers["means"]["optimizer"].lr == 1e-3  # the parsed config is not changed
+    with pytest.raises(ValueError, match="betas"):  # 1 - 20 (1 - 0.9) < 0: no Adam for that batch
+        config.optimizers["means"]["optimizer"].for_images(20)
+
+
 def test_one_decision_for_all_ranks(tmp_path_factory):
     """What the guard and the automatic stop decide across GPUs: a flag any rank raises, every rank
     sees; rank 0's score is every rank's. And a checkpoint's gather of shares of unequal size."""
@@ -130,6 +154,7 @@ def test_two_process_run_gives_one_checkpoint_that_loads_on_one_device(tmp_path)
     saved = yaml.load(configs[0].read_text(), Loader=yaml.Loader)
     assert not saved.pipeline.model.distributed and not saved.pipeline.datamanager.distributed
     assert not saved.pipeline.model.use_absgrad  # a resumed run grows as this one did
+    assert saved.optimizers["emission_mlp"]["optimizer"].betas == pytest.approx((0.8, 0.998))  # what trained
     checkpoints = sorted(configs[0].parent.rglob("*.ckpt"))
     state = torch.load(checkpoints[-1], map_location="cpu", weights_only=False)
     gathered = state["pipeline"]["_model.gauss_params.means"].shape[0]

@@ -4,8 +4,12 @@
 
 Every option is ns-train's. torchrun starts one process per GPU; each holds every N-th Gaussian and
 trains one image per step, through gsplat's distributed rasterization (`training/distributed.py`).
-What changes from a one-GPU run (the first three printed at start):
+What changes from a one-GPU run (the first four printed at start):
 - each step trains N images (one per GPU): the same steps see N times the images;
+- every Adam is set for N images per step as gsplat's multi-GPU trainer sets it (learning rate x
+  sqrt(N), eps / sqrt(N), betas 1 - N(1 - beta)) from the settings given, which are one image's;
+  without it two GPUs ended with fewer Gaussians and lower `novel` scores than one
+  (docs/results/multi_gpu);
 - no evaluation images or viewer during training;
 - densification statistics without absgrad (gsplat's distributed rasterization has none): the
   growth threshold is scaled to the plain gradient (splatfacto's absgrad default 0.0008 -> 0.0002);
@@ -33,15 +37,16 @@ from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.training.distributed import DistributedTrainerConfig
+from thermal_wild_ns.training.optimizers import FusedAdamOptimizerConfig
 from thermal_wild_ns.training.trainer import GuardedTrainerConfig, seeded_trainer
 
 PLAIN_GRADIENT_SCALE = 0.25
 """Growth threshold on the plain 2D gradient over the one on absgrad (3DGS's 0.0002 over splatfacto's 0.0008)."""
 
 
-def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
-    """`config` (a thermal method's, as ns-train parsed it) set up for training across GPUs; says
-    what it changed. Refuses methods it cannot split (not this plugin's thermal model)."""
+def multi_gpu_config(config: TrainerConfig, gpus: int) -> DistributedTrainerConfig:
+    """`config` (a thermal method's, as ns-train parsed it) set up for training across `gpus` GPUs;
+    says what it changed. Refuses methods it cannot split (not this plugin's thermal model)."""
     model, datamanager = config.pipeline.model, config.pipeline.datamanager
     if not (
         isinstance(config, GuardedTrainerConfig)
@@ -51,6 +56,16 @@ def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
         raise SystemExit(f"{config.method_name}: only this plugin's thermal methods train across GPUs")
     split = _copied_as(DistributedTrainerConfig, config)
     changes = ["one image per GPU per step", "no evaluation during training"]
+    for name, group in split.optimizers.items():
+        if not isinstance(group["optimizer"], FusedAdamOptimizerConfig):
+            raise SystemExit(
+                f"{config.method_name}: optimizer {name!r} is not the plugin's Adam;"
+                f" cannot set it for {gpus} images per step"
+            )
+        group["optimizer"] = group["optimizer"].for_images(gpus)
+    changes.append(
+        f"every Adam set for {gpus} images per step (lr x sqrt {gpus}, eps / sqrt {gpus}, betas 1 - {gpus}(1 - beta))"
+    )
     model, datamanager = split.pipeline.model, split.pipeline.datamanager
     model.distributed = datamanager.distributed = True
     if model.use_absgrad:
@@ -66,7 +81,8 @@ def multi_gpu_config(config: TrainerConfig) -> DistributedTrainerConfig:
 
 def one_gpu_config(config: DistributedTrainerConfig) -> GuardedTrainerConfig:
     """The config a one-GPU command loads the run with (its config.yml): the same model and data,
-    not split (its densification settings kept, so a resumed run grows as this one did)."""
+    not split (its densification and Adam settings kept: what trained, and a resumed run goes on as this
+    one did)."""
     single = _copied_as(GuardedTrainerConfig, config)
     single.pipeline.model.distributed = single.pipeline.datamanager.distributed = False
     return single
@@ -98,7 +114,7 @@ def join_process_group(device_type: str) -> RankGroup:
 def main(config: TrainerConfig) -> None:
     ranks = join_process_group(config.machine.device_type)
     try:
-        split = multi_gpu_config(config)
+        split = multi_gpu_config(config, ranks.world)
         split.set_timestamp()
         stamp = [split.timestamp]
         dist.broadcast_object_list(stamp, src=0)  # one run folder for every rank

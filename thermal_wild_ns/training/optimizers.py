@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Tuple
 
@@ -16,6 +18,18 @@ class FusedAdamOptimizerConfig(AdamOptimizerConfig):
     fused: bool = True
     """Use torch.optim.Adam(fused=True) (CUDA and CPU, torch >= 2.4)."""
     betas: Tuple[float, float] = (0.9, 0.999)
-    """Adam's decay rates of its moment estimates (torch's defaults). Trainers that take several images
-    per step set them for the batch: gsplat's multi-GPU trainer uses 1 - N(1 - beta) for N images, with
-    the learning rate times sqrt(N) and eps over sqrt(N)."""
+    """Adam's decay rates of its moment estimates (torch's defaults). A run that trains several images
+    per step sets them for the batch (`for_images`)."""
+
+    def for_images(self, images: int) -> "FusedAdamOptimizerConfig":
+        """These settings, given for one image per step, set for `images` per step as gsplat's
+        multi-GPU trainer sets them (examples/simple_trainer.py, batch size N): learning rate times
+        sqrt(N), eps over sqrt(N), each beta 1 - N(1 - beta) -- the moments then average over the
+        same number of images as one image per step does. The schedulers are left as they are."""
+        if images == 1:
+            return self
+        root = math.sqrt(images)
+        betas = tuple(1 - images * (1 - beta) for beta in self.betas)
+        if min(betas) <= 0:
+            raise ValueError(f"Adam's betas {self.betas} cannot be set for {images} images per step")
+        return dataclasses.replace(self, lr=self.lr * root, eps=self.eps / root, betas=betas)
