@@ -118,7 +118,14 @@ def main(folder: Path) -> str:
         "cost-1000, GAUSSIANS=128000000 GROWTH_STEPS=60; the package of commit 0d5ff91, which has b304b28)",
         "",
         markdown(json.loads((folder / "cost_h100_1000_rollback.json").read_text())),
+        "",
+        "H200 after the snapshots moved to the host, 1,000 and 4,000 frames, 128M Gaussians and up (plans "
+        'cost-1000 with GAUSSIANS="128000000 192000000 256000000", cost-4000 with GAUSSIANS="128000000 '
+        '192000000"; commit c78d4cd)',
+        "",
     ]
+    for name in ("cost_h200_1000_host_snapshots.json", "cost_h200_4000_host_snapshots.json"):
+        lines.append(markdown(json.loads((folder / name).read_text())))
     return "\n".join(lines) + "\n"
 
 
