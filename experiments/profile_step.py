@@ -21,7 +21,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Optional
+from typing import Dict, Optional, Tuple
 
 import torch
 import tyro
@@ -45,6 +45,8 @@ class ProfileArgs:
     python_steps: int = 100
     """Steps recorded by cProfile (0: none)."""
     max_gaussians: Optional[int] = None
+    set: Tuple[str, ...] = ()
+    """Settings of the method's config, as the bench's `--set` (e.g. pipeline.model.graphed_loss=True)."""
     output_dir: Path = Path("outputs/profile")
     cache_dir: Optional[Path] = None
 
@@ -140,6 +142,7 @@ def profile(args: ProfileArgs) -> Dict:
         steps=FULL_SCHEDULE,
         schedule=FULL_SCHEDULE,
         max_gaussians=args.max_gaussians,
+        set=args.set,
         output_dir=args.output_dir,
         cache_dir=args.cache_dir,
         auto_stop=False,  # every profiled step is a training step

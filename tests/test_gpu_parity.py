@@ -127,3 +127,34 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
         reference = eager.get_outputs(turned.to("cuda"))
     assert len(model.captured.per_thread) == 2 and len(model.captured.graphs) == 4
     assert all(torch.equal(from_thread[name], value) for name, value in reference.items())
+
+
+def test_the_loss_replayed_as_cuda_graphs_equals_the_loss_run_kernel_by_kernel():
+    """A training step's loss terms through `GraphedTerms` (forward and backward replayed): the same
+    terms and the same gradients as kernel by kernel, for frames of two sizes in turn, each size's
+    graphs recorded once."""
+    from thermal_wild_ns.model.thermal_loss import ThermalLoss
+    from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+    graphed = ThermalLoss(WildThermalModelConfig(graphed_loss=True), None)
+    eager = ThermalLoss(WildThermalModelConfig(graphed_loss=False), None)
+    generator = torch.Generator("cuda").manual_seed(0)
+    for step in range(6):
+        height, width = (64, 80) if step % 2 else (128, 160)
+        frame = torch.rand(height, width, 1, device="cuda", generator=generator)
+        render, alpha, background = (torch.rand_like(frame) for _ in range(3))
+        results = []
+        for loss in (graphed, eager):
+            pred, accumulation = render.clone().requires_grad_(), alpha.clone().requires_grad_()
+            outputs = {"thermal": pred * 1.0, "accumulation": accumulation * 1.0, "background": background}
+            gt, contrast = loss.ground_truth(frame, outputs["thermal"], image=step % 3)
+            terms = loss(outputs, gt, contrast, image=step % 3)
+            sum(terms.values()).backward()
+            results.append(({k: v.detach().clone() for k, v in terms.items()}, pred.grad, accumulation.grad))
+        (graphed_terms, *graphed_grads), (eager_terms, *eager_grads) = results
+        assert graphed_terms.keys() == eager_terms.keys() == {"l1_loss", "ssim_loss", "alpha_loss"}
+        for name in eager_terms:
+            assert torch.allclose(graphed_terms[name], eager_terms[name], rtol=1e-6, atol=0), (step, name)
+        for ours, reference in zip(graphed_grads, eager_grads):
+            assert torch.allclose(ours, reference, rtol=1e-5, atol=1e-9), step
+    assert len(graphed.graphed.graphs) == 2 and all(graphs is not None for graphs in graphed.graphed.graphs.values())

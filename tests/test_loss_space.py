@@ -63,3 +63,22 @@ def test_the_loss_is_measured_in_the_original_space(original_space_trainer):
     finally:
         model.config.loss_space = "original"
     assert abs(float(training_space) - float(losses["l1_loss"])) > 1e-6
+
+
+def test_the_loss_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
+    """`graphed_loss` on a CPU: the same terms as without it, and no graph recorded."""
+    from thermal_wild_ns.model.thermal_loss import ThermalLoss
+    from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+    torch.manual_seed(0)
+    frame, render, alpha, background = (torch.rand(32, 40, 1) for _ in range(4))
+    terms = []
+    for graphed in (True, False):
+        loss = ThermalLoss(WildThermalModelConfig(graphed_loss=graphed), None)
+        pred = render.clone().requires_grad_()
+        outputs = {"thermal": pred, "accumulation": alpha, "background": background}
+        gt, contrast = loss.ground_truth(frame, pred, image=0)
+        terms.append(loss(outputs, gt, contrast, image=0))
+    assert terms[0].keys() == {"l1_loss", "ssim_loss", "alpha_loss"}
+    assert all(torch.equal(terms[0][name], terms[1][name]) for name in terms[1])
+    assert not loss.graphed and not ThermalLoss(WildThermalModelConfig(graphed_loss=True), None).graphed.graphs

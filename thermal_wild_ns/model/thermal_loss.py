@@ -5,7 +5,7 @@ contrast, its original-space image), computed once per frame and resolution (the
 
 from __future__ import annotations
 
-from typing import Dict, Optional, Sequence, Tuple
+from typing import Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import torch
@@ -39,6 +39,33 @@ def checked_thermal_image(batch: Dict) -> Tensor:
     return image
 
 
+class GraphedTerms:
+    """`terms(pred, gt, contrast, alpha, background)` of a training step, its forward and its backward
+    each replayed as one CUDA graph per frame size (torch.cuda.make_graphed_callables): the loss is
+    some thirty small kernels forward and forty backward, each launched from Python, on tensors of
+    the same shapes at every step of a resolution. The same kernels run, on copies of the inputs.
+    On a CPU, or where a graph cannot be recorded, `terms` simply runs."""
+
+    def __init__(self, terms: Callable[..., Tuple[Tensor, ...]]):
+        self.terms = terms
+        self.graphs: Dict[tuple, Optional[Callable]] = {}  # shapes and grad flags -> graphed terms (None: eager)
+
+    def __call__(self, *inputs: Tensor) -> Tuple[Tensor, ...]:
+        if not inputs[0].is_cuda:
+            return self.terms(*inputs)
+        key = tuple((tuple(t.shape), t.requires_grad) for t in inputs)
+        if key not in self.graphs:
+            # leaf copies with the inputs' grad flags: torch warms up and records on these
+            samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in inputs)
+            try:
+                self.graphs[key] = torch.cuda.make_graphed_callables(self.terms, samples, allow_unused_input=True)
+            except RuntimeError as error:
+                self.graphs[key] = None
+                CONSOLE.log(f"[yellow]The loss runs kernel by kernel: a CUDA graph could not record it ({error})")
+        graphed = self.graphs[key]
+        return self.terms(*inputs) if graphed is None else graphed(*inputs)
+
+
 class ThermalLoss(nn.Module):
     """The loss terms of `WildThermalModelConfig` (l1_lambda, ssim_lambda, heat_aware_ssim,
     alpha_lambda, alpha_reg_tolerance, loss_space). `inverse_luts` [images, S] (None: no loss in the
@@ -50,6 +77,7 @@ class ThermalLoss(nn.Module):
         self.register_buffer("inverse_luts", inverse_luts, persistent=False)
         self._frame_checks: Dict[tuple, tuple] = {}  # (training image, shape) -> (all finite, contrast, original)
         self._warned_nonfinite = False
+        self.graphed = GraphedTerms(self.terms) if config.graphed_loss else None
 
     def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
         """Training-space values of training image `image` taken back to the original space through
@@ -104,14 +132,37 @@ class ThermalLoss(nn.Module):
                 # (contrast-relative) SSIM and the alpha term stays what it is in training space
                 compared_pred, compared_gt = self.to_original_space(pred, image), original
                 l1_scale = 1.0 / contrast
-        plain_ssim = lambda: ssim(compared_pred, compared_gt, data_range=1.0)
-        losses = {
-            "l1_loss": cfg.l1_lambda * l1_scale * (compared_gt - compared_pred).abs().mean(),
-            "ssim_loss": cfg.ssim_lambda
-            * (1.0 - (heat_aware_ssim(compared_pred, compared_gt, contrast) if cfg.heat_aware_ssim else plain_ssim())),
-        }
+        background = outputs["background"].detach()  # the regulariser cannot move the background
+        inputs = (compared_pred, compared_gt.detach(), contrast, outputs["accumulation"], background)
+        graphable = image is not None and compared_pred is pred and contrast is not None and torch.is_grad_enabled()
+        if self.graphed is not None and graphable:
+            terms = self.graphed(*inputs)  # the training step's: the same kernels, replayed
+        else:
+            terms = self.terms(*inputs, alpha_target=gt, l1_scale=l1_scale)
+        return dict(zip(self.term_names, terms))
+
+    @property
+    def term_names(self) -> Tuple[str, ...]:
+        return ("l1_loss", "ssim_loss") + (("alpha_loss",) if self.config.alpha_lambda > 0 else ())
+
+    def terms(
+        self,
+        pred: Tensor,
+        gt: Tensor,
+        contrast: Optional[Tensor],
+        alpha: Tensor,
+        background: Tensor,
+        alpha_target: Optional[Tensor] = None,
+        l1_scale: Union[float, Tensor] = 1.0,
+    ) -> Tuple[Tensor, ...]:
+        """The weighted terms (`term_names`) of `pred` [H, W, 1] against `gt` [H, W, 1] with the
+        render's `alpha` [H, W, 1] and `background` [H, W, 1] (detached); the alpha regulariser
+        compares the background with `alpha_target` (the training-space frame; default `gt`). Tensors
+        in, tensors out, no host read: a CUDA graph can record them."""
+        cfg = self.config
+        alpha_target = gt if alpha_target is None else alpha_target
+        similarity = heat_aware_ssim(pred, gt, contrast) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0)
+        terms = (cfg.l1_lambda * l1_scale * (gt - pred).abs().mean(), cfg.ssim_lambda * (1.0 - similarity))
         if cfg.alpha_lambda > 0:
-            losses["alpha_loss"] = cfg.alpha_lambda * alpha_regularizer(
-                outputs["accumulation"], gt, outputs["background"], cfg.alpha_reg_tolerance
-            )
-        return losses
+            terms += (cfg.alpha_lambda * alpha_regularizer(alpha, alpha_target, background, cfg.alpha_reg_tolerance),)
+        return terms

@@ -114,6 +114,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     drone survey, cost a scene with vignetting: docs/results/view_term_gpu)."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
+    graphed_loss: bool = False
+    """On a GPU, replay the loss terms' forward and backward as CUDA graphs (one per frame size): the
+    same kernels, one launch each way instead of dozens. Training-space loss only."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
