@@ -114,9 +114,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     drone survey, cost a scene with vignetting: docs/results/view_term_gpu)."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
-    graphed_loss: bool = False
+    graphed_loss: bool = True
     """On a GPU, replay the loss terms' forward and backward as CUDA graphs (one per frame size): the
-    same kernels, one launch each way instead of dozens. Training-space loss only."""
+    same kernels, one launch each way instead of dozens (docs/results/loss_graphs_h100). Training-space
+    loss only; off: kernel by kernel."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
