@@ -7,13 +7,16 @@
 #   fps       DUNR trained 6,000 steps of the 30k schedule (one seed, experiments.bench), then
 #             experiments.render_fps on that run: the carried code's model, and `.before`'s where carried;
 #             then the GPU tests (tests/test_gpu_parity.py)
-#   loss-graphs  the GPU tests, then experiments.profile_step on DUNR (step 1,500 of the 30k schedule)
-#             with the loss run kernel by kernel and replayed as CUDA graphs (`graphed_loss`), in turn,
-#             ROUNDS times (default 2): profile-{eager,graphed}-ROUND.md, steps.jsonl
-#   loss-graphs-accuracy  DUNR, 3 seeds, the first 3,000 steps of the 30k schedule (experiments.bench),
-#             with the loss kernel by kernel, then replayed: accuracy-graphed_loss-{False,True}-bench.{json,md}
+#   step-graphs  the GPU tests, then experiments.profile_step on DUNR (step 1,500 of the 30k schedule)
+#             with the boolean setting SETTING (default pipeline.model.graphed_loss: the loss run kernel by
+#             kernel or replayed as CUDA graphs) False and True in turn, ROUNDS times (default 2):
+#             profile-{eager,graphed}-ROUND.md, steps.jsonl (loss-graphs: the same plan)
+#   step-graphs-accuracy  DUNR, 3 seeds, the first 3,000 steps of the 30k schedule (experiments.bench),
+#             with SETTING False, then True: accuracy-NAME-{False,True}-bench.{json,md}, NAME the setting's
+#             last part (loss-graphs-accuracy: the same plan)
 set -uo pipefail
-plan=${1:?plan: install, fps, loss-graphs, loss-graphs-accuracy}
+plan=${1:?plan: install, fps, step-graphs, step-graphs-accuracy}
+setting=${SETTING:-pipeline.model.graphed_loss}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -44,14 +47,14 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('$code', $round, r['fp
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
       > "$OUT/gpu_tests.log" 2>&1; tail -3 "$OUT/gpu_tests.log"
     ;;
-  loss-graphs)
+  step-graphs|loss-graphs)
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
       > "$OUT/gpu_tests.log" 2>&1; tail -3 "$OUT/gpu_tests.log"
     for round in $(seq "${ROUNDS:-2}"); do
       for loss in eager graphed; do
         graphed=False; [ "$loss" = graphed ] && graphed=True
         PYTHONPATH=$PWD:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$PWD/.data/dunr" \
-          --cache-dir "$PWD/.data/cache" --set "pipeline.model.graphed_loss=$graphed" \
+          --cache-dir "$PWD/.data/cache" --set "$setting=$graphed" \
           --output-dir "/tmp/prof-$loss-$round" > "/tmp/prof-$loss-$round.log" 2>&1 || tail -5 "/tmp/prof-$loss-$round.log"
         cp "/tmp/prof-$loss-$round/profile.md" "$OUT/profile-$loss-$round.md"
         python3 -c "import json, sys; r = {'loss': '$loss', 'round': $round, **json.load(open(sys.argv[1]))}
@@ -60,13 +63,13 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n')" "/tmp/prof-$loss-$round/prof
       done
     done
     ;;
-  loss-graphs-accuracy)
+  step-graphs-accuracy|loss-graphs-accuracy)
     for g in False True; do
       PYTHONPATH=$PWD:/tmp/site timeout 280 python3 -m experiments.bench --output-dir /tmp/acc-$g --scenes "$PWD/.data/dunr" \
         --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 3000 --schedule 30000 --eval-at 3000 \
-        --fps-frames 0 --set pipeline.model.graphed_loss=$g > /tmp/acc-$g.log 2>&1 || tail -5 /tmp/acc-$g.log
-      cp /tmp/acc-$g/bench.json "$OUT/accuracy-graphed_loss-$g-bench.json"
-      cp /tmp/acc-$g/bench.md "$OUT/accuracy-graphed_loss-$g-bench.md"
+        --fps-frames 0 --set "$setting=$g" > /tmp/acc-$g.log 2>&1 || tail -5 /tmp/acc-$g.log
+      cp /tmp/acc-$g/bench.json "$OUT/accuracy-${setting##*.}-$g-bench.json"
+      cp /tmp/acc-$g/bench.md "$OUT/accuracy-${setting##*.}-$g-bench.md"
       grep -E "^\| wild" /tmp/acc-$g/bench.md | head -3
     done
     ;;

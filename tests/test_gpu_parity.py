@@ -130,7 +130,7 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
 
 
 def test_the_loss_replayed_as_cuda_graphs_equals_the_loss_run_kernel_by_kernel():
-    """A training step's loss terms through `GraphedTerms` (forward and backward replayed): the same
+    """A training step's loss terms through `GraphedCalls` (forward and backward replayed): the same
     terms and the same gradients as kernel by kernel, for frames of two sizes in turn, each size's
     graphs recorded once."""
     from thermal_wild_ns.model.thermal_loss import ThermalLoss
@@ -158,3 +158,46 @@ def test_the_loss_replayed_as_cuda_graphs_equals_the_loss_run_kernel_by_kernel()
         for ours, reference in zip(graphed_grads, eager_grads):
             assert torch.allclose(ours, reference, rtol=1e-5, atol=1e-9), step
     assert len(graphed.graphed.graphs) == 2 and all(graphs is not None for graphs in graphed.graphed.graphs.values())
+
+
+def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel():
+    """Training renders' background through `GraphedCalls` (`graphed_background`): the same background
+    and the same gradients of the MLP's parameters and of the frame embedding as kernel by kernel,
+    for frames of two sizes in turn, with the parameters changed in place between steps (as Adam
+    does: a replay reads them where they live)."""
+    from thermal_wild_ns.model.background import ThermalBackground
+    from thermal_wild_ns.model.fields import BackgroundMLP
+    from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+    torch.manual_seed(0)
+    mlp = BackgroundMLP(frame_dim=8).cuda()
+    for parameter in mlp.parameters():  # the zero-initialised output layer would give zero gradients upstream
+        parameter.data.normal_(0.0, 0.3)
+    twin = BackgroundMLP(frame_dim=8).cuda()
+    twin.load_state_dict(mlp.state_dict())
+    graphed = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=True))
+    eager = ThermalBackground(twin, WildThermalModelConfig(graphed_background=False))
+    embeddings = torch.nn.Parameter(torch.randn(3, 8, device="cuda"))
+    pose = torch.eye(4, device="cuda")[:3]
+    for step in range(6):
+        width, height = (80, 64) if step % 2 else (160, 128)
+        K = torch.tensor([[100.0, 0, width / 2], [0, 100.0, height / 2], [0, 0, 1]], device="cuda")
+        weights = torch.rand(height, width, 1, device="cuda")
+        results = []
+        for background, net in ((graphed, mlp), (eager, twin)):
+            embeddings.grad = None
+            net.zero_grad(set_to_none=True)
+            out = background(K, pose, embeddings[step % 3], width, height, cam_idx=step % 3, training=True, step=step)
+            (out * weights).sum().backward()
+            results.append((out.detach().clone(), embeddings.grad.clone(), [p.grad.clone() for p in net.parameters()]))
+        (ours, ours_embed, ours_params), (reference, ref_embed, ref_params) = results
+        assert torch.allclose(ours, reference, rtol=1e-6, atol=1e-7), step
+        assert torch.allclose(ours_embed, ref_embed, rtol=1e-5, atol=1e-7), step
+        for mine, theirs in zip(ours_params, ref_params):
+            assert torch.allclose(mine, theirs, rtol=1e-5, atol=1e-7), step
+        with torch.no_grad():  # an optimizer step, in place, the same on both
+            for mine, theirs in zip(mlp.parameters(), twin.parameters()):
+                change = 0.01 * torch.randn_like(mine)
+                mine.add_(change)
+                theirs.add_(change)
+    assert len(graphed.graphed.graphs) == 2 and all(g is not None for g in graphed.graphed.graphs.values())

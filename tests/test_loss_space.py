@@ -82,3 +82,31 @@ def test_the_loss_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
     assert terms[0].keys() == {"l1_loss", "ssim_loss", "alpha_loss"}
     assert all(torch.equal(terms[0][name], terms[1][name]) for name in terms[1])
     assert not loss.graphed and not ThermalLoss(WildThermalModelConfig(graphed_loss=True), None).graphed.graphs
+
+
+def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
+    """`graphed_background` on a CPU: the training background and its gradients as without it, no
+    graph recorded."""
+    from thermal_wild_ns.model.background import ThermalBackground
+    from thermal_wild_ns.model.fields import BackgroundMLP
+    from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+    torch.manual_seed(0)
+    mlp = BackgroundMLP(frame_dim=4)
+    for parameter in mlp.parameters():
+        parameter.data.normal_(0.0, 0.3)
+    K, pose = torch.tensor([[50.0, 0, 20], [0, 50.0, 16], [0, 0, 1]]), torch.eye(4)[:3]
+    embedding = torch.randn(4)
+    outputs, grads = [], []
+    for graphed in (True, False):
+        field = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=graphed))
+        mlp.zero_grad(set_to_none=True)
+        out = field(K, pose, embedding, 40, 32, cam_idx=0, training=True, step=0)
+        out.sum().backward()
+        outputs.append(out.detach())
+        grads.append([p.grad.clone() for p in mlp.parameters()])
+    assert outputs[0].shape == (32, 40, 1) and torch.equal(outputs[0], outputs[1])
+    assert all(torch.equal(a, b) for a, b in zip(*grads)) and any(g.abs().sum() > 0 for g in grads[0])
+    graphed_field = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=True))
+    graphed_field(K, pose, embedding, 40, 32, cam_idx=0, training=True, step=0)
+    assert graphed_field.graphed is not None and not graphed_field.graphed.graphs

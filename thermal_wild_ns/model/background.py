@@ -8,11 +8,12 @@ import math
 from typing import Dict, Optional, Tuple
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP
+from thermal_wild_ns.model.graphed import GraphedCalls
 
 BAKED_BACKGROUND_TEXELS = (129, 256)
 """Latitude x longitude samples of the baked background map (about 1.4 degrees apart; the
@@ -82,6 +83,19 @@ class CameraFrameDirections:
         return cached
 
 
+class BackgroundGrid(nn.Module):
+    """The background MLP over a training camera's encoded directions on the `background_stride`
+    grid [h, w, E], upsampled to its frame [height, width, 1]: a piece of fixed shapes per frame size,
+    which `GraphedCalls` records (the MLP is shared, not owned: this module is in no state dict)."""
+
+    def __init__(self, mlp: BackgroundMLP, width: int, height: int):
+        super().__init__()
+        self.mlp, self.width, self.height = mlp, width, height
+
+    def forward(self, encoded: Tensor, frame_embed: Tensor) -> Tensor:
+        return upsampled(self.mlp.from_encoded(encoded, frame_embed), self.width, self.height)
+
+
 class ThermalBackground:
     """The background behind the Gaussians, per pixel [H, W, 1]: the background MLP `mlp` (None: the
     constant `config.background_value`, or with `config.random_background` a uniform value drawn
@@ -96,6 +110,9 @@ class ThermalBackground:
         self.baked = BakedValues()
         self._encoded_directions: Dict[tuple, Tensor] = {}  # (training camera, width, height) -> encoded grid
         self._frame_directions = CameraFrameDirections()
+        # training renders' MLP forward and backward replayed as CUDA graphs, one per frame size
+        self.graphed = GraphedCalls("background MLP") if mlp is not None and config.graphed_background else None
+        self._grids: Dict[Tuple[int, int], BackgroundGrid] = {}
 
     def baked_map(self, frame_embed: Tensor, step: int) -> Tensor:
         """The MLP over every direction under `frame_embed` (`background_map`), kept until the
@@ -134,7 +151,12 @@ class ThermalBackground:
             encoded = self.mlp.encode(dirs)  # [h, w, E]
             if cam_idx is not None:
                 self._encoded_directions[key] = encoded
-        return upsampled(self.mlp.from_encoded(encoded, frame_embed), width, height)
+        if self.graphed is None:
+            return upsampled(self.mlp.from_encoded(encoded, frame_embed), width, height)
+        grid = self._grids.get((width, height))
+        if grid is None:
+            grid = self._grids[(width, height)] = BackgroundGrid(self.mlp, width, height)
+        return self.graphed((width, height), grid, encoded, frame_embed)  # the same kernels, replayed
 
     def frame_directions(
         self, K: Tensor, width: int, height: int, pinhole: Optional[Tuple[float, float, float, float]] = None

@@ -5,7 +5,7 @@ contrast, its original-space image), computed once per frame and resolution (the
 
 from __future__ import annotations
 
-from typing import Callable, Dict, Optional, Sequence, Tuple, Union
+from typing import Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import torch
@@ -13,6 +13,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
 
 from thermal_wild_ns.image_metrics import ssim
+from thermal_wild_ns.model.graphed import GraphedCalls
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, thermal_contrast
 
 INVERSE_LUT_SAMPLES = 4096
@@ -39,33 +40,6 @@ def checked_thermal_image(batch: Dict) -> Tensor:
     return image
 
 
-class GraphedTerms:
-    """`terms(pred, gt, contrast, alpha, background)` of a training step, its forward and its backward
-    each replayed as one CUDA graph per frame size (torch.cuda.make_graphed_callables): the loss is
-    some thirty small kernels forward and forty backward, each launched from Python, on tensors of
-    the same shapes at every step of a resolution. The same kernels run, on copies of the inputs.
-    On a CPU, or where a graph cannot be recorded, `terms` simply runs."""
-
-    def __init__(self, terms: Callable[..., Tuple[Tensor, ...]]):
-        self.terms = terms
-        self.graphs: Dict[tuple, Optional[Callable]] = {}  # shapes and grad flags -> graphed terms (None: eager)
-
-    def __call__(self, *inputs: Tensor) -> Tuple[Tensor, ...]:
-        if not inputs[0].is_cuda:
-            return self.terms(*inputs)
-        key = tuple((tuple(t.shape), t.requires_grad) for t in inputs)
-        if key not in self.graphs:
-            # leaf copies with the inputs' grad flags: torch warms up and records on these
-            samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in inputs)
-            try:
-                self.graphs[key] = torch.cuda.make_graphed_callables(self.terms, samples, allow_unused_input=True)
-            except RuntimeError as error:
-                self.graphs[key] = None
-                CONSOLE.log(f"[yellow]The loss runs kernel by kernel: a CUDA graph could not record it ({error})")
-        graphed = self.graphs[key]
-        return self.terms(*inputs) if graphed is None else graphed(*inputs)
-
-
 class ThermalLoss(nn.Module):
     """The loss terms of `WildThermalModelConfig` (l1_lambda, ssim_lambda, heat_aware_ssim,
     alpha_lambda, alpha_reg_tolerance, loss_space). `inverse_luts` [images, S] (None: no loss in the
@@ -77,7 +51,7 @@ class ThermalLoss(nn.Module):
         self.register_buffer("inverse_luts", inverse_luts, persistent=False)
         self._frame_checks: Dict[tuple, tuple] = {}  # (training image, shape) -> (all finite, contrast, original)
         self._warned_nonfinite = False
-        self.graphed = GraphedTerms(self.terms) if config.graphed_loss else None
+        self.graphed = GraphedCalls("loss") if config.graphed_loss else None
 
     def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
         """Training-space values of training image `image` taken back to the original space through
@@ -136,7 +110,7 @@ class ThermalLoss(nn.Module):
         inputs = (compared_pred, compared_gt.detach(), contrast, outputs["accumulation"], background)
         graphable = image is not None and compared_pred is pred and contrast is not None and torch.is_grad_enabled()
         if self.graphed is not None and graphable:
-            terms = self.graphed(*inputs)  # the training step's: the same kernels, replayed
+            terms = self.graphed(None, self.terms, *inputs)  # the training step's: the same kernels, replayed
         else:
             terms = self.terms(*inputs, alpha_target=gt, l1_scale=l1_scale)
         return dict(zip(self.term_names, terms))
