@@ -21,6 +21,12 @@ def synchronize() -> None:
         torch.cuda.synchronize()
 
 
+def mean_range(values) -> str:
+    """A score over seeds as the tables print it: mean (min–max), two decimals."""
+    values = [float(v) for v in values]
+    return f"{sum(values) / len(values):.2f} ({min(values):.2f}–{max(values):.2f})"
+
+
 def write_report(path, text: str) -> None:
     """Write a Markdown report (its folder made if missing) and print it."""
     from pathlib import Path

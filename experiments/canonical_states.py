@@ -17,6 +17,8 @@ import sys
 from pathlib import Path
 from typing import Dict, List
 
+from experiments import mean_range
+
 PROTOCOLS = ("novel", "time", "aligned")
 
 
@@ -32,16 +34,15 @@ def score(config: str, state: str) -> Dict:
 
 def table(rows: List[Dict], states: List[str]) -> str:
     lines = [
-        "| scene | canonical state | seeds | " + " | ".join(f"`{p}` PSNR" for p in PROTOCOLS) + " |",
+        "| scene | canonical state | seeds | "
+        + " | ".join(f"`{p}` PSNR" + (" (fit on the frame)" if p == "aligned" else "") for p in PROTOCOLS)
+        + " |",
         "| --- | --- | --- | " + " | ".join("---" for _ in PROTOCOLS) + " |",
     ]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         for state in states:
             runs = [r for r in rows if r["scene"] == scene and r["canonical"] == state]
-            cells = []
-            for protocol in PROTOCOLS:
-                values = [r[f"psnr_{protocol}"] for r in runs]
-                cells.append(f"{sum(values) / len(values):.2f} ({min(values):.2f}–{max(values):.2f})")
+            cells = [mean_range([r[f"psnr_{protocol}"] for r in runs]) for protocol in PROTOCOLS]
             lines.append(f"| {scene} | {state} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -10,10 +10,10 @@
 #   step-graphs  the GPU tests, then experiments.profile_step on DUNR (step 1,500 of the 30k schedule)
 #             with the boolean setting SETTING (default pipeline.model.graphed_loss: the loss run kernel by
 #             kernel or replayed as CUDA graphs) False and True in turn, ROUNDS times (default 2):
-#             profile-{eager,graphed}-ROUND.md, steps.jsonl (loss-graphs: the same plan)
+#             profile-{eager,graphed}-ROUND.md, steps.jsonl
 #   step-graphs-accuracy  DUNR, 3 seeds, the first 3,000 steps of the 30k schedule (experiments.bench),
 #             with SETTING False, then True: accuracy-NAME-{False,True}-bench.{json,md}, NAME the setting's
-#             last part (loss-graphs-accuracy: the same plan)
+#             last part
 set -uo pipefail
 plan=${1:?plan: install, fps, step-graphs, step-graphs-accuracy}
 setting=${SETTING:-pipeline.model.graphed_loss}
@@ -47,7 +47,7 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('$code', $round, r['fp
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
       > "$OUT/gpu_tests.log" 2>&1; tail -3 "$OUT/gpu_tests.log"
     ;;
-  step-graphs|loss-graphs)
+  step-graphs)
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
       > "$OUT/gpu_tests.log" 2>&1; tail -3 "$OUT/gpu_tests.log"
     for round in $(seq "${ROUNDS:-2}"); do
@@ -63,7 +63,7 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n')" "/tmp/prof-$loss-$round/prof
       done
     done
     ;;
-  step-graphs-accuracy|loss-graphs-accuracy)
+  step-graphs-accuracy)
     for g in False True; do
       PYTHONPATH=$PWD:/tmp/site timeout 280 python3 -m experiments.bench --output-dir /tmp/acc-$g --scenes "$PWD/.data/dunr" \
         --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --steps 3000 --schedule 30000 --eval-at 3000 \

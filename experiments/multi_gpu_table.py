@@ -8,12 +8,8 @@ import statistics
 import sys
 from pathlib import Path
 
+from experiments import mean_range
 from experiments.survey_cost import growth_line, markdown
-
-
-def spread(values) -> str:
-    return f"{statistics.mean(values):.2f} ({min(values):.2f}–{max(values):.2f})"
-
 
 QUALITY_RUNS = (
     ("quality_h100_a19f191", "two H100s of one host, commit a19f191"),
@@ -44,8 +40,8 @@ def quality_table(folder: Path, title: str) -> list:
         scores = [json.loads(path.read_text()) for path in files]
         lines.append(
             f"| {label} | {2000 * gpus:,} | {statistics.mean(s['gaussians'] for s in scores):,.0f} | "
-            + " | ".join(spread([s[f"psnr_{p}"] for s in scores]) for p in ("novel", "time", "aligned"))
-            + f" | {spread([s['celsius_mae_aligned'] for s in scores])} |"
+            + " | ".join(mean_range([s[f"psnr_{p}"] for s in scores]) for p in ("novel", "time", "aligned"))
+            + f" | {mean_range([s['celsius_mae_aligned'] for s in scores])} |"
         )
     return lines
 

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments import mean_range
+
 FILES = {
     "flight2": ["flight2-default", "flight2-sh1", "flight2-sh2", "flight2-auto", "flight2-splatfacto"],
     "dunr": ["dunr-default", "dunr-sh1", "dunr-sh2", "dunr-auto", "dunr-splatfacto"],
@@ -26,11 +28,6 @@ COLUMNS = ["scene", "configuration", "seeds", "`novel`", "`time`", "`aligned`", 
 COLUMNS += ["Gaussians", "ms/step (shared)"]
 
 
-def fmt(values) -> str:
-    v = np.array(values)
-    return f"{v.mean():.2f} ({v.min():.2f}–{v.max():.2f})"
-
-
 def main(folder: Path) -> None:
     print("| " + " | ".join(COLUMNS) + " |")
     print("|" + " --- |" * len(COLUMNS))
@@ -40,7 +37,7 @@ def main(folder: Path) -> None:
             for scene in dict.fromkeys(r["scene"] for r in runs_all):
                 runs = [r for r in runs_all if r["scene"] == scene]
                 label = LABELS[name.split("-", 1)[1]]
-                cols = [fmt([r[f"psnr_{p}"] for r in runs]) for p in ("novel", "time", "aligned", "oracle")]
+                cols = [mean_range([r[f"psnr_{p}"] for r in runs]) for p in ("novel", "time", "aligned", "oracle")]
                 if label.startswith("splatfacto"):  # no photometric state: `time` is `novel`, no oracle
                     cols[1] = cols[3] = "—"
                 steps = int(np.mean([r["steps"] for r in runs]))

@@ -72,16 +72,18 @@ def test_the_loss_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
 
     torch.manual_seed(0)
     frame, render, alpha, background = (torch.rand(32, 40, 1) for _ in range(4))
-    terms = []
+    terms, losses = [], []
     for graphed in (True, False):
         loss = ThermalLoss(WildThermalModelConfig(graphed_loss=graphed), None)
         pred = render.clone().requires_grad_()
         outputs = {"thermal": pred, "accumulation": alpha, "background": background}
         gt, contrast = loss.ground_truth(frame, pred, image=0)
         terms.append(loss(outputs, gt, contrast, image=0))
+        losses.append(loss)
     assert terms[0].keys() == {"l1_loss", "ssim_loss", "alpha_loss"}
     assert all(torch.equal(terms[0][name], terms[1][name]) for name in terms[1])
-    assert not loss.graphed and not ThermalLoss(WildThermalModelConfig(graphed_loss=True), None).graphed.graphs
+    assert losses[0].graphed is not None and not losses[0].graphed.graphs  # asked for, called, none recorded
+    assert losses[1].graphed is None
 
 
 def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu():

@@ -31,8 +31,8 @@ def test_rank_shares_cover_everything_once():
 
 
 def test_adams_moment_rates_are_a_setting_and_a_config_saved_without_them_keeps_torchs():
-    """Runs across GPUs may set Adam for their batch as gsplat's trainer does (betas, lr, eps: all on
-    the command line); a config.yml written before the setting existed loads with torch's rates."""
+    """Adam's betas are a setting of the fused Adam config (the launcher sets them, with lr and eps,
+    for its images per step); a config.yml written before the setting existed loads with torch's rates."""
     from thermal_wild_ns.training.optimizers import FusedAdamOptimizerConfig
 
     param = torch.nn.Parameter(torch.zeros(3))
