@@ -13,7 +13,9 @@
 #                 2 GPUs, up to 2x the count one H200 held (192M; it failed at 256M)
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
-#   quality-two   the same on 2 GPUs per run (SEEDS="1 2": only those seeds; TAG=-x: a suffix on its files)
+#   quality-two   the same on 2 GPUs per run; both plans: SEEDS="1 2" only those seeds, TAG=-x a suffix on
+#                 their files, FRAMES=N an N-frame survey instead of 250 (at 1,000 a run and its scoring
+#                 take minutes: one seed per call)
 #   large-two     a 2-GPU host: the 1,000-frame survey trained on 2 GPUs at a count one of its GPUs does not
 #                 hold (256M on H200s, 192M on H100s), 600 steps, held-back frames scored on the way, and its
 #                 checkpoint; then that checkpoint scored on one GPU (experiments.score_checkpoint)
@@ -80,18 +82,21 @@ case "$plan" in
     grep -i "stops\|kept\|skipped\|rolled" "$OUT/stop-two.log" | tail -5; cat "$OUT/score-stop-two.json"
     ;;
   quality-one|quality-two)
-    survey 250
+    frames=${FRAMES:-250}; survey "$frames"
+    score_s=90; [ "$frames" -gt 250 ] && score_s=400  # 125 held-out views at 1,000 frames took over 150 s
     tag=${TAG:-}  # a suffix of the run's files, to keep the runs of an earlier commit apart
     train() {  # train GPUS SEED CUDA_VISIBLE_DEVICES
       CUDA_VISIBLE_DEVICES=$3 timeout 240 torchrun --standalone --nproc-per-node "$1" -m thermal_wild_ns.multi_gpu \
         wild-thermal --output-dir "/tmp/q/gpus$1$tag-seed$2" --experiment-name survey --timestamp run \
         --max-num-iterations 2000 --machine.seed "$2" --pipeline.datamanager.train-order-seed "$2" \
         --pipeline.model.max-gaussians 1000000 --pipeline.datamanager.preprocessing-cache /tmp/q/cache \
-        thermal-demo-data --data /tmp/survey_250 --scene survey --survey-frames 250 > "$OUT/train-gpus$1$tag-seed$2.log" 2>&1
-      timeout 90 python3 -m experiments.score_checkpoint "/tmp/q/gpus$1$tag-seed$2/survey/wild-thermal/run/config.yml" \
+        thermal-demo-data --data "/tmp/survey_$frames" --scene survey --survey-frames "$frames" > "$OUT/train-gpus$1$tag-seed$2.log" 2>&1
+      timeout $score_s python3 -m experiments.score_checkpoint "/tmp/q/gpus$1$tag-seed$2/survey/wild-thermal/run/config.yml" \
         2> "$OUT/score-gpus$1$tag-seed$2.log" | tail -1 > "$OUT/score-gpus$1$tag-seed$2.json"  # its last line: the scores
     }
-    if [ "$plan" = quality-one ]; then  # one GPU each, two at a time
+    if [ "$plan" = quality-one ] && [ -n "${SEEDS:-}" ]; then  # only those seeds, each on GPU 0
+      for seed in $SEEDS; do train 1 $seed 0; done
+    elif [ "$plan" = quality-one ]; then  # one GPU each, two at a time
       train 1 1 0 & train 1 2 1 & wait
       train 1 3 0
     else
