@@ -194,7 +194,12 @@ def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kern
         assert torch.allclose(ours, reference, rtol=1e-6, atol=1e-7), step
         assert torch.allclose(ours_embed, ref_embed, rtol=1e-5, atol=1e-7), step
         for mine, theirs in zip(ours_params, ref_params):
-            assert torch.allclose(mine, theirs, rtol=1e-5, atol=1e-7), step
+            # a weight's gradient sums over every grid point of the frame, where cuBLAS may split the
+            # sum otherwise under capture: its elements near zero differ relatively more than the
+            # floats of one order, so the tolerance is relative to the largest element
+            scale = theirs.abs().max().item()
+            worst = (mine - theirs).abs().max().item()
+            assert worst <= 1e-5 * scale, (step, tuple(mine.shape), worst, scale)
         with torch.no_grad():  # an optimizer step, in place, the same on both
             for mine, theirs in zip(mlp.parameters(), twin.parameters()):
                 change = 0.01 * torch.randn_like(mine)

@@ -118,9 +118,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """On a GPU, replay the loss terms' forward and backward as CUDA graphs (one per frame size): the
     same kernels, one launch each way instead of dozens (docs/results/loss_graphs_h100). Training-space
     loss only; off: kernel by kernel."""
-    graphed_background: bool = False
+    graphed_background: bool = True
     """On a GPU, replay the background MLP's forward and backward in training as CUDA graphs (one per
-    frame size), as `graphed_loss` does for the loss; off: kernel by kernel."""
+    frame size), as `graphed_loss` does for the loss: the same kernels, less host time per step, a
+    little more GPU memory for the graphs (docs/results/background_graphs_h100); off: kernel by kernel."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
