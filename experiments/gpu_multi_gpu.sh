@@ -14,19 +14,27 @@
 #   quality-one   a 2-GPU host: the 250-frame survey trained 2000 steps through the launcher on 1 GPU,
 #                 3 seeds (two at a time), scored with the cheap protocols (experiments.score_checkpoint)
 #   quality-two   the same on 2 GPUs per run; both plans: SEEDS="1 2" only those seeds, TAG=-x a suffix on
-#                 their files, FRAMES=N an N-frame survey instead of 250 (at 1,000 a run and its scoring
-#                 take minutes: one seed per call)
+#                 their files, FRAMES=N an N-frame survey instead of 250, SCORE=later train only (at 1,000
+#                 frames scoring takes minutes: train every run first, then quality-score)
+#   quality-score score every run the quality plans trained on this machine (/tmp/q) that has no score
+#                 yet, three at a time on each GPU
 #   large-two     a 2-GPU host: the 1,000-frame survey trained on 2 GPUs at a count one of its GPUs does not
 #                 hold (256M on H200s, 192M on H100s), 600 steps, held-back frames scored on the way, and its
 #                 checkpoint; then that checkpoint scored on one GPU (experiments.score_checkpoint)
 #   stop-two      a 2-GPU host: the 250-frame survey through the launcher with its defaults (automatic stop,
 #                 divergence guard) to its stop, scored on one GPU
 set -uo pipefail
-plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two, large-two, stop-two}
+plan=${1:?plan: install, cost-one, cost-4000, cost-all, cost-1000, two-vs-one, quality-one, quality-two, large-two, stop-two, quality-score}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
 counts=(${GAUSSIANS:-1000000 4000000 16000000 64000000 128000000 192000000 256000000 320000000 384000000})
+score() {  # score RUN GPU: experiments.score_checkpoint on /tmp/q/RUN (a quality plan's run), on that GPU
+  local config=/tmp/q/$1/survey/wild-thermal/run/config.yml
+  # the limit: 125 held-out views at 1,000 frames took over 150 s alone on a GPU
+  CUDA_VISIBLE_DEVICES=$2 timeout 500 python3 -m experiments.score_checkpoint "$config" \
+    2> "$OUT/score-$1.log" | tail -1 > "$OUT/score-$1.json" && touch "/tmp/q/$1/scored"  # its last line: the scores
+}
 survey() {  # survey FRAMES: generate the synthetic survey once (every core)
   python3 -c "from pathlib import Path; from thermal_wild_ns.data.survey_scene import *; generate_survey_scene(Path('/tmp/survey_$1'), SurveySceneConfig(num_frames=$1))" > "$OUT/generate_$1.log" 2>&1
 }
@@ -83,7 +91,6 @@ case "$plan" in
     ;;
   quality-one|quality-two)
     frames=${FRAMES:-250}; survey "$frames"
-    score_s=90; [ "$frames" -gt 250 ] && score_s=400  # 125 held-out views at 1,000 frames took over 150 s
     tag=${TAG:-}  # a suffix of the run's files, to keep the runs of an earlier commit apart
     train() {  # train GPUS SEED CUDA_VISIBLE_DEVICES
       CUDA_VISIBLE_DEVICES=$3 timeout 240 torchrun --standalone --nproc-per-node "$1" -m thermal_wild_ns.multi_gpu \
@@ -91,8 +98,8 @@ case "$plan" in
         --max-num-iterations 2000 --machine.seed "$2" --pipeline.datamanager.train-order-seed "$2" \
         --pipeline.model.max-gaussians 1000000 --pipeline.datamanager.preprocessing-cache /tmp/q/cache \
         thermal-demo-data --data "/tmp/survey_$frames" --scene survey --survey-frames "$frames" > "$OUT/train-gpus$1$tag-seed$2.log" 2>&1
-      timeout $score_s python3 -m experiments.score_checkpoint "/tmp/q/gpus$1$tag-seed$2/survey/wild-thermal/run/config.yml" \
-        2> "$OUT/score-gpus$1$tag-seed$2.log" | tail -1 > "$OUT/score-gpus$1$tag-seed$2.json"  # its last line: the scores
+      [ "${SCORE:-}" = later ] && { tail -n2 "$OUT/train-gpus$1$tag-seed$2.log"; return; }
+      score "gpus$1$tag-seed$2" 0
     }
     if [ "$plan" = quality-one ] && [ -n "${SEEDS:-}" ]; then  # only those seeds, each on GPU 0
       for seed in $SEEDS; do train 1 $seed 0; done
@@ -103,5 +110,15 @@ case "$plan" in
       for seed in ${SEEDS:-1 2 3}; do train 2 $seed 0,1; done
     fi
     tail -n1 "$OUT"/score-*.json
+    ;;
+  quality-score)
+    gpu=0; n=0
+    for run in /tmp/q/gpus*-seed*; do
+      [ -e "$run/scored" ] && continue
+      score "$(basename "$run")" $gpu &
+      n=$((n + 1)); gpu=$((n % 2))
+      [ $((n % 6)) = 0 ] && wait
+    done
+    wait; tail -n1 "$OUT"/score-*.json
     ;;
 esac
