@@ -12,10 +12,12 @@ from experiments import mean_range
 from experiments.survey_cost import growth_line, markdown
 
 QUALITY_RUNS = (
-    ("quality_h100_a19f191", "two H100s of one host, commit a19f191"),
-    ("quality_h200_e14f018", "two H200s of one host, commit e14f018"),
+    ("quality_h100_a19f191", 250, "two H100s of one host, commit a19f191"),
+    ("quality_h200_e14f018", 250, "two H200s of one host, commit e14f018"),
+    ("quality_h200_1000_07bb0f4", 1000, "two H200s of one host, commit 07bb0f4, `novel` only"),
 )
-"""The quality runs' folders (plans quality-one and quality-two; files score-gpus{N}{tag}-seed{1,2,3}.json)."""
+"""The quality runs' folders, their surveys' frames and titles (plans quality-one and quality-two;
+files score-gpus{N}{tag}-seed{1,2,3}.json; a protocol a folder's files lack shows as not scored)."""
 RUN_KINDS = (
     ("score-gpus1", 1, "1"),
     ("score-gpus2", 2, "2, Adam as for one image"),
@@ -23,10 +25,10 @@ RUN_KINDS = (
 )
 
 
-def quality_table(folder: Path, title: str) -> list:
-    """One table of the quality runs in `folder`: a row for each kind of run it holds."""
+def quality_table(folder: Path, frames: int, title: str) -> list:
+    """One table of the quality runs in `folder` (a `frames`-frame survey): a row for each kind of run it holds."""
     lines = [
-        f"250-frame survey, 2,000 steps through `torchrun -m thermal_wild_ns.multi_gpu` (plans quality-one, "
+        f"{frames:,}-frame survey, 2,000 steps through `torchrun -m thermal_wild_ns.multi_gpu` (plans quality-one, "
         f"quality-two), {title}, scored by experiments.score_checkpoint: mean (min–max) of seeds 1–3",
         "",
         "| GPUs | images seen | Gaussians | `novel` PSNR | `time` PSNR | `aligned` PSNR (fit on the frame) "
@@ -40,10 +42,15 @@ def quality_table(folder: Path, title: str) -> list:
         scores = [json.loads(path.read_text()) for path in files]
         lines.append(
             f"| {label} | {2000 * gpus:,} | {statistics.mean(s['gaussians'] for s in scores):,.0f} | "
-            + " | ".join(mean_range([s[f"psnr_{p}"] for s in scores]) for p in ("novel", "time", "aligned"))
-            + f" | {mean_range([s['celsius_mae_aligned'] for s in scores])} |"
+            + " | ".join(scored(scores, f"psnr_{p}") for p in ("novel", "time", "aligned"))
+            + f" | {scored(scores, 'celsius_mae_aligned')} |"
         )
     return lines
+
+
+def scored(scores: list, key: str) -> str:
+    """mean (min–max) of `key` over the seeds' scores, or "not scored" where they lack it."""
+    return mean_range([s[key] for s in scores]) if all(key in s for s in scores) else "not scored"
 
 
 def main(folder: Path) -> str:
@@ -70,8 +77,8 @@ def main(folder: Path) -> str:
             f"| {max(row['gpu_peak_gib_per_rank'])} | {ratio} |"
         )
     lines += ["", f"One GPU's first limit: {one['first_limit'].split('. Including')[0]}.", ""]
-    for name, title in QUALITY_RUNS:
-        lines += quality_table(folder / name, title) + [""]
+    for name, frames, title in QUALITY_RUNS:
+        lines += quality_table(folder / name, frames, title) + [""]
     lines += ["", "One GPU: surveys of 250 to 4,000 frames (experiments.survey_cost, plans cost-one and cost-4000)", ""]
     for name in ("cost_h100_250_1000.json", "cost_h100_4000.json"):
         lines.append(markdown(json.loads((folder / name).read_text())))

@@ -24,12 +24,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description="Score a trained run with the cheap protocols.")
     parser.add_argument("config", type=Path, help="the run's config.yml")
     parser.add_argument("--canonical", help="the canonical state to render novel views at (default: the run's)")
+    parser.add_argument(
+        "--protocols", nargs="+", default=["novel", "time", "aligned"], help="which cheap protocols (default: all)"
+    )
     args = parser.parse_args()
     prepare_checkpoint_commands()
     _, pipeline, _, _ = eval_setup(args.config, test_mode="test")
     if args.canonical:
         pipeline.model.config.inference_embedding = args.canonical
-    scores = evaluate(pipeline, protocols=("novel", "time", "aligned"))
+    scores = evaluate(pipeline, protocols=tuple(args.protocols))
     print(json.dumps({k: v for k, v in scores.items() if not isinstance(v, (list, dict))}, sort_keys=True))
 
 
