@@ -65,6 +65,8 @@ def multi_gpu_config(config: TrainerConfig, gpus: int) -> DistributedTrainerConf
         group["optimizer"] = group["optimizer"].for_images(gpus)
     changes.append(
         f"every Adam set for {gpus} images per step (lr x sqrt {gpus}, eps / sqrt {gpus}, betas 1 - {gpus}(1 - beta))"
+        if gpus > 1
+        else "Adam as given (one image per step)"
     )
     model, datamanager = split.pipeline.model, split.pipeline.datamanager
     model.distributed = datamanager.distributed = True
