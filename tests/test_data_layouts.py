@@ -132,6 +132,24 @@ def test_layouts_train_through_the_datamanager(tmp_path):
         assert int(camera.height) == batch["image"].shape[0], layout
 
 
+def test_frames_cached_on_the_host_train_without_cuda(tmp_path):
+    """nerfstudio caches frames on the host when asked (`cache_images='cpu'`) and whenever a capture
+    has over 500 training frames, and pins them for copies to a GPU: a torch without CUDA refuses
+    to pin ("Cannot access accelerator device"), which ended a 1,000-frame survey's set-up on a CPU.
+    Without CUDA the frames stay unpinned on the CPU."""
+    from thermal_wild_ns.pipeline.datamanager import ThermalDatamanagerConfig
+
+    if torch.cuda.is_available():
+        pytest.skip("pinning works where CUDA is: the path under test is a CPU-only torch's")
+    root = tmp_path / "s"
+    fx.write_thermalnerf(root)
+    parser = ThermalDataParserConfig(data=root, layout="thermalnerf", seed_points="random", num_random_points=32)
+    datamanager = ThermalDatamanagerConfig(dataparser=parser, cache_images="cpu").setup(device="cpu")
+    camera, batch = datamanager.next_train(0)
+    assert batch["image"].device.type == "cpu" and not batch["image"].is_pinned()
+    assert batch["image"].shape == (int(camera.height), int(camera.width), 1)
+
+
 def test_distorted_thermal_frames_are_undistorted_single_channel(tmp_path):
     """ThermalNeRF frames carry k1, k2, p1, p2: nerfstudio undistorts them when caching, and the
     frames must stay [H, W, 1] (OpenCV returns 1-channel images as [H, W])."""

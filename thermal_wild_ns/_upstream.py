@@ -291,9 +291,14 @@ class DefaultStrategyWithHooks(DefaultStrategy):
 
 class SingleChannelFullImageDatamanager(FullImageDatamanager):
     """nerfstudio 1.1.5's `FullImageDatamanager._load_images` (private) caches undistorted images;
-    OpenCV's undistortion returns a 1-channel image as [H, W]. This subclass restores [H, W, 1]."""
+    OpenCV's undistortion returns a 1-channel image as [H, W]. This subclass restores [H, W, 1].
+    Its host cache (`cache_images='cpu'`, which it also forces above 500 training images) pins the
+    images for copies to a GPU, which a torch without CUDA refuses: there the images stay where
+    the model trains (its 'gpu' branch, which moves them to the datamanager's device)."""
 
     def _load_images(self, split, cache_images_device):
+        if cache_images_device == "cpu" and not torch.cuda.is_available():
+            cache_images_device = "gpu"  # to `self.device`: the CPU, unpinned
         images = super()._load_images(split, cache_images_device)
         for cache in images:
             if cache["image"].ndim == 2:
