@@ -17,9 +17,9 @@
 #                 their files, FRAMES=N an N-frame survey instead of 250, SCORE=later train only (at 1,000
 #                 frames scoring takes minutes: train every run first, then quality-score)
 #   quality-score score every run the quality plans trained on this machine (/tmp/q) that has no score
-#                 yet, all at once, spread over the two GPUs; PROTOCOLS="novel" only those (at 1,000 frames
-#                 six runs scoring novel, time and aligned at once got 91 of 125 views done in 500 s;
-#                 novel alone took about 210 s); PROFILE=1 a cProfile of each (score-RUN.prof)
+#                 yet, all at once, spread over the two GPUs; PROTOCOLS="novel" only those (scoring all three
+#                 at 1,000 frames outlasts a call: docs/results/multi_gpu); PROFILE=1 a cProfile of each
+#                 (score-RUN.prof)
 #   large-two     a 2-GPU host: the 1,000-frame survey trained on 2 GPUs at a count one of its GPUs does not
 #                 hold (256M on H200s, 192M on H100s), 600 steps, held-back frames scored on the way, and its
 #                 checkpoint; then that checkpoint scored on one GPU (experiments.score_checkpoint)
@@ -33,7 +33,7 @@ export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
 counts=(${GAUSSIANS:-1000000 4000000 16000000 64000000 128000000 192000000 256000000 320000000 384000000})
 score() {  # score RUN GPU: experiments.score_checkpoint on /tmp/q/RUN (a quality plan's run), on that GPU
   local config=/tmp/q/$1/survey/wild-thermal/run/config.yml
-  # the limit: 125 held-out views at 1,000 frames took over 150 s alone on a GPU
+  # the limit: under a call's 600 s; the 1,000-frame survey's 125 held-out views take minutes
   local profile=(); [ -n "${PROFILE:-}" ] && profile=(-m cProfile -o "$OUT/score-$1.prof")  # where its seconds go
   CUDA_VISIBLE_DEVICES=$2 timeout 500 python3 "${profile[@]}" -m experiments.score_checkpoint "$config" --protocols ${PROTOCOLS:-novel time aligned} \
     2> "$OUT/score-$1.log" | tail -1 > "$OUT/score-$1.json" && touch "/tmp/q/$1/scored"  # its last line: the scores
