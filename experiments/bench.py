@@ -268,6 +268,22 @@ def _model_megabytes(model) -> float:
     return sum(t.numel() * t.element_size() for t in model.state_dict().values() if isinstance(t, torch.Tensor)) / 2**20
 
 
+def negative_emission(model) -> Optional[Dict[str, float]]:
+    """How much of a thermal model emits below zero at its canonical state, view term left out (the
+    growth question of issue 33): the share of Gaussians, and of their summed opacity; None for
+    other models."""
+    if not hasattr(model, "gaussian_emission") or model.num_points == 0:
+        return None
+    with torch.no_grad():
+        emission = model.gaussian_emission(model.inference_embedding())[:, 0]  # [N]
+        opacity = torch.sigmoid(model.opacities.detach())[:, 0]  # [N]
+        below = emission < 0
+        return {
+            "share": round(float(below.float().mean()), 4),
+            "opacity_share": round(float(opacity[below].sum() / opacity.sum().clamp_min(1e-12)), 4),
+        }
+
+
 class RunTooSlow(RuntimeError):
     """A bench run went past `--time-limit`."""
 
@@ -375,6 +391,7 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
         # set by the GPU queues: a timing shared with other runs is not that of a run alone
         "runs_per_gpu": int(os.environ.get(RUNS_PER_GPU_VARIABLE, "1")),
         "gaussians": int(pipeline.model.num_points),
+        "negative_emission": negative_emission(pipeline.model),
         "model_mb": round(_model_megabytes(pipeline.model), 2),
         "render_fps": fps,
         "curve": recorder.curve,

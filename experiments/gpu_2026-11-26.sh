@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, nonnegative-dunr, nonnegative-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -73,6 +73,20 @@ case "$plan" in
     scene=${plan#grow-budget-}; steps=("${flight2[@]}"); [ "$scene" = dunr ] && steps=("${dunr[@]}")
     bench "$scene-default" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" &
     bench "$scene-grow" "$PWD/.data/$scene" --methods wild-thermal --set auto_stop.grow_budget=True "${steps[@]}" &
+    wait
+    ;;
+  growth-dunr|growth-flight2)  # issue 33's growth question: the full method at a 1M budget for the first 10k steps
+    # of the 30k schedule, no stop (as issue 33's table), its emission as learned and clamped at zero
+    scene=${plan#growth-}
+    grow=(--methods wild-thermal --max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
+    bench "$scene-1m" "$PWD/.data/$scene" "${grow[@]}" &
+    bench "$scene-1m-nonnegative" "$PWD/.data/$scene" "${grow[@]}" --set pipeline.model.nonnegative_emission=True &
+    wait
+    ;;
+  nonnegative-dunr|nonnegative-flight2)  # the full method's defaults (automatic stop), emission as learned and clamped at zero
+    scene=${plan#nonnegative-}; steps=("${flight2[@]}"); [ "$scene" = dunr ] && steps=("${dunr[@]}")
+    bench "$scene-default" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" &
+    bench "$scene-nonnegative" "$PWD/.data/$scene" --methods wild-thermal --set pipeline.model.nonnegative_emission=True "${steps[@]}" &
     wait
     ;;
   dunr-sh2-splatfacto)

@@ -275,6 +275,24 @@ def test_baseline_variant_has_no_mlp():
     assert set(model.get_param_groups()) == {"means", "scales", "quats", "emission", "opacities", "frame_embed"}
 
 
+def test_nonnegative_emission_renders_a_negative_gaussian_as_a_black_one():
+    """With `nonnegative_emission` a Gaussian below zero occludes like a black one and subtracts
+    nothing, in training renders and in renders outside training; without it, it subtracts."""
+
+    def render(nonnegative: bool, value: float, training: bool) -> torch.Tensor:
+        model = make_model(use_emission_mlp=False, use_background_mlp=False, nonnegative_emission=nonnegative)
+        with torch.no_grad():
+            model.emission[::2] = value  # half the Gaussians
+        model.train(training)
+        with torch.set_grad_enabled(training):
+            return model.get_outputs(make_camera(0))["thermal"].detach()
+
+    for training in (True, False):
+        black = render(False, 0.0, training)
+        assert torch.allclose(render(True, -0.5, training), black, atol=1e-6)
+        assert (render(False, -0.5, training) < black - 1e-3).any()  # unclamped, the Gaussians subtract
+
+
 def test_every_attribute_nerfstudio_tools_read_is_available():
     """ns-viewer walks every attribute of the model (viewer/utils.py parse_object); exporters read
     the SH accessors. All must work on a model without spherical harmonics."""

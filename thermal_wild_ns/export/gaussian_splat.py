@@ -42,7 +42,7 @@ def canonical_emission(pipeline) -> np.ndarray:
     model = pipeline.model
     state = canonical_state(pipeline)
     with torch.no_grad():
-        emission = model.gaussian_emission(model.inference_embedding())[:, 0].float().cpu().numpy()
+        emission = model.radiance(model.gaussian_emission(model.inference_embedding()))[:, 0].float().cpu().numpy()
     return to_original(pipeline, emission, state)
 
 

@@ -112,6 +112,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
     change with the view angle), the same at every capture time (`view_emission.py`). 0: none (helped a
     drone survey, cost a scene with vignetting: docs/results/view_term_gpu)."""
+    nonnegative_emission: bool = False
+    """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
+    spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
+    Gaussians behind it emit (cancelling pairs fit the training views and nothing else). Off: the
+    emission as learned, negative values included."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     graphed_loss: bool = True
@@ -310,6 +315,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         embed = self.gauss_params["gauss_embed"]
         return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
 
+    def radiance(self, emission: Tensor) -> Tensor:
+        """What Gaussians send toward the camera [N, C] from their emission, view term included
+        [N, C]: clamped at zero with `nonnegative_emission` (every render and export goes through this)."""
+        return emission.clamp_min(0.0) if self.config.nonnegative_emission else emission
+
     def baked_emission(self, frame_embed: Tensor) -> Tensor:
         """The emission MLP evaluated for every Gaussian under `frame_embed` [N, 1], kept until the
         embedding or any parameter it depends on changes (`BakedValues`). Evaluated `BAKE_ROWS`
@@ -399,6 +409,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
                 if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
                     colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
+            colors = self.radiance(colors)
         with record_function("thermal/rasterize"):
             activated = (
                 self.baked.get("activated", (self.scales, self.opacities), self.step, self.activated_splats)
