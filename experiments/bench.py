@@ -245,10 +245,10 @@ def run_label(method: str, args: BenchArgs) -> str:
     ):
         changed.append(f"equalization-strength {args.equalization_strength:g}")
     # a setting is named by its field, an optimizer's by its parameter group too ("emission.optimizer.lr=...")
-    changed += [
-        setting.removeprefix("optimizers.") if setting.startswith("optimizers.") else setting.rsplit(".", 1)[-1]
-        for setting in args.set
-    ]
+    for setting in args.set:  # split at '=' first: a value may hold dots (0.0004)
+        path, _, value = setting.partition("=")
+        name = path.removeprefix("optimizers.") if path.startswith("optimizers.") else path.rsplit(".", 1)[-1]
+        changed.append(f"{name}={value}")
     return f"{method} ({', '.join(changed)})" if changed else method
 
 

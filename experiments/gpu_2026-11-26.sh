@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, nonnegative-dunr, nonnegative-flight2}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, nonnegative-dunr, nonnegative-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -81,6 +81,46 @@ case "$plan" in
     grow=(--methods wild-thermal --max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
     bench "$scene-1m" "$PWD/.data/$scene" "${grow[@]}" &
     bench "$scene-1m-nonnegative" "$PWD/.data/$scene" "${grow[@]}" --set pipeline.model.nonnegative_emission=True &
+    wait
+    ;;
+  growth-variants-dunr|growth-variants-flight2)  # the full method and its 3DGS variant at a 1M budget, as growth-*;
+    # GRAD=0.0003 (say) lowers densification's gradient threshold (0.0008) so that they grow further;
+    # BUDGET=100000 (say) holds them at another budget than 1M
+    scene=${plan#growth-variants-}; budget=${BUDGET:-1000000}; tag=${GRAD:+-grad$GRAD}
+    size=$([ "$budget" = 1000000 ] && echo 1m || echo "$budget")
+    grow=(--max-gaussians "$budget" --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
+    [ -n "${GRAD:-}" ] && grow+=(--set "pipeline.model.densify_grad_thresh=$GRAD")
+    bench "$scene-$size$tag" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" &
+    bench "$scene-$size-3dgs$tag" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
+    wait
+    ;;
+  growth-causes-dunr|growth-causes-flight2)  # two candidate causes of the fall at a 1M budget (growth-variants-*):
+    # the constant background the 3DGS variant can leave pixels to (splatfacto's random one forbids it),
+    # and no view dependence in the full method (a degree-2 view term)
+    scene=${plan#growth-causes-}
+    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
+    bench "$scene-1m-3dgs-random-background" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" \
+      --set pipeline.model.random_background=True &
+    bench "$scene-1m-sh2" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" --set pipeline.model.view_sh_degree=2 &
+    wait
+    ;;
+  growth-view-dunr|growth-view-flight2)  # at a 1M budget: the 3DGS variant with a degree-2 view term, and the full
+    # method grown further (densification's gradient threshold 0.0004 instead of 0.0008) without one
+    scene=${plan#growth-view-}
+    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
+    bench "$scene-1m-3dgs-sh2" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" \
+      --set pipeline.model.view_sh_degree=2 &
+    bench "$scene-1m-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" \
+      --set pipeline.model.densify_grad_thresh=0.0004 &
+    wait
+    ;;
+  growth-far-dunr|growth-far-flight2)  # both variants with a degree-2 view term, grown toward splatfacto's count
+    # (gradient threshold 0.0004); one --set with both settings (a second --set replaces the first)
+    scene=${plan#growth-far-}
+    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop
+      --set pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004)
+    bench "$scene-1m-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" &
+    bench "$scene-1m-3dgs-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
     wait
     ;;
   nonnegative-dunr|nonnegative-flight2)  # the full method's defaults (automatic stop), emission as learned and clamped at zero

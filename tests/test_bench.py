@@ -393,6 +393,8 @@ def test_settings_reach_nested_and_frozen_config_fields(tmp_path):
     args = BenchArgs(set=("pipeline.model.sh_degree=0",), output_dir=tmp_path)
     assert trainer_config("splatfacto", "demo", args, tmp_path).pipeline.model.sh_degree == 0
     assert run_label("splatfacto", args) == "splatfacto (sh_degree=0)"
+    args = BenchArgs(set=("pipeline.model.view_sh_degree=2", "pipeline.model.densify_grad_thresh=0.0004"))
+    assert run_label("wild-thermal", args) == "wild-thermal (view_sh_degree=2, densify_grad_thresh=0.0004)"
 
 
 def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scene(tmp_path):

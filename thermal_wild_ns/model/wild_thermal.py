@@ -111,12 +111,13 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     view_sh_degree: int = 0
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
     change with the view angle), the same at every capture time (`view_emission.py`). 0: none (helped a
-    drone survey, cost a scene with vignetting: docs/results/view_term_gpu)."""
+    drone survey, cost a scene with vignetting: docs/results/view_term_gpu). On that survey it is what
+    keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth)."""
     nonnegative_emission: bool = False
     """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
     spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
-    Gaussians behind it emit (cancelling pairs fit the training views and nothing else). Off: the
-    emission as learned, negative values included."""
+    Gaussians behind it emit. Off: the emission as learned, negative values included (clamping changed
+    nothing beyond the seeds' spread on a real scene: docs/results/growth)."""
     heat_aware_ssim: bool = True
     """SSIM loss with constants scaled to each frame's contrast (off: plain SSIM, as 3DGS uses)."""
     graphed_loss: bool = True

@@ -1,0 +1,86 @@
+"""The table and chart of docs/results/growth/README.md: each configuration's held-out PSNR at every
+checkpoint of its runs against the Gaussians it held there, from the *-bench.json files of a folder.
+
+python -m experiments.growth_table docs/results/growth      # prints the table, writes novel_vs_gaussians.png
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Dict, List
+
+import numpy as np
+
+from experiments import mean_range
+
+COLUMNS = ["scene", "method, bench file", "card", "step", "Gaussians", "`novel`", "`aligned` (fit on the frame)"]
+
+
+def curves(folder: Path) -> Dict[str, List[dict]]:
+    """bench file name -> its runs (each with `curve`: step, Gaussians and scores at each checkpoint)."""
+    found = {}
+    for path in sorted(folder.glob("*-bench.json")):
+        data = json.loads(path.read_text())
+        found[path.name.removesuffix("-bench.json")] = dict(device=data.get("device", "?"), runs=data["runs"])
+    return found
+
+
+def table(found: Dict[str, dict]) -> str:
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + " --- |" * len(COLUMNS)]
+    for name, bench in found.items():
+        runs = bench["runs"]
+        card = "H200" if "H200" in bench["device"] else "H100" if "H100" in bench["device"] else bench["device"]
+        for index, point in enumerate(runs[0]["curve"]):
+            at = [r["curve"][index] for r in runs if len(r["curve"]) > index]
+            gaussians = int(np.mean([p["gaussians"] for p in at]))
+            scores = [mean_range([p[f"psnr_{k}"] for p in at]) for k in ("novel", "aligned")]
+            label = f"{runs[0]['method'].split(' (')[0]}, `{name}` ({len(at)} seeds)"
+            cells = [runs[0]["scene"], label, card, str(point["step"]), f"{gaussians:,}", *scores]
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def panel(bench: dict) -> str:
+    """The chart's panel of a bench file: its scene and method (without the settings it changed)."""
+    run = bench["runs"][0]
+    return f"{run['scene']}: {run['method'].split(' (')[0]}"
+
+
+def chart(found: Dict[str, dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = sorted({panel(b) for b in found.values()})
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.8), squeeze=False)
+    for ax, title in zip(axes[0], panels):
+        for name, bench in found.items():
+            if panel(bench) != title:
+                continue
+            runs = bench["runs"]
+            steps = len(runs[0]["curve"])
+            gaussians = [np.mean([r["curve"][i]["gaussians"] for r in runs]) for i in range(steps)]
+            novel = np.array([[r["curve"][i]["psnr_novel"] for r in runs] for i in range(steps)])
+            line = ax.plot(gaussians, novel.mean(1), marker="o", label=name)[0]
+            ax.fill_between(gaussians, novel.min(1), novel.max(1), color=line.get_color(), alpha=0.15)
+        ax.set_xscale("log")
+        ax.set_xlabel("Gaussians (mean of the seeds, at steps 2k, 5k, 10k)")
+        ax.set_ylabel("`novel` PSNR (dB): mean, band = min-max of the seeds")
+        ax.set_title(f"{title}: held-out views as the model grows", fontsize=10)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(folder: Path) -> None:
+    found = curves(folder)
+    print(table(found))
+    chart(found, folder / "novel_vs_gaussians.png")
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]))
