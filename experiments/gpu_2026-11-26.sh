@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, nonnegative-dunr, nonnegative-flight2}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, growth-second-dunr, growth-second-flight2, nonnegative-dunr, nonnegative-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -121,6 +121,14 @@ case "$plan" in
       --set pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004)
     bench "$scene-1m-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" &
     bench "$scene-1m-3dgs-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
+    wait
+    ;;
+  growth-second-dunr|growth-second-flight2)  # the rest of growth-* for a second scene: the full method with a degree-2
+    # view term, and the 3DGS variant without one, at a 1M budget
+    scene=${plan#growth-second-}
+    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
+    bench "$scene-1m-sh2" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" --set pipeline.model.view_sh_degree=2 &
+    bench "$scene-1m-3dgs" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
     wait
     ;;
   nonnegative-dunr|nonnegative-flight2)  # the full method's defaults (automatic stop), emission as learned and clamped at zero
