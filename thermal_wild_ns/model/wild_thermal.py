@@ -112,7 +112,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
     change with the view angle), the same at every capture time (`view_emission.py`). 0: none (helped a
     drone survey, cost a scene with vignetting: docs/results/view_term_gpu). On that survey it is what
-    keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth)."""
+    keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
+    `--auto-stop.decide-view-term` lets each capture's held-back frames decide whether it stays."""
     nonnegative_emission: bool = False
     """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
     spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
@@ -199,6 +200,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.frame_states = FrameStates(self.frame_embed, indices if indices is not None else range(num_frames))
         self._last_training_loss: Tuple[Optional[Tensor], Optional[int]] = (None, None)  # `last_training_loss`
         self._discard_statistics = False  # `discard_step_statistics`
+        self._view_term_on = "view_sh" in self.gauss_params  # `use_view_term`
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
             EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
@@ -408,7 +410,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 colors = self.emission_in_view(frame_embed, view.viewmat[0], view.K[0], W, H, camera_position)
             else:
                 colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
-                if "view_sh" in self.gauss_params:  # the view-dependent term (`view_emission.py`)
+                if self._view_term_on:  # the view-dependent term (`view_emission.py`)
                     colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
             colors = self.radiance(colors)
         with record_function("thermal/rasterize"):
@@ -499,7 +501,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         see (`in_view`), zero for the others (which it does not draw)."""
         seen = in_view(self.means, self.scales, viewmat, K, width, height).nonzero().squeeze(-1)  # [M]
         values = self.gaussian_emission(frame_embed, seen)  # [M, 1]
-        if "view_sh" in self.gauss_params:
+        if self._view_term_on:
             values = values + view_term(self.means[seen], self.gauss_params["view_sh"][seen], camera_position)
         return values.new_zeros(self.num_points, 1).index_copy(0, seen, values)
 
@@ -598,6 +600,21 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
         return entries
+
+    def has_view_term(self) -> bool:
+        """Whether the model was built with a view-dependent emission term (`view_sh_degree` > 0)."""
+        return "view_sh" in self.gauss_params
+
+    def use_view_term(self, on: bool) -> None:
+        """Whether the view term takes part in renders from now on. Off: its coefficients are zeroed
+        and get no gradient, so the model renders as one built without it (the automatic stop holds
+        it off until the held-back frames decide: `training/view_probe.py`)."""
+        if not self.has_view_term():
+            raise ValueError("this model has no view term (view_sh_degree 0)")
+        if not on:
+            with torch.no_grad():
+                self.gauss_params["view_sh"].zero_()
+        self._view_term_on = on
 
     def gaussian_budget(self) -> Tuple[int, int]:
         """(Gaussians now, `max_gaussians` as densification applies it) on this GPU."""

@@ -42,6 +42,7 @@ from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
 from thermal_wild_ns.training.checkpoints import restore, snapshot
 from thermal_wild_ns.training.model_interface import GuardedModel
+from thermal_wild_ns.training.view_probe import ViewTermVerdict, probe_view_term
 
 
 @dataclass
@@ -65,6 +66,16 @@ class AutoStopConfig:
     grows past its start budget only while frames it never trained on still gain (`HeldBackBudget`)."""
     budget_limit: int = 1_000_000
     """The most Gaussians `grow_budget` may reach (over every GPU)."""
+    decide_view_term: bool = False
+    """With a view term in the model (`--pipeline.model.view-sh-degree` 1 or 2): let the held-back frames
+    decide whether it stays. It is held at zero until the first scored check, then fitted alone to the
+    training frames (`view_probe_steps` steps, everything else frozen) and kept where the held-back
+    score rises by `min_improvement` (`view_probe.py`). Off: the term trains from the start."""
+    view_probe_steps: int = 200
+    """Training frames the view term is fitted to, one per step, when the held-back frames decide it."""
+    view_probe_lr: float = 1e-3
+    """Adam's rate for that fit: it starts from zero and has few steps, so faster than the term's own
+    rate in training."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
@@ -182,6 +193,14 @@ class AutoStopRun:
         self.ranks = RankGroup.current()
         grows = config.grow_budget and self._scores_settled_model  # the model says its count and budget
         self.budget = HeldBackBudget(config.budget_limit // self.ranks.world) if grows else None
+        # the held-back frames decide the view term (one GPU: the probe's training renders are not collective)
+        self.decides_view_term = (
+            config.decide_view_term
+            and self._scores_settled_model
+            and pipeline.model.has_view_term()
+            and not self.ranks.split
+        )
+        self.view_verdict: Optional[ViewTermVerdict] = None
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -200,6 +219,9 @@ class AutoStopRun:
         datamanager.hold_back(images)
         run = cls(config, pipeline, optimizers, run_dir, steps_asked)
         CONSOLE.log(f"automatic stop: capture frames {run.held_back_frames} are held back from training to score it")
+        if run.decides_view_term:
+            pipeline.model.use_view_term(False)
+            CONSOLE.log("view term: held at zero until the held-back frames decide it (the first scored check)")
         return run
 
     @property
@@ -235,6 +257,10 @@ class AutoStopRun:
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
+        verdict = record.get("view_term")
+        if self.decides_view_term and verdict is not None and verdict["step"] < start_step:  # decided before
+            self.view_verdict = ViewTermVerdict(**verdict)
+            self.pipeline.model.use_view_term(self.view_verdict.kept)
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", []) if r["step"] < start_step]
         if self.budget is not None and raises:  # the budget the run had reached
             self.budget.raises = raises
@@ -254,7 +280,10 @@ class AutoStopRun:
         self.last_step = step
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
-        score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
+        if self.decides_view_term and self.view_verdict is None:
+            score = self._decide_view_term(step)
+        else:
+            score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
         improved = self.progress.update(step, score)
         if self.budget is not None:
             self._grow_budget(step, improved)
@@ -268,6 +297,31 @@ class AutoStopRun:
             CONSOLE.log(f"[bold]step {step}: training stops: {self.stop_reason}")
         self.write_record(kept=None)
         return stops
+
+    def _decide_view_term(self, step: int) -> float:
+        """The held-back frames' verdict on the view term (`probe_view_term`), applied to the model;
+        the held-back score of the model it leaves."""
+        pipeline, model, config = self.pipeline, self.pipeline.model, self.config
+
+        def training_loss():
+            _, losses, _ = pipeline.get_train_loss_dict(step=step)
+            return sum(losses.values())
+
+        model.use_view_term(True)
+        verdict = probe_view_term(
+            model.gauss_params["view_sh"],
+            training_loss,
+            lambda: held_back_score(pipeline, pipeline.datamanager.held_back),
+            config.view_probe_steps,
+            config.view_probe_lr,
+            config.min_improvement,
+            step,
+        )
+        if not verdict.kept:
+            model.use_view_term(False)
+        self.view_verdict = verdict
+        CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")
+        return verdict.with_term if verdict.kept else verdict.without
 
     def _grow_budget(self, step: int, improved: bool) -> None:
         """Apply `HeldBackBudget` to this check (each rank to its share of the Gaussians)."""
@@ -330,6 +384,8 @@ class AutoStopRun:
             "final_psnr": final,
             "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
         }
+        if self.view_verdict is not None:
+            record["view_term"] = self.view_verdict.as_record()
         if self.budget is not None:  # per GPU across GPUs
             record["budget_raises"] = [{"step": s, "budget": b} for s, b in self.budget.raises]
         if self.ranks.rank == 0:

@@ -54,6 +54,15 @@ def budget_decision(budget, now: int) -> Decision:
     return Decision("Gaussian budget", f"{now:,}", f"raised while the held-back frames still gained: {steps}", "data")
 
 
+def view_term_decision(auto_stop) -> Decision:
+    """The view term where the held-back frames decide it (`view_probe.py`): pending, on or off."""
+    verdict = auto_stop.view_verdict
+    if verdict is None:
+        why = "held at zero until the held-back frames decide at the first scored check (--auto-stop.decide-view-term)"
+        return Decision("view-dependent emission", "to be decided", why, "data")
+    return Decision("view-dependent emission", "on" if verdict.kept else "off", verdict.why(), "data")
+
+
 class RunDecisions:
     """The decisions of one run: `start(trainer)` after set-up, `finish(trainer, last_step)` before
     the final checkpoint; each prints them and writes `decisions.json` (rank 0 only across GPUs)."""
@@ -70,6 +79,9 @@ class RunDecisions:
             entries += pipeline.datamanager.decisions()
         if isinstance(model, GuardedModel):  # stock splatfacto says none
             entries += model.decisions()
+        stop = trainer.auto_stop
+        if stop is not None and stop.decides_view_term:  # the data's entry replaces the config's
+            entries = [d for d in entries if d.part != "view-dependent emission"] + [view_term_decision(stop)]
         entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
         if budget is not None:

@@ -52,3 +52,11 @@ class GuardedModel(Protocol):
         """Densification never grows the model past `count` Gaussians from now on (the trainer's answer
         to a step that ran out of GPU memory)."""
         ...
+
+    def has_view_term(self) -> bool:
+        """Whether the model was built with a view-dependent emission term."""
+        ...
+
+    def use_view_term(self, on: bool) -> None:
+        """Whether the view term takes part in renders from now on (off: zeroed, no gradient)."""
+        ...
