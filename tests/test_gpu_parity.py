@@ -206,3 +206,52 @@ def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kern
                 mine.add_(change)
                 theirs.add_(change)
     assert len(graphed.graphed.graphs) == 2 and all(g is not None for g in graphed.graphed.graphs.values())
+
+
+def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel():
+    """The emission MLP through `GraphedCalls` (`graphed_emission`): the same emission and gradients
+    (per-Gaussian scalars and embeddings, the frame embedding, the MLP's parameters) as kernel by kernel,
+    while the Gaussian count moves as densification moves it (grown, kept, pruned: a recording each
+    time, the latest alone kept), the parameters changed in place between steps."""
+    from thermal_wild_ns.model.fields import EmissionMLP
+    from thermal_wild_ns.model.graphed import GraphedCalls
+
+    torch.manual_seed(0)
+    mlp = EmissionMLP(16, 16).cuda()
+    for parameter in mlp.parameters():  # the zero-initialised output layer would give zero gradients upstream
+        parameter.data.normal_(0.0, 0.1)
+    twin = EmissionMLP(16, 16).cuda()
+    twin.load_state_dict(mlp.state_dict())
+    graphed = GraphedCalls("emission MLP", latest_only=True)
+    frames = torch.nn.Parameter(torch.randn(3, 16, device="cuda"))
+    for step, count in enumerate((4000, 4000, 6000, 6000, 5000)):
+        base = torch.nn.Parameter(torch.rand(count, 1, device="cuda"))
+        embed = torch.nn.Parameter(0.1 * torch.randn(count, 16, device="cuda"))
+        weights = torch.rand(count, 1, device="cuda")
+        results = []
+        for run, net in ((lambda *x: graphed(None, mlp, *x), mlp), (twin, twin)):
+            for leaf in (base, embed, frames):
+                leaf.grad = None
+            net.zero_grad(set_to_none=True)
+            out = run(base, embed, frames[step % 3])
+            (out * weights).sum().backward()
+            grads = [
+                base.grad.clone(),
+                embed.grad.clone(),
+                frames.grad.clone(),
+                *[p.grad.clone() for p in net.parameters()],
+            ]
+            results.append((out.detach().clone(), grads))
+        (ours, ours_grads), (reference, reference_grads) = results
+        assert torch.allclose(ours, reference, rtol=1e-6, atol=1e-7), step
+        for mine, theirs in zip(ours_grads, reference_grads):
+            # a weight's gradient sums over every Gaussian (cuBLAS may split the sum otherwise under
+            # capture): the tolerance is relative to the largest element, as the background's
+            worst = (mine - theirs).abs().max().item()
+            assert worst <= 1e-5 * theirs.abs().max().item(), (step, tuple(mine.shape), worst)
+        with torch.no_grad():  # an optimizer step, in place, the same on both
+            for mine, theirs in zip(mlp.parameters(), twin.parameters()):
+                change = 0.01 * torch.randn_like(mine)
+                mine.add_(change)
+                theirs.add_(change)
+    assert len(graphed.graphs) == 1 and all(g is not None for g in graphed.graphs.values())

@@ -293,6 +293,55 @@ def test_nonnegative_emission_renders_a_negative_gaussian_as_a_black_one():
         assert (render(False, -0.5, training) < black - 1e-3).any()  # unclamped, the Gaussians subtract
 
 
+def test_graphed_calls_keep_only_the_latest_shapes_recording_where_asked(monkeypatch):
+    """`GraphedCalls` bookkeeping, with a stand-in recording on a CPU: one recording per key and input
+    shapes, replayed after; with `latest_only` (the emission MLP, whose shapes follow the Gaussian
+    count) a new shape drops the older recordings, and a shape seen before is recorded again."""
+    from thermal_wild_ns.model.graphed import GraphedCalls
+
+    recorded = []
+
+    def stand_in(fn, samples):
+        recorded.append(tuple(t.shape[0] for t in samples))
+        return lambda *inputs: tuple(2 * out for out in fn(*inputs))  # tells a replay from a plain call
+
+    monkeypatch.setattr(GraphedCalls, "records", staticmethod(lambda inputs: True))
+    monkeypatch.setattr(GraphedCalls, "_record", staticmethod(stand_in))
+
+    def fn(x):
+        return (x + 1,)
+
+    for latest_only, kept in ((True, 1), (False, 2)):
+        recorded.clear()
+        calls = GraphedCalls("test", latest_only=latest_only)
+        for n in (5, 5, 7, 5):
+            (out,) = calls(None, fn, torch.zeros(n, 2))
+            assert torch.equal(out, torch.full((n, 2), 2.0))  # the recording's output, not fn's
+        assert recorded == ([(5,), (7,), (5,)] if latest_only else [(5,), (7,)])
+        assert len(calls.graphs) == kept
+
+
+def test_graphed_emission_on_a_cpu_trains_as_without_it():
+    """`graphed_emission` on a CPU: the same emission and gradients as without it, nothing recorded."""
+    results = []
+    for graphed in (True, False):
+        torch.manual_seed(0)  # the same Gaussians, embeddings and networks twice
+        model = make_model(graphed_emission=graphed)
+        perturb_output_layers(model)
+        model.train()
+        outputs = model.get_outputs(make_camera(1))
+        sum(
+            model.get_loss_dict(
+                outputs, {"image": torch.rand(32, 48, 1, generator=torch.Generator().manual_seed(0)), "image_idx": 1}
+            ).values()
+        ).backward()
+        results.append((outputs["thermal"].detach(), [p.grad.clone() for p in model.emission_mlp.parameters()], model))
+    (ours, ours_grads, graphed_model), (reference, reference_grads, plain_model) = results
+    assert torch.equal(ours, reference) and all(torch.equal(a, b) for a, b in zip(ours_grads, reference_grads))
+    assert graphed_model.graphed_emission is not None and not graphed_model.graphed_emission.graphs
+    assert plain_model.graphed_emission is None
+
+
 def test_every_attribute_nerfstudio_tools_read_is_available():
     """ns-viewer walks every attribute of the model (viewer/utils.py parse_object); exporters read
     the SH accessors. All must work on a model without spherical harmonics."""

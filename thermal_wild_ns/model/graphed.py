@@ -23,22 +23,36 @@ class GraphedCalls:
     """`fn(*inputs)` for tensors `inputs`, replayed forward and backward as CUDA graphs per `key` and
     input shapes. `fn` (a function, or a module whose parameters take gradients) reads tensors only
     from `inputs` and its own parameters, and the same `fn` comes with each key; the key names every
-    other value `fn` depends on (a size)."""
+    other value `fn` depends on (a size). `latest_only`: keep the graph of the latest shapes alone (a
+    piece whose shapes move on and do not come back, such as the Gaussian count: each recording holds
+    its activations' memory)."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, latest_only: bool = False) -> None:
         self.name = name  # how a message names the piece
+        self.latest_only = latest_only
         self.graphs: Dict[Hashable, Optional[Callable]] = {}
         """key, input shapes and grad flags -> the graphed `fn` (None: it could not be recorded)"""
 
+    @staticmethod
+    def records(inputs: Tuple[Tensor, ...]) -> bool:
+        """Whether these inputs' calls are recorded (on a GPU) rather than simply run."""
+        return inputs[0].is_cuda
+
+    @staticmethod
+    def _record(fn: Callable, samples: Tuple[Tensor, ...]) -> Callable:
+        return torch.cuda.make_graphed_callables(fn, samples, allow_unused_input=True)
+
     def __call__(self, key: Hashable, fn: Callable[..., Tuple[Tensor, ...]], *inputs: Tensor):
-        if not inputs[0].is_cuda:
+        if not self.records(inputs):
             return fn(*inputs)
         full_key = (key, tuple((tuple(t.shape), t.requires_grad) for t in inputs))
         if full_key not in self.graphs:
+            if self.latest_only:
+                self.graphs.clear()  # the older recordings' memory goes before the new one takes its own
             # leaf copies with the inputs' grad flags: torch warms up and records on these
             samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in inputs)
             try:
-                self.graphs[full_key] = torch.cuda.make_graphed_callables(fn, samples, allow_unused_input=True)
+                self.graphs[full_key] = self._record(fn, samples)
             except RuntimeError as error:
                 self.graphs[full_key] = None
                 CONSOLE.log(

@@ -34,6 +34,7 @@ from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, re
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
+from thermal_wild_ns.model.graphed import GraphedCalls
 from thermal_wild_ns.model.in_view import in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
@@ -129,6 +130,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """On a GPU, replay the background MLP's forward and backward in training as CUDA graphs (one per
     frame size), as `graphed_loss` does for the loss: the same kernels, less host time per step, a
     little more GPU memory for the graphs (docs/results/background_graphs_h100); off: kernel by kernel."""
+    graphed_emission: bool = False
+    """On a GPU, replay the emission MLP's forward and backward in training as CUDA graphs, as
+    `graphed_background` does: recorded again whenever densification changes the Gaussian count (only
+    the latest recording is kept; it holds the MLP's activations for every Gaussian). Off until timed
+    on a GPU (issue 34)."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
@@ -207,6 +213,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             if cfg.use_emission_mlp
             else None
         )
+        # its shapes follow the Gaussian count, which moves on at every densification
+        graphs = cfg.graphed_emission and self.emission_mlp is not None
+        self.graphed_emission = GraphedCalls("emission MLP", latest_only=True) if graphs else None
         if cfg.random_background and cfg.use_background_mlp:
             raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self.background_mlp = (
@@ -316,6 +325,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             return emission if ids is None else emission[ids]
         base = self.emission if ids is None else self.emission[ids]
         embed = self.gauss_params["gauss_embed"]
+        if self.graphed_emission is not None and ids is None and self.training and torch.is_grad_enabled():
+            return self.graphed_emission(None, self.emission_mlp, base, embed, frame_embed)
         return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
 
     def radiance(self, emission: Tensor) -> Tensor:
