@@ -240,6 +240,8 @@ def test_every_ablation_variant_trains(method, tmp_path, demo_scene_dir):
     # time state than at the state fitted to the frame; a method without renders the same image
     # (both scored against the recorded frame)
     assert (result["psnr_time"] != result["psnr_oracle"]) == has_state
+    # the gap's LUT share: the time state with the frame's own LUT differs from it only where there are LUTs
+    assert (result["psnr_oracle_lut"] != result["psnr_time"]) == (not raw)
 
 
 def test_viewer_screenshot_shows_the_thermal_colormap(tmp_path, demo_scene_dir):

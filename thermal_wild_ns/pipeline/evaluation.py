@@ -23,6 +23,9 @@ Per held-out view:
   before scoring.
 - `oracle`: the frame's own LUT (from its own histogram) and an embedding optimised on the whole
   frame: an upper bound of knowing the frame's state. It uses the test pixels: never a headline.
+  Scored with it, `oracle_lut`: the `time` state with the frame's own LUT in place of the one
+  interpolated from its neighbours. It splits the `time`-`oracle` gap in two: `oracle_lut` - `time`
+  is the LUT's share (what a better LUT prediction could gain), `oracle` - `oracle_lut` the embedding's.
 
 Models without frame embeddings or preprocessing have no state to predict: their `novel`, `time`
 and `oracle` renders are the same image.
@@ -194,6 +197,9 @@ def evaluate(
             state = oracle_state(pipeline, camera, frame, recorded, time_state, fit_steps, fit_lr)
             _, pred = render(pipeline, camera, state)
             row.update({f"{k}_oracle": v for k, v in scores(pred, recorded, to_celsius).items()})
+            own_lut = PhotometricState(f"oracle-lut:{frame}", time_state.embedding, state.lut)
+            _, pred = render(pipeline, camera, own_lut)
+            row.update({f"{k}_oracle_lut": v for k, v in scores(pred, recorded, to_celsius).items()})
         rows.append(row)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}
