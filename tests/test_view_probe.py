@@ -135,3 +135,19 @@ def test_a_run_drops_the_view_term_its_held_back_frames_do_not_gain_from(tmp_pat
     resumed.train()
     assert resumed.pipeline.model.gauss_params["view_sh"].abs().max() == 0
     assert resumed.auto_stop.view_verdict is not None and not resumed.auto_stop.view_verdict.kept
+
+
+def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_path, demo_scene_dir):
+    """No scored check (the schedule's start-up lasts past the run): the term stayed zero all along,
+    and the run's decisions say it is off and why."""
+    config = demo_trainer_config(tmp_path, steps=8, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.pipeline.model.view_sh_degree = 2
+    config.auto_stop.check_every, config.auto_stop.decide_view_term = 4, True
+    trainer = seeded_trainer(config)
+    assert trainer.pipeline.model.settled_step > 8
+    trainer.train()
+    decisions = json.loads((trainer.config.get_base_dir() / "decisions.json").read_text())
+    entry = next(d for d in decisions if d["part"] == "view-dependent emission")
+    assert entry["choice"] == "off" and "ended at step 7" in entry["why"]
+    assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() == 0

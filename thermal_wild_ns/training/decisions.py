@@ -54,9 +54,13 @@ def budget_decision(budget, now: int) -> Decision:
     return Decision("Gaussian budget", f"{now:,}", f"raised while the held-back frames still gained: {steps}", "data")
 
 
-def view_term_decision(auto_stop) -> Decision:
-    """The view term where the held-back frames decide it (`view_probe.py`): pending, on or off."""
+def view_term_decision(auto_stop, last_step: Optional[int] = None) -> Decision:
+    """The view term where the held-back frames decide it (`view_probe.py`): pending (at the start),
+    on or off; off where the run ended (`last_step`) before a scored check."""
     verdict = auto_stop.view_verdict
+    if verdict is None and last_step is not None:
+        why = f"the run ended at step {last_step:,}, before the held-back frames' first scored check: it stayed zero"
+        return Decision("view-dependent emission", "off", why, "data")
     if verdict is None:
         why = "held at zero until the held-back frames decide at the first scored check (--auto-stop.decide-view-term)"
         return Decision("view-dependent emission", "to be decided", why, "data")
@@ -81,7 +85,8 @@ class RunDecisions:
             entries += model.decisions()
         stop = trainer.auto_stop
         if stop is not None and stop.decides_view_term:  # the data's entry replaces the config's
-            entries = [d for d in entries if d.part != "view-dependent emission"] + [view_term_decision(stop)]
+            entries = [d for d in entries if d.part != "view-dependent emission"]
+            entries.append(view_term_decision(stop, last_step))
         entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
         if budget is not None:
