@@ -40,7 +40,7 @@ from experiments.render_fps import measure_fps
 from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
-from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+from thermal_wild_ns.model.wild_thermal import WildThermalModel, WildThermalModelConfig
 from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.pipeline.evaluation import CHEAP_PROTOCOLS, evaluate
 from thermal_wild_ns.training.trainer import seeded_trainer
@@ -272,7 +272,7 @@ def negative_emission(model) -> Optional[Dict[str, float]]:
     """How much of a thermal model emits below zero at its canonical state, view term left out (the
     growth question of issue 33): the share of Gaussians, and of their summed opacity; None for
     other models."""
-    if not hasattr(model, "gaussian_emission") or model.num_points == 0:
+    if not isinstance(model, WildThermalModel) or model.num_points == 0:
         return None
     with torch.no_grad():
         emission = model.gaussian_emission(model.inference_embedding())[:, 0]  # [N]

@@ -70,7 +70,7 @@ class AutoStopConfig:
     """With a view term in the model (`--pipeline.model.view-sh-degree` 1 or 2): let the held-back frames
     decide whether it stays. It is held at zero until the first scored check, then fitted alone to the
     training frames (`view_probe_steps` steps, everything else frozen) and kept where the held-back
-    score rises by `min_improvement` (`view_probe.py`). Off: the term trains from the start."""
+    score rises by `min_improvement` (`view_probe.py`); one GPU only. Off: the term trains from the start."""
     view_probe_steps: int = 200
     """Training frames the view term is fitted to, one per step, when the held-back frames decide it."""
     view_probe_lr: float = 1e-3
@@ -222,6 +222,11 @@ class AutoStopRun:
         if run.decides_view_term:
             pipeline.model.use_view_term(False)
             CONSOLE.log("view term: held at zero until the held-back frames decide it (the first scored check)")
+        elif config.decide_view_term:
+            CONSOLE.log(
+                "[yellow]--auto-stop.decide-view-term: nothing to decide (the model has no view term: "
+                "--pipeline.model.view-sh-degree 0, or training across GPUs)"
+            )
         return run
 
     @property

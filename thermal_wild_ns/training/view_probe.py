@@ -9,8 +9,8 @@ until the automatic stop's first scored check; there it is fitted alone to the t
 (every other parameter frozen: the model without it is exactly the one trained so far), and it
 stays, fitted, where the held-back frames then score higher by `min_gain`; otherwise it stays zero
 for the rest of the run. The held-back frames are views the term was not fitted on: a term that
-explains the training views by something else than the view (vignetting, one frame's noise) does
-not carry over to them.
+explains the training views by something else than the view does not carry over to them (each
+frame's own noise: tests/test_view_probe.py; vignetting, on a GPU: not yet measured).
 """
 
 from __future__ import annotations
