@@ -353,14 +353,16 @@ def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(t
     monkeypatch.setattr(evaluation, "scores", recording)
     evaluation.evaluate(pipeline, fit_steps=1)
     dataset = pipeline.datamanager.eval_dataset
-    assert len(targets) == 5 * 5  # views x protocols, each view in the order novel, time, aligned, half, oracle
+    # views x scores, each view in the order novel, time, aligned, half, oracle, oracle_lut (oracle's split)
+    assert len(targets) == 5 * 6
     for view, (_, batch) in enumerate(pipeline.datamanager.fixed_indices_eval_dataloader):
         truth = batch["image"].float().mean(dim=-1).cpu().numpy()
         recorded = dataset.recorded_image(int(batch["image_idx"]))
         assert np.abs(truth - recorded).mean() > 1e-3  # the demo's sensor drifts: the two differ
-        novel, time, aligned, half, oracle = targets[5 * view : 5 * view + 5]
+        novel, time, aligned, half, oracle, oracle_lut = targets[6 * view : 6 * view + 6]
         assert np.array_equal(novel, truth) and np.array_equal(aligned, truth)
         assert np.array_equal(time, recorded) and np.array_equal(oracle, recorded)
+        assert np.array_equal(oracle_lut, recorded)
         assert np.array_equal(half, recorded[:, recorded.shape[1] // 2 :])
 
 

@@ -73,9 +73,10 @@ class AutoStopConfig:
     score rises by `min_improvement` (`view_probe.py`); one GPU only. Off: the term trains from the start."""
     view_probe_steps: int = 200
     """Training frames the view term is fitted to, one per step, when the held-back frames decide it."""
-    view_probe_lr: float = 1e-3
-    """Adam's rate for that fit: it starts from zero and has few steps, so faster than the term's own
-    rate in training."""
+    view_probe_lr: Optional[float] = None
+    """Adam's rate for that fit; None: the term's own rate in training (its optimizer's). Adam moves
+    every coefficient by about its rate per step however weak its gradient, so a faster fit spreads
+    each frame's noise over the Gaussians it sees (docs/results/view_probe_cpu)."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
@@ -318,7 +319,7 @@ class AutoStopRun:
             training_loss,
             lambda: held_back_score(pipeline, pipeline.datamanager.held_back),
             config.view_probe_steps,
-            config.view_probe_lr,
+            config.view_probe_lr or self.optimizers.config["view_sh"]["optimizer"].lr,
             config.min_improvement,
             step,
         )
