@@ -70,7 +70,8 @@ class AutoStopConfig:
     """With a view term in the model (`--pipeline.model.view-sh-degree` 1 or 2): let the held-back frames
     decide whether it stays. It is held at zero until the first scored check, then fitted alone to the
     training frames (`view_probe_steps` steps, everything else frozen) and kept where the held-back
-    score rises by `min_improvement` (`view_probe.py`); one GPU only. Off: the term trains from the start."""
+    score rises by `min_improvement` (`view_probe.py`); one GPU only. Off: the term trains from the start.
+    A first design: it has not yet found the gain on a scene made to need the term (docs/results/view_probe_cpu)."""
     view_probe_steps: int = 200
     """Training frames the view term is fitted to, one per step, when the held-back frames decide it."""
     view_probe_lr: Optional[float] = None

@@ -10,7 +10,9 @@ until the automatic stop's first scored check; there it is fitted alone to the t
 stays, fitted, where the held-back frames then score higher by `min_gain`; otherwise it stays zero
 for the rest of the run. The held-back frames are views the term was not fitted on: a term that
 explains the training views by something else than the view does not carry over to them (each
-frame's own noise: tests/test_view_probe.py; vignetting, on a GPU: not yet measured).
+frame's own noise: tests/test_view_probe.py; vignetting, on a GPU: not yet measured). Its first runs
+on generated scenes found no gain on the one made to need the term either (docs/results/view_probe_cpu):
+off by default, a first design.
 """
 
 from __future__ import annotations
