@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, growth-second-dunr, growth-second-flight2, probe-dunr, probe-flight2, probe-synthetic, nonnegative-dunr, nonnegative-flight2}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, growth-second-dunr, growth-second-flight2, probe-dunr, probe-flight2, probe-synthetic}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -22,6 +22,8 @@ bench() {  # bench NAME SCENE ARGS...: 3 seeds of one configuration in the backg
 }
 flight2=(--steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000)
 dunr=(--steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000)
+# the growth-* plans (issue 33's growth question): a 1M budget, the first 10k steps of the 30k schedule, no stop
+grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
 
 case "$plan" in
   install)
@@ -78,9 +80,9 @@ case "$plan" in
   growth-dunr|growth-flight2)  # issue 33's growth question: the full method at a 1M budget for the first 10k steps
     # of the 30k schedule, no stop (as issue 33's table), its emission as learned and clamped at zero
     scene=${plan#growth-}
-    grow=(--methods wild-thermal --max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
-    bench "$scene-1m" "$PWD/.data/$scene" "${grow[@]}" &
-    bench "$scene-1m-nonnegative" "$PWD/.data/$scene" "${grow[@]}" --set pipeline.model.nonnegative_emission=True &
+    bench "$scene-1m" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" &
+    bench "$scene-1m-nonnegative" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" \
+      --set pipeline.model.nonnegative_emission=True &
     wait
     ;;
   growth-variants-dunr|growth-variants-flight2)  # the full method and its 3DGS variant at a 1M budget, as growth-*;
@@ -88,17 +90,16 @@ case "$plan" in
     # BUDGET=100000 (say) holds them at another budget than 1M
     scene=${plan#growth-variants-}; budget=${BUDGET:-1000000}; tag=${GRAD:+-grad$GRAD}
     size=$([ "$budget" = 1000000 ] && echo 1m || echo "$budget")
-    grow=(--max-gaussians "$budget" --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
-    [ -n "${GRAD:-}" ] && grow+=(--set "pipeline.model.densify_grad_thresh=$GRAD")
-    bench "$scene-$size$tag" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" &
-    bench "$scene-$size-3dgs$tag" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
+    sized=("${grow[@]}" --max-gaussians "$budget")  # the later --max-gaussians is the one the bench takes
+    [ -n "${GRAD:-}" ] && sized+=(--set "pipeline.model.densify_grad_thresh=$GRAD")
+    bench "$scene-$size$tag" "$PWD/.data/$scene" --methods wild-thermal "${sized[@]}" &
+    bench "$scene-$size-3dgs$tag" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${sized[@]}" &
     wait
     ;;
   growth-causes-dunr|growth-causes-flight2)  # two candidate causes of the fall at a 1M budget (growth-variants-*):
     # the constant background the 3DGS variant can leave pixels to (splatfacto's random one forbids it),
     # and no view dependence in the full method (a degree-2 view term)
     scene=${plan#growth-causes-}
-    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
     bench "$scene-1m-3dgs-random-background" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" \
       --set pipeline.model.random_background=True &
     bench "$scene-1m-sh2" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" --set pipeline.model.view_sh_degree=2 &
@@ -107,7 +108,6 @@ case "$plan" in
   growth-view-dunr|growth-view-flight2)  # at a 1M budget: the 3DGS variant with a degree-2 view term, and the full
     # method grown further (densification's gradient threshold 0.0004 instead of 0.0008) without one
     scene=${plan#growth-view-}
-    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
     bench "$scene-1m-3dgs-sh2" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" \
       --set pipeline.model.view_sh_degree=2 &
     bench "$scene-1m-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" \
@@ -117,16 +117,14 @@ case "$plan" in
   growth-far-dunr|growth-far-flight2)  # both variants with a degree-2 view term, grown toward splatfacto's count
     # (gradient threshold 0.0004); one --set with both settings (a second --set replaces the first)
     scene=${plan#growth-far-}
-    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop
-      --set pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004)
-    bench "$scene-1m-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" &
-    bench "$scene-1m-3dgs-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
+    far=("${grow[@]}" --set pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004)
+    bench "$scene-1m-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal "${far[@]}" &
+    bench "$scene-1m-3dgs-sh2-grad0.0004" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${far[@]}" &
     wait
     ;;
   growth-second-dunr|growth-second-flight2)  # the rest of growth-* for a second scene: the full method with a degree-2
     # view term, and the 3DGS variant without one, at a 1M budget
     scene=${plan#growth-second-}
-    grow=(--max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --no-auto-stop)
     bench "$scene-1m-sh2" "$PWD/.data/$scene" --methods wild-thermal "${grow[@]}" --set pipeline.model.view_sh_degree=2 &
     bench "$scene-1m-3dgs" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
     wait
@@ -144,12 +142,6 @@ case "$plan" in
     bench synthetic-probe demo --scenes demo stress:drift stress:vignetting stress:view --steps 5000 \
       --num-downscales 1 --eval-at 1000 2000 5000 --runs-per-gpu 6 --methods wild-thermal \
       --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True
-    ;;
-  nonnegative-dunr|nonnegative-flight2)  # the full method's defaults (automatic stop), emission as learned and clamped at zero
-    scene=${plan#nonnegative-}; steps=("${flight2[@]}"); [ "$scene" = dunr ] && steps=("${dunr[@]}")
-    bench "$scene-default" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" &
-    bench "$scene-nonnegative" "$PWD/.data/$scene" --methods wild-thermal --set pipeline.model.nonnegative_emission=True "${steps[@]}" &
-    wait
     ;;
   dunr-sh2-splatfacto)
     bench dunr-sh2 "$PWD/.data/dunr" --methods wild-thermal --set pipeline.model.view_sh_degree=2 "${dunr[@]}" &

@@ -291,12 +291,16 @@ def test_a_bench_of_only_skipped_runs_still_writes_its_table(tmp_path):
     assert (tmp_path / "bench.md").is_file() and not (tmp_path / "speed_accuracy.png").exists()
 
 
-def _trained_demo_pipeline(tmp_path, demo_scene_dir, steps: int):
-    """The full method's pipeline after `steps` steps on the demo scene (a small Gaussian budget)."""
+def _trained_demo_pipeline(tmp_path, demo_scene_dir, steps: int, preprocessed: bool = False):
+    """The full method's pipeline after `steps` steps on the demo scene (a small Gaussian budget);
+    `preprocessed`: its frames preprocessed whatever the full method's rule decides (raw, for the demo)."""
     from thermal_wild_ns.demo import demo_trainer_config
+    from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
 
     config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=2000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    if preprocessed:
+        config.pipeline.datamanager.preprocessing = PhotometricConfig()
     trainer = config.setup(local_rank=0, world_size=1)
     trainer.setup()
     trainer.train()
@@ -336,13 +340,18 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
     assert second["psnr_half"] < first["psnr_half"] - 3.0
 
 
-def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(tmp_path, demo_scene_dir, monkeypatch):
+@pytest.mark.parametrize("preprocessed", [False, True])
+def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(
+    tmp_path, demo_scene_dir, monkeypatch, preprocessed
+):
     """On a generated scene the held-out view's truth is fault-free while the camera recorded it under
     its drifting sensor state: `novel` and `aligned` are scored against the truth, `time`, `half` and
-    `oracle` (the frame's state) against the recorded frame."""
+    `oracle` (the frame's state) against the recorded frame, and so is `oracle_lut` (oracle's split),
+    which has a render of its own only where the frames have LUTs (else it is the `time` render)."""
     import thermal_wild_ns.pipeline.evaluation as evaluation
 
-    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
+    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4, preprocessed=preprocessed)
+    assert (pipeline.datamanager.preprocessed is not None) == preprocessed
     targets = []
     original = evaluation.scores
 
@@ -351,19 +360,21 @@ def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(t
         return original(pred, gt, to_celsius)
 
     monkeypatch.setattr(evaluation, "scores", recording)
-    evaluation.evaluate(pipeline, fit_steps=1)
+    result = evaluation.evaluate(pipeline, fit_steps=1)
     dataset = pipeline.datamanager.eval_dataset
-    # views x scores, each view in the order novel, time, aligned, half, oracle, oracle_lut (oracle's split)
-    assert len(targets) == 5 * 6
+    # views x scores, each view in the order novel, time, aligned, half, oracle (, oracle_lut)
+    per_view = 6 if preprocessed else 5
+    assert len(targets) == 5 * per_view
     for view, (_, batch) in enumerate(pipeline.datamanager.fixed_indices_eval_dataloader):
         truth = batch["image"].float().mean(dim=-1).cpu().numpy()
         recorded = dataset.recorded_image(int(batch["image_idx"]))
         assert np.abs(truth - recorded).mean() > 1e-3  # the demo's sensor drifts: the two differ
-        novel, time, aligned, half, oracle, oracle_lut = targets[6 * view : 6 * view + 6]
+        novel, time, aligned, half, oracle, *oracle_lut = targets[per_view * view : per_view * (view + 1)]
         assert np.array_equal(novel, truth) and np.array_equal(aligned, truth)
         assert np.array_equal(time, recorded) and np.array_equal(oracle, recorded)
-        assert np.array_equal(oracle_lut, recorded)
+        assert all(np.array_equal(target, recorded) for target in oracle_lut)
         assert np.array_equal(half, recorded[:, recorded.shape[1] // 2 :])
+    assert (result["psnr_oracle_lut"] == result["psnr_time"]) == (not preprocessed)
 
 
 def test_settings_reach_nested_and_frozen_config_fields(tmp_path):

@@ -6,40 +6,36 @@ import json
 import math
 
 import torch
+from layout_fixtures import cameras as arc_poses
+from layout_fixtures import opengl
 from nerfstudio.cameras.cameras import Cameras
-from nerfstudio.data.scene_box import SceneBox
+from test_model import make_model
 
 from thermal_wild_ns.demo import demo_trainer_config
-from thermal_wild_ns.model.wild_thermal import WildThermalModel, WildThermalModelConfig
+from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.training.trainer import seeded_trainer
 from thermal_wild_ns.training.view_probe import probe_view_term
 
 WIDTH, HEIGHT = 48, 32
 
 
-def orbit_camera(angle: float, idx: int) -> Cameras:
-    """A camera 3 units from the origin at `angle` (radians) around the y axis, looking at it (OpenGL)."""
-    position = torch.tensor([3 * math.sin(angle), 0.3, 3 * math.cos(angle)])
-    z = position / position.norm()  # the camera looks down -z
-    x = torch.linalg.cross(torch.tensor([0.0, 1.0, 0.0]), z)
-    x = x / x.norm()
-    y = torch.linalg.cross(z, x)
-    c2w = torch.cat([torch.stack([x, y, z], 1), position[:, None]], 1)[None]  # [1, 3, 4]
-    camera = Cameras(camera_to_worlds=c2w, fx=40.0, fy=40.0, cx=WIDTH / 2, cy=HEIGHT / 2, width=WIDTH, height=HEIGHT)
-    camera.metadata = {"cam_idx": idx}
-    return camera
+def arc_cameras(n: int):
+    """`n` cameras on the layout fixtures' arc around the origin (OpenGL, as nerfstudio's), 48x32."""
+    cameras = []
+    for k, c2w in enumerate(arc_poses(n, radius=3.0)):
+        pose = torch.from_numpy(opengl(c2w)[:3]).float()[None]  # [1, 3, 4]
+        camera = Cameras(
+            camera_to_worlds=pose, fx=40.0, fy=40.0, cx=WIDTH / 2, cy=HEIGHT / 2, width=WIDTH, height=HEIGHT
+        )
+        camera.metadata = {"cam_idx": k}
+        cameras.append(camera)
+    return cameras
 
 
 def scalar_model(frames: int) -> WildThermalModel:
-    """Plain scalar emission with a degree-2 view term (zero), the same Gaussians at every call."""
-    g = torch.Generator().manual_seed(0)
-    points = torch.randn(300, 3, generator=g) * 0.4
-    grey = (torch.rand(300, 1, generator=g) * 255).to(torch.uint8).repeat(1, 3)
-    config = WildThermalModelConfig(
-        num_downscales=0, use_emission_mlp=False, use_background_mlp=False, view_sh_degree=2
-    )
-    box = SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3]))
-    return config.setup(scene_box=box, num_train_data=frames, seed_points=(points, grey))
+    """Plain scalar emission with a degree-2 view term (zero): the same Gaussians at every call."""
+    torch.manual_seed(0)  # their rotations are drawn from torch's generator
+    return make_model(n=300, frames=frames, use_emission_mlp=False, use_background_mlp=False, view_sh_degree=2)
 
 
 def render(model, camera) -> torch.Tensor:
@@ -51,7 +47,6 @@ def render(model, camera) -> torch.Tensor:
 def probe_on(truth_view: bool, frame_noise: float):
     """The probe on a model that has the truth's Gaussians exactly and no view term; the truth has
     one (`truth_view`) or not, and each frame adds its own noise of `frame_noise`."""
-    angles = [k * 2 * math.pi / 16 for k in range(16)]
     held = [3, 8, 13]  # between training views, as the automatic stop holds frames back
     train = [k for k in range(16) if k not in held]
     truth_model = scalar_model(16)
@@ -59,9 +54,10 @@ def probe_on(truth_view: bool, frame_noise: float):
         with torch.no_grad():
             truth_model.gauss_params["view_sh"].normal_(0, 0.3, generator=torch.Generator().manual_seed(1))
     g = torch.Generator().manual_seed(2)
-    cameras = [orbit_camera(a, k) for k, a in enumerate(angles)]
+    cameras = arc_cameras(16)
     truth = [render(truth_model, c) + frame_noise * torch.randn(HEIGHT, WIDTH, 1, generator=g) for c in cameras]
     model = scalar_model(16)
+    assert torch.equal(model.quats, truth_model.quats)  # the truth's Gaussians exactly
     order = torch.Generator().manual_seed(3)
 
     def training_loss():

@@ -180,10 +180,12 @@ def evaluate(
         time_state = state_at(pipeline, frame)
         if "novel" in protocols:
             row.update({f"{k}_novel": v for k, v in scores(novel, gt, to_celsius).items()})
+        time_scores = None
         if "time" in protocols or out_dir is not None:
             _, timed = render(pipeline, camera, time_state)
             check_same_geometry(timed, recorded, f"held-out frame {frame} as recorded")
-            row.update({f"{k}_time": v for k, v in scores(timed, recorded, to_celsius).items()})
+            time_scores = scores(timed, recorded, to_celsius)
+            row.update({f"{k}_time": v for k, v in time_scores.items()})
             if out_dir is not None:
                 _write_panel(out_dir / f"test_{i:02d}.png", recorded, timed)
         if "aligned" in protocols:
@@ -197,9 +199,13 @@ def evaluate(
             state = oracle_state(pipeline, camera, frame, recorded, time_state, fit_steps, fit_lr)
             _, pred = render(pipeline, camera, state)
             row.update({f"{k}_oracle": v for k, v in scores(pred, recorded, to_celsius).items()})
-            own_lut = PhotometricState(f"oracle-lut:{frame}", time_state.embedding, state.lut)
-            _, pred = render(pipeline, camera, own_lut)
-            row.update({f"{k}_oracle_lut": v for k, v in scores(pred, recorded, to_celsius).items()})
+            if state.lut is None and time_scores is not None:  # no LUTs: the time state itself, scored above
+                own_lut_scores = time_scores
+            else:
+                own_lut = PhotometricState(f"oracle-lut:{frame}", time_state.embedding, state.lut)
+                _, pred = render(pipeline, camera, own_lut)
+                own_lut_scores = scores(pred, recorded, to_celsius)
+            row.update({f"{k}_oracle_lut": v for k, v in own_lut_scores.items()})
         rows.append(row)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}

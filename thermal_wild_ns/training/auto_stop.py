@@ -75,9 +75,9 @@ class AutoStopConfig:
     view_probe_steps: int = 200
     """Training frames the view term is fitted to, one per step, when the held-back frames decide it."""
     view_probe_lr: Optional[float] = None
-    """Adam's rate for that fit; None: the term's own rate in training (its optimizer's). Adam moves
-    every coefficient by about its rate per step however weak its gradient, so a faster fit spreads
-    each frame's noise over the Gaussians it sees (docs/results/view_probe_cpu)."""
+    """Adam's rate for that fit; None: the term's own rate in training (its optimizer's). A faster fit
+    lowered the held-back frames more where it was tried (docs/results/view_probe_cpu); Adam moves
+    every coefficient by about its rate per step however weak its gradient."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
