@@ -321,6 +321,33 @@ def test_graphed_calls_keep_only_the_latest_shapes_recording_where_asked(monkeyp
         assert len(calls.graphs) == kept
 
 
+def test_a_recording_leaves_the_callers_module_as_it_was(monkeypatch):
+    """`torch.cuda.make_graphed_callables` replaces a module's `forward` with the replay of its one
+    recording (mimicked here on a CPU, shapes checked as a replay checks them): `GraphedCalls` hands
+    it a fresh wrapper, so the emission MLP still runs at a new Gaussian count, recorded again or
+    called plainly (on a GPU the first version failed here: a 4,000-row recording fed 6,000 rows)."""
+    from thermal_wild_ns.model.graphed import GraphedCalls
+
+    def like_torch(module, samples, allow_unused_input=False):
+        shapes = [t.shape for t in samples]
+
+        def replay(*inputs):
+            assert [t.shape for t in inputs] == shapes, "a replay takes its recording's shapes only"
+            return type(module).forward(module, *inputs)
+
+        module.forward = replay  # what torch does to a module it records
+        return module
+
+    monkeypatch.setattr(GraphedCalls, "records", staticmethod(lambda inputs: True))
+    monkeypatch.setattr(torch.cuda, "make_graphed_callables", like_torch)
+    mlp = torch.nn.Linear(2, 1)
+    calls = GraphedCalls("test", latest_only=True)
+    for n in (5, 7):
+        assert calls(None, mlp, torch.zeros(n, 2)).shape == (n, 1)
+    assert mlp(torch.zeros(9, 2)).shape == (9, 1)  # the caller's module, called plainly
+    assert [p.requires_grad for p in mlp.parameters()] == [True, True]
+
+
 def test_graphed_emission_on_a_cpu_trains_as_without_it():
     """`graphed_emission` on a CPU: the same emission and gradients as without it, nothing recorded."""
     results = []

@@ -16,7 +16,22 @@ from typing import Callable, Dict, Hashable, Optional, Tuple
 
 import torch
 from nerfstudio.utils.rich_utils import CONSOLE
-from torch import Tensor
+from torch import Tensor, nn
+
+
+class RecordedCall(nn.Module):
+    """`fn` as the module torch records: `make_graphed_callables` replaces a module's `forward` with
+    the replay of its one recording, so a module handed to it directly would replay that recording's
+    shapes for every later caller (another shape fails: a model's MLP whose row count moves with the
+    Gaussian count, or its plain calls outside training). A fresh wrapper per recording leaves `fn`
+    itself untouched; a module `fn` is a submodule, so its parameters still take gradients."""
+
+    def __init__(self, fn: Callable):
+        super().__init__()
+        self.fn = fn
+
+    def forward(self, *inputs: Tensor):
+        return self.fn(*inputs)
 
 
 class GraphedCalls:
@@ -40,7 +55,7 @@ class GraphedCalls:
 
     @staticmethod
     def _record(fn: Callable, samples: Tuple[Tensor, ...]) -> Callable:
-        return torch.cuda.make_graphed_callables(fn, samples, allow_unused_input=True)
+        return torch.cuda.make_graphed_callables(RecordedCall(fn), samples, allow_unused_input=True)
 
     def __call__(self, key: Hashable, fn: Callable[..., Tuple[Tensor, ...]], *inputs: Tensor):
         if not self.records(inputs):
