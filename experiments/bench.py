@@ -456,8 +456,12 @@ def markdown(runs: List[Dict], scenes: List[str]) -> str:
         "half": "`half` (NeRF-W: state fitted on the left half, right half scored)",
         "oracle": "`oracle` — uses the held-out frame's own pixels (its LUT, an embedding fitted on all of it): an "
         "upper bound, not a result",
+        "oracle_lut": "`oracle_lut` — the `time` state with the held-out frame's own LUT (built from its pixels): "
+        "`oracle_lut` − `time` is the LUT prediction's share of the `time`–`oracle` gap, `oracle` − `oracle_lut` the "
+        "embedding's; not a result",
     }
-    for protocol in (*HEADLINE_PROTOCOLS, "oracle"):
+    bounds = ["oracle"] + (["oracle_lut"] if any("psnr_oracle_lut" in r for r in runs) else [])
+    for protocol in (*HEADLINE_PROTOCOLS, *bounds):
         lines += [
             f"PSNR / SSIM, {titles[protocol]}:",
             "",

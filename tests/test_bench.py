@@ -57,6 +57,8 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     aligned_table = table.split("`aligned`")[1].split("PSNR / SSIM")[0]
     assert f"| wild-thermal | {mean:.2f} ({low:.2f}–{high:.2f}) / " in aligned_table  # mean (min-max) over the seeds
     assert "upper bound, not a result" in table.split("`oracle`")[1].splitlines()[0]
+    lut_table = table.split("`oracle_lut` —")[1].split("PSNR / SSIM")[0]  # the gap's split, labelled
+    assert "not a result" in lut_table.splitlines()[0] and "| wild-thermal | " in lut_table
     # what the training frames went through: the demo drifts by level offsets, which the full method's
     # frame embeddings follow: it trains on the raw frames, and says why
     assert runs[0]["preprocessing"] == NOT_PREPROCESSED

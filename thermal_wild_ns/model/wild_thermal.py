@@ -133,8 +133,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     graphed_emission: bool = False
     """On a GPU, replay the emission MLP's forward and backward in training as CUDA graphs, as
     `graphed_background` does: recorded again whenever densification changes the Gaussian count (only
-    the latest recording is kept; it holds the MLP's activations for every Gaussian). Off until timed
-    on a GPU (issue 34)."""
+    the latest recording is kept; it holds the MLP's activations for every Gaussian). Off: while
+    densification moves the count, recording again costs more than the replays save
+    (docs/results/emission_graphs_h100)."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
