@@ -8,7 +8,7 @@
 # pycolmap). The code is the carried tree's (PYTHONPATH), the dependencies the bundle's.
 # Each plan runs two configurations side by side, 3 seeds each (six runs sharing the GPU: timings are shared).
 set -uo pipefail
-plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, growth-second-dunr, growth-second-flight2, probe-dunr, probe-flight2, probe-synthetic}
+plan=${1:?plan: install, flight2-view, flight2-sh2-splatfacto, dunr-view, dunr-sh2-splatfacto, synthetic-view, flight2-auto, dunr-auto, synthetic-auto, flight2-budget, grow-budget-flight2, grow-budget-dunr, growth-dunr, growth-flight2, growth-variants-dunr, growth-variants-flight2, growth-causes-dunr, growth-causes-flight2, growth-view-dunr, growth-view-flight2, growth-far-dunr, growth-far-flight2, growth-second-dunr, growth-second-flight2, trial-dunr, trial-flight2, trial-synthetic}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD:/tmp/site PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -129,17 +129,17 @@ case "$plan" in
     bench "$scene-1m-3dgs" "$PWD/.data/$scene" --methods wild-thermal-3dgs "${grow[@]}" &
     wait
     ;;
-  probe-dunr|probe-flight2)  # the view term decided by the held-back frames (--auto-stop.decide-view-term) beside
-    # the defaults; compare with the view_term_gpu rows of the same scene (no term, and the term always on)
-    scene=${plan#probe-}; steps=("${flight2[@]}"); [ "$scene" = dunr ] && steps=("${dunr[@]}")
+  trial-dunr|trial-flight2)  # the view term on trial, decided by the held-back frames (--auto-stop.decide-view-term)
+    # beside the defaults; compare with the view_term_gpu rows of the same scene (no term, and the term always on)
+    scene=${plan#trial-}; steps=("${flight2[@]}"); [ "$scene" = dunr ] && steps=("${dunr[@]}")
     bench "$scene-default" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" &
-    bench "$scene-probe" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" \
+    bench "$scene-trial" "$PWD/.data/$scene" --methods wild-thermal "${steps[@]}" \
       --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True &
     wait
     ;;
-  probe-synthetic)  # the same on the generated scenes (the term must stay off on vignetting, come on for
+  trial-synthetic)  # the same on the generated scenes (the term must stay off on vignetting, come on for
     # stress:view); their defaults and always-on rows are view_term_gpu's synthetic-* files (the same protocol)
-    bench synthetic-probe demo --scenes demo stress:drift stress:vignetting stress:view --steps 5000 \
+    bench synthetic-trial demo --scenes demo stress:drift stress:vignetting stress:view --steps 5000 \
       --num-downscales 1 --eval-at 1000 2000 5000 --runs-per-gpu 6 --methods wild-thermal \
       --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True
     ;;

@@ -1,10 +1,11 @@
 """The held-back frames decide the view term (`training/view_probe.py`): kept where the capture's
 radiance changes with the view, off where what looks like it is each frame's own noise; through a
-run, held at zero until the first scored check, recorded, reported and replayed on resume."""
+run, on trial until the first scored check, recorded, reported and replayed on resume."""
 
 import json
 import math
 
+import numpy as np
 import torch
 from layout_fixtures import cameras as arc_poses
 from layout_fixtures import opengl
@@ -13,8 +14,9 @@ from test_model import make_model
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
+from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
 from thermal_wild_ns.training.trainer import seeded_trainer
-from thermal_wild_ns.training.view_probe import probe_view_term
+from thermal_wild_ns.training.view_probe import judge_view_term
 
 WIDTH, HEIGHT = 48, 32
 
@@ -44,9 +46,12 @@ def render(model, camera) -> torch.Tensor:
         return model.get_outputs(camera)["thermal"]
 
 
-def probe_on(truth_view: bool, frame_noise: float):
-    """The probe on a model that has the truth's Gaussians exactly and no view term; the truth has
-    one (`truth_view`) or not, and each frame adds its own noise of `frame_noise`."""
+def trial_on(truth_view: bool, frame_noise: float, vignetting: float = 0.0, steps: int = 120):
+    """The rule on a model that has the truth's geometry and a wrong emission: trained (emission and
+    view term, Adam) with the term on trial, then judged by held-back views between the training
+    views, scored as the automatic stop scores them (after a gain, offset and radial fall-off fit to
+    each). The truth has a view term (`truth_view`) or not; each frame adds its own noise of `frame_noise`;
+    the camera darkens toward the corners by `vignetting` (as the generated scenes' sensor)."""
     held = [3, 8, 13]  # between training views, as the automatic stop holds frames back
     train = [k for k in range(16) if k not in held]
     truth_model = scalar_model(16)
@@ -55,74 +60,154 @@ def probe_on(truth_view: bool, frame_noise: float):
             truth_model.gauss_params["view_sh"].normal_(0, 0.3, generator=torch.Generator().manual_seed(1))
     g = torch.Generator().manual_seed(2)
     cameras = arc_cameras(16)
-    truth = [render(truth_model, c) + frame_noise * torch.randn(HEIGHT, WIDTH, 1, generator=g) for c in cameras]
+    v, u = torch.meshgrid(torch.arange(HEIGHT) + 0.5, torch.arange(WIDTH) + 0.5, indexing="ij")
+    r2 = ((u - WIDTH / 2) ** 2 + (v - HEIGHT / 2) ** 2) / ((WIDTH / 2) ** 2 + (HEIGHT / 2) ** 2)  # [H, W]
+    falloff = (1.0 - vignetting * r2)[..., None]  # [H, W, 1]
+    truth = [
+        render(truth_model, c) * falloff + frame_noise * torch.randn(HEIGHT, WIDTH, 1, generator=g) for c in cameras
+    ]
     model = scalar_model(16)
     assert torch.equal(model.quats, truth_model.quats)  # the truth's Gaussians exactly
+    with torch.no_grad():
+        model.gauss_params["emission"].fill_(0.5)
+    model.try_view_term()
+    params = [model.gauss_params["emission"], model.gauss_params["view_sh"]]
+    optimizer = torch.optim.Adam(params, lr=2e-2)
     order = torch.Generator().manual_seed(3)
-
-    def training_loss():
+    for step in range(steps):
+        model.step = step  # odd steps render the term
         k = train[int(torch.randint(len(train), (1,), generator=order))]
         model.train()
         outputs = model.get_outputs(cameras[k])
-        return sum(model.get_loss_dict(outputs, {"image": truth[k], "image_idx": k}).values())
+        optimizer.zero_grad()
+        sum(model.get_loss_dict(outputs, {"image": truth[k], "image_idx": k}).values()).backward()
+        optimizer.step()
+    assert model.gauss_params["view_sh"].abs().max() > 0  # trained on its steps
 
     def score():
-        errors = [float(((render(model, cameras[k]) - truth[k]) ** 2).mean()) for k in held]
+        errors = []
+        for k in held:
+            pred, target = render(model, cameras[k])[..., 0].numpy(), truth[k][..., 0].numpy()  # [H, W]
+            fitted = fit_with_radial_falloff(pred, target)
+            errors.append(float(((fitted - target.reshape(-1)) ** 2).mean()))
         return float(sum(-10 * math.log10(e) for e in errors) / len(errors))
 
-    return probe_view_term(model.gauss_params["view_sh"], training_loss, score, 60, 2e-2, 0.05, step=0)
+    return judge_view_term(model, score, 0.05, step=steps), model
 
 
 def test_the_view_term_is_kept_where_the_radiance_changes_with_the_view():
-    verdict = probe_on(truth_view=True, frame_noise=0.01)
-    assert verdict.kept and verdict.with_term > verdict.without + 1.0, verdict
+    verdict, model = trial_on(truth_view=True, frame_noise=0.01)
+    assert verdict.kept and verdict.with_term > verdict.without + 0.3, verdict
+    assert model.renders_view_term() and model.gauss_params["view_sh"].abs().max() > 0
 
 
 def test_the_view_term_stays_off_where_the_training_views_differ_by_their_own_noise():
-    verdict = probe_on(truth_view=False, frame_noise=0.05)
+    verdict, model = trial_on(truth_view=False, frame_noise=0.05)
     assert not verdict.kept and verdict.with_term < verdict.without + 0.05, verdict
+    assert not model.renders_view_term() and model.gauss_params["view_sh"].abs().max() == 0
+
+
+def test_the_view_term_stays_off_where_the_camera_vignettes():
+    """Vignetting is in every frame, the held-back ones too; the term must not be credited with it.
+    (On this small scene a gain and offset alone also leave it off; on the generated vignetting scene
+    they did not: docs/results/view_trial_gpu.)"""
+    verdict, _ = trial_on(truth_view=False, frame_noise=0.01, vignetting=0.35)
+    assert not verdict.kept, verdict
+
+
+def test_the_view_term_is_kept_where_the_radiance_changes_with_the_view_and_the_camera_vignettes():
+    verdict, _ = trial_on(truth_view=True, frame_noise=0.01, vignetting=0.35)
+    assert verdict.kept and verdict.with_term > verdict.without + 0.3, verdict
+
+
+def test_a_radial_fall_off_and_a_level_are_fitted_exactly():
+    rng = np.random.default_rng(0)
+    pred = rng.random((32, 48))
+    v, u = np.meshgrid(np.arange(32) + 0.5, np.arange(48) + 0.5, indexing="ij")
+    r2 = ((u - 24) ** 2 + (v - 16) ** 2) / (24**2 + 16**2)
+    target = (1.2 - 0.35 * r2) * pred + 0.1 + 0.05 * r2
+    target[3, 4] = np.nan  # a pixel without a value is left out
+    fitted = fit_with_radial_falloff(pred, target)
+    assert fitted.shape == (32 * 48 - 1,) and np.allclose(fitted, target[np.isfinite(target)], atol=1e-9)
+    a, b = fit_gain_offset(pred[np.isfinite(target)], target[np.isfinite(target)])
+    assert not np.allclose(a * pred[np.isfinite(target)] + b, target[np.isfinite(target)], atol=1e-3)
+
+
+def test_a_term_on_trial_renders_on_odd_training_steps_only():
+    """On trial the Gaussians learn to render both ways: the term in odd training steps' renders,
+    never outside training; `use_view_term(False)` zeroes it, the trial leaves it as trained."""
+    model = scalar_model(16)
+    with torch.no_grad():
+        model.gauss_params["view_sh"].normal_(0, 0.3, generator=torch.Generator().manual_seed(1))
+    camera = arc_cameras(1)[0]
+
+    def train_render(step):
+        model.train()
+        model.step = step
+        with torch.no_grad():
+            return model.get_outputs(camera)["thermal"]
+
+    model.try_view_term()
+    with_term, without = train_render(1), train_render(2)
+    assert not torch.allclose(with_term, without) and torch.equal(train_render(4), without)
+    assert torch.equal(render(model, camera), without)  # outside training: left out
+    assert model.gauss_params["view_sh"].abs().max() > 0
+    model.use_view_term(True)
+    assert torch.equal(train_render(2), with_term)
+    model.use_view_term(False)
+    assert model.gauss_params["view_sh"].abs().max() == 0 and torch.equal(train_render(1), without)
 
 
 def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12):
     """The demo with a degree-2 view term decided by the held-back frames at the first check (step
-    3), whose scores follow `scores` (one per call: without the term, with it, then one per check)."""
+    3), whose scores follow `scores` (one per call: without the term and with it, radial fall-off fitted;
+    then one per check, the first at the verdict)."""
     config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.view_sh_degree = 2
     config.auto_stop.check_every, config.auto_stop.patience = 4, 10
-    config.auto_stop.decide_view_term, config.auto_stop.view_probe_steps = True, 3
+    config.auto_stop.decide_view_term = True
     calls = iter(scores)
-    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", lambda pipeline, images: next(calls))
+    fits = []
+
+    def scored(pipeline, images, radial=False):
+        fits.append(radial)
+        return next(calls)
+
+    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", scored)
     monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))
     seen = []
-    probe = probe_view_term
+    judge = judge_view_term
 
-    def watched(coefficients, *args, **kwargs):
-        seen.append(float(coefficients.abs().max()))  # before the probe: trained with the term held at zero
-        return probe(coefficients, *args, **kwargs)
+    def watched(model, *args, **kwargs):
+        # before the verdict: on trial, the term trained on its steps and left out of the scoring renders
+        seen.append((model._view_term, bool(model.gauss_params["view_sh"].abs().max() > 0)))
+        return judge(model, *args, **kwargs)
 
-    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.probe_view_term", watched)
+    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.judge_view_term", watched)
     trainer = seeded_trainer(config)
     trainer.train()
     run = trainer.config.get_base_dir()
     decisions = json.loads((run / "decisions.json").read_text())
     entry = next(d for d in decisions if d["part"] == "view-dependent emission")
+    assert fits == [True, True, False, False, False]  # the verdict's pair with the fall-off fitted, then plain checks
     return trainer, json.loads((run / "auto_stop.json").read_text())["view_term"], entry, seen
 
 
 def test_a_run_keeps_the_view_term_its_held_back_frames_gain_from(tmp_path, demo_scene_dir, monkeypatch):
-    trainer, verdict, entry, seen = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 20.5, 21.0, 22.0])
-    assert seen == [0.0] and verdict["step"] == 3 and verdict["kept"]
+    trainer, verdict, entry, seen = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 20.5, 20.4, 21.0, 22.0])
+    assert seen == [("trial", True)] and verdict["step"] == 3 and verdict["kept"]
     assert entry["choice"] == "on" and entry["decided_by"] == "data" and "20.00 -> 20.50" in entry["why"]
-    assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() > 0  # fitted, then trained
+    assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() > 0  # trained on trial, then every step
+    assert trainer.pipeline.model.renders_view_term()
 
 
 def test_a_run_drops_the_view_term_its_held_back_frames_do_not_gain_from(tmp_path, demo_scene_dir, monkeypatch):
-    trainer, verdict, entry, seen = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 20.01, 21.0, 22.0])
-    assert seen == [0.0] and verdict["step"] == 3 and not verdict["kept"]
+    trainer, verdict, entry, seen = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 20.01, 20.4, 21.0, 22.0])
+    assert seen == [("trial", True)] and verdict["step"] == 3 and not verdict["kept"]
     assert entry["choice"] == "off" and entry["decided_by"] == "data"
     assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() == 0  # zero after 8 more steps
-    # a resumed run keeps the decision: its further steps leave the term at zero, no new probe
+    # a resumed run keeps the decision: its further steps leave the term at zero, no new trial
     config = trainer.config
     config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 16
     calls = iter([23.0])
@@ -134,8 +219,8 @@ def test_a_run_drops_the_view_term_its_held_back_frames_do_not_gain_from(tmp_pat
 
 
 def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_path, demo_scene_dir):
-    """No scored check (the schedule's start-up lasts past the run): the term stayed zero all along,
-    and the run's decisions say it is off and why."""
+    """No scored check (the schedule's start-up lasts past the run): the term, on trial all along, is
+    zeroed at the end (the checkpoint renders as reported), and the run's decisions say it is off and why."""
     config = demo_trainer_config(tmp_path, steps=8, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.view_sh_degree = 2
@@ -146,4 +231,5 @@ def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_p
     decisions = json.loads((trainer.config.get_base_dir() / "decisions.json").read_text())
     entry = next(d for d in decisions if d["part"] == "view-dependent emission")
     assert entry["choice"] == "off" and "ended at step 7" in entry["why"]
-    assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() == 0
+    assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() == 0  # trained on trial, zeroed at the end
+    assert not trainer.pipeline.model.renders_view_term()

@@ -207,7 +207,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.frame_states = FrameStates(self.frame_embed, indices if indices is not None else range(num_frames))
         self._last_training_loss: Tuple[Optional[Tensor], Optional[int]] = (None, None)  # `last_training_loss`
         self._discard_statistics = False  # `discard_step_statistics`
-        self._view_term_on = "view_sh" in self.gauss_params  # `use_view_term`
+        self._view_term = "on" if "view_sh" in self.gauss_params else "off"  # `use_view_term`, `try_view_term`
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
             EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
@@ -422,7 +422,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 colors = self.emission_in_view(frame_embed, view.viewmat[0], view.K[0], W, H, camera_position)
             else:
                 colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
-                if self._view_term_on:  # the view-dependent term (`view_emission.py`)
+                if self.renders_view_term():  # the view-dependent term (`view_emission.py`)
                     colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
             colors = self.radiance(colors)
         with record_function("thermal/rasterize"):
@@ -513,7 +513,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         see (`in_view`), zero for the others (which it does not draw)."""
         seen = in_view(self.means, self.scales, viewmat, K, width, height).nonzero().squeeze(-1)  # [M]
         values = self.gaussian_emission(frame_embed, seen)  # [M, 1]
-        if self._view_term_on:
+        if self.renders_view_term():
             values = values + view_term(self.means[seen], self.gauss_params["view_sh"][seen], camera_position)
         return values.new_zeros(self.num_points, 1).index_copy(0, seen, values)
 
@@ -619,14 +619,28 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def use_view_term(self, on: bool) -> None:
         """Whether the view term takes part in renders from now on. Off: its coefficients are zeroed
-        and get no gradient, so the model renders as one built without it (the automatic stop holds
-        it off until the held-back frames decide: `training/view_probe.py`)."""
+        and get no gradient, so the model renders as one built without it."""
         if not self.has_view_term():
             raise ValueError("this model has no view term (view_sh_degree 0)")
         if not on:
             with torch.no_grad():
                 self.gauss_params["view_sh"].zero_()
-        self._view_term_on = on
+        self._view_term = "on" if on else "off"
+
+    def try_view_term(self) -> None:
+        """Put the view term on trial until `use_view_term` decides (the automatic stop's rule:
+        `training/view_probe.py`): training renders alternate between with the term (odd steps) and
+        without it (even steps), so the Gaussians learn to render both ways; every render outside
+        training leaves it out."""
+        if not self.has_view_term():
+            raise ValueError("this model has no view term (view_sh_degree 0)")
+        self._view_term = "trial"
+
+    def renders_view_term(self) -> bool:
+        """Whether a render now adds the view term (`use_view_term`, `try_view_term`)."""
+        if self._view_term == "trial":
+            return self.training and self.step % 2 == 1
+        return self._view_term == "on"
 
     def gaussian_budget(self) -> Tuple[int, int]:
         """(Gaussians now, `max_gaussians` as densification applies it) on this GPU."""

@@ -70,6 +70,21 @@ def fit_gain_offset(pred: np.ndarray, target: np.ndarray) -> Tuple[float, float]
     return a, float(t.mean() - a * p.mean())
 
 
+def fit_with_radial_falloff(pred: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """`pred` [H, W] after the least-squares fit to `target` [H, W] (its finite pixels) of a gain, an
+    offset and a radial field in r^2 from the image centre, multiplied and added (a + c r^2) pred +
+    b + d r^2: what a camera's own fall-off (vignetting) and a frame's level can explain, credited to
+    neither render. The fitted values of `target`'s finite pixels [M]."""
+    height, width = pred.shape
+    v, u = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+    r2 = ((u - width / 2) ** 2 + (v - height / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)  # [H, W], 1 at corners
+    finite = np.isfinite(target)
+    p, t, r = (np.asarray(x, dtype=np.float64)[finite] for x in (pred, target, r2))  # [M] each
+    basis = np.stack([p, np.ones_like(p), r * p, r], axis=1)  # [M, 4]
+    coefficients, *_ = np.linalg.lstsq(basis, t, rcond=None)
+    return basis @ coefficients
+
+
 def scores(pred: np.ndarray, gt: np.ndarray, to_celsius: Optional[Callable] = None) -> Dict[str, float]:
     """PSNR and SSIM of two [H, W] images of the dataset-normalised space (data range 1); with
     `to_celsius` (the dataset's calibration), the error in °C too: mean absolute, root mean square

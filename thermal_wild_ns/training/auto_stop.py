@@ -31,7 +31,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.image_metrics import psnr
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
-from thermal_wild_ns.pipeline.evaluation import fit_gain_offset
+from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
     check_same_geometry,
@@ -42,7 +42,7 @@ from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
 from thermal_wild_ns.training.checkpoints import restore, snapshot
 from thermal_wild_ns.training.model_interface import GuardedModel
-from thermal_wild_ns.training.view_probe import ViewTermVerdict, probe_view_term
+from thermal_wild_ns.training.view_probe import ViewTermVerdict, judge_view_term
 
 
 @dataclass
@@ -68,16 +68,12 @@ class AutoStopConfig:
     """The most Gaussians `grow_budget` may reach (over every GPU)."""
     decide_view_term: bool = False
     """With a view term in the model (`--pipeline.model.view-sh-degree` 1 or 2): let the held-back frames
-    decide whether it stays. It is held at zero until the first scored check, then fitted alone to the
-    training frames (`view_probe_steps` steps, everything else frozen) and kept where the held-back
-    score rises by `min_improvement` (`view_probe.py`); one GPU only. Off: the term trains from the start.
-    A first design: it has not yet found the gain on a scene made to need the term (docs/results/view_probe_cpu)."""
-    view_probe_steps: int = 200
-    """Training frames the view term is fitted to, one per step, when the held-back frames decide it."""
-    view_probe_lr: Optional[float] = None
-    """Adam's rate for that fit; None: the term's own rate in training (its optimizer's). A faster fit
-    lowered the held-back frames more where it was tried (docs/results/view_probe_cpu); Adam moves
-    every coefficient by about its rate per step however weak its gradient."""
+    decide whether it stays. Until the first scored check, training renders alternate with and without
+    the term; there the held-back frames are scored both ways (a radial fall-off fitted to each, so
+    that mimicking the camera's vignetting earns nothing), and the term stays where it scores higher
+    by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
+    trains from the start. Off by default: right on a scene made to need the term and on DUNR, it
+    still keeps the term on the generated vignetting scene (docs/results/view_trial_gpu)."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
@@ -146,10 +142,11 @@ def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
 
 
-def held_back_score(pipeline, images: Sequence[int]) -> float:
+def held_back_score(pipeline, images: Sequence[int], radial: bool = False) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
-    around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame."""
+    around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame
+    (`radial`: and a radial fall-off, `fit_with_radial_falloff`)."""
 
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
@@ -167,8 +164,12 @@ def held_back_score(pipeline, images: Sequence[int]) -> float:
         truth = datamanager.held_back_truth(image)  # [H, W]
         check_same_geometry(pred, truth, f"held-back frame {t}")
         finite = np.isfinite(truth)
-        a, b = fit_gain_offset(pred[finite], truth[finite])
-        values.append(float(psnr(torch.from_numpy(a * pred[finite] + b), torch.from_numpy(truth[finite]))))
+        if radial:
+            fitted = fit_with_radial_falloff(pred, truth)  # [M]
+        else:
+            a, b = fit_gain_offset(pred[finite], truth[finite])
+            fitted = a * pred[finite] + b
+        values.append(float(psnr(torch.from_numpy(fitted), torch.from_numpy(truth[finite]))))
     return float(np.mean(values))
 
 
@@ -222,8 +223,11 @@ class AutoStopRun:
         run = cls(config, pipeline, optimizers, run_dir, steps_asked)
         CONSOLE.log(f"automatic stop: capture frames {run.held_back_frames} are held back from training to score it")
         if run.decides_view_term:
-            pipeline.model.use_view_term(False)
-            CONSOLE.log("view term: held at zero until the held-back frames decide it (the first scored check)")
+            pipeline.model.try_view_term()
+            CONSOLE.log(
+                "view term: on trial (every other training step) until the held-back frames decide it "
+                "at the first scored check"
+            )
         elif config.decide_view_term:
             CONSOLE.log(
                 "[yellow]--auto-stop.decide-view-term: nothing to decide (the model has no view term: "
@@ -306,29 +310,17 @@ class AutoStopRun:
         return stops
 
     def _decide_view_term(self, step: int) -> float:
-        """The held-back frames' verdict on the view term (`probe_view_term`), applied to the model;
-        the held-back score of the model it leaves."""
-        pipeline, model, config = self.pipeline, self.pipeline.model, self.config
-
-        def training_loss():
-            _, losses, _ = pipeline.get_train_loss_dict(step=step)
-            return sum(losses.values())
-
-        model.use_view_term(True)
-        verdict = probe_view_term(
-            model.gauss_params["view_sh"],
-            training_loss,
-            lambda: held_back_score(pipeline, pipeline.datamanager.held_back),
-            config.view_probe_steps,
-            config.view_probe_lr or self.optimizers.config["view_sh"]["optimizer"].lr,
-            config.min_improvement,
-            step,
+        """The held-back frames' verdict on the view term on trial (`judge_view_term`), applied to the
+        model; the held-back score (`held_back_score`) of the model it leaves."""
+        pipeline, held_back = self.pipeline, self.pipeline.datamanager.held_back
+        # scored with a radial fall-off fitted to each frame: a term that only mimics the camera's
+        # vignetting (the same in every frame, so in the held-back ones too) gains nothing there
+        verdict = judge_view_term(
+            pipeline.model, lambda: held_back_score(pipeline, held_back, radial=True), self.config.min_improvement, step
         )
-        if not verdict.kept:
-            model.use_view_term(False)
         self.view_verdict = verdict
         CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")
-        return verdict.with_term if verdict.kept else verdict.without
+        return held_back_score(pipeline, held_back)  # the plain score, as every check's
 
     def _grow_budget(self, step: int, improved: bool) -> None:
         """Apply `HeldBackBudget` to this check (each rank to its share of the Gaussians)."""
@@ -356,6 +348,8 @@ class AutoStopRun:
         """Before the final checkpoint of a run whose last trained step is `step`: keep the best
         model where it beat the last by `min_improvement`, and write the record."""
         self.last_step = step
+        if self.decides_view_term and self.view_verdict is None:  # no scored check: the term is off, as reported
+            self.pipeline.model.use_view_term(False)
         history = self.progress.history
         checked = bool(history) and history[-1][0] == step
         final = (

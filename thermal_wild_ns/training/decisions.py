@@ -59,10 +59,10 @@ def view_term_decision(auto_stop, last_step: Optional[int] = None) -> Decision:
     on or off; off where the run ended (`last_step`) before a scored check."""
     verdict = auto_stop.view_verdict
     if verdict is None and last_step is not None:
-        why = f"the run ended at step {last_step:,}, before the held-back frames' first scored check: it stayed zero"
+        why = f"the run ended at step {last_step:,}, before the held-back frames' first scored check: zeroed"
         return Decision("view-dependent emission", "off", why, "data")
     if verdict is None:
-        why = "held at zero until the held-back frames decide at the first scored check (--auto-stop.decide-view-term)"
+        why = "on trial (every other training step) until the held-back frames decide at the first scored check"
         return Decision("view-dependent emission", "to be decided", why, "data")
     return Decision("view-dependent emission", "on" if verdict.kept else "off", verdict.why(), "data")
 

@@ -60,3 +60,7 @@ class GuardedModel(Protocol):
     def use_view_term(self, on: bool) -> None:
         """Whether the view term takes part in renders from now on (off: zeroed, no gradient)."""
         ...
+
+    def try_view_term(self) -> None:
+        """Put the view term on trial: in every other training render, in no render outside training."""
+        ...
