@@ -12,6 +12,7 @@ from thermal_wild_ns.preprocessing.photometric import (
     LevelGrid,
     PhotometricConfig,
     apply_lut,
+    blend_luts,
     frame_luts,
     invert_lut,
 )
@@ -345,9 +346,8 @@ def test_interpolated_luts_are_strictly_increasing_and_exact_at_training_frames(
     for t in held_out[1:]:  # frame 0 lies before every training frame
         lut = sequence.lut_at(t)
         assert np.all(np.diff(lut) > 0)
-        np.testing.assert_allclose(
-            lut, 0.5 * (sequence.lut(t - 1) + sequence.lut(t + 1))
-        )  # every 8th is held out: midway
+        # every 8th is held out: midway between its neighbours' maps, their inverses averaged
+        np.testing.assert_allclose(lut, blend_luts(sequence.lut(t - 1), sequence.lut(t + 1), 0.5))
         for fraction in (0.25, 0.9):
             assert np.all(np.diff(sequence.lut_at(t - 1 + fraction)) > 0)
         with pytest.raises(KeyError, match="held out"):  # its own LUT is the oracle's, never a state
@@ -429,3 +429,30 @@ def test_the_preprocessing_rule_report_names_each_scenes_measurements_and_decisi
     table = (tmp_path / "rule.md").read_text()
     cells = f"{row['raw_spread']:.4f} -> {row['processed_spread']:.4f} | {row['contrast_spread']:.3f}"
     assert f"| demo | {cells} | no |" in table
+
+
+def test_a_blend_of_two_drifted_frames_luts_is_the_in_between_frames_lut():
+    """Frame b is frame a drifted by 100 levels (b(x) = a(x - 100)); a weight w of the way between
+    them is the frame drifted by 100 w: the inverses blend, the outputs level by level would not
+    (a's curvature makes their average another map)."""
+    levels = np.arange(1000, dtype=np.float64)
+
+    def frame_lut(x):
+        return x + 50.0 * np.sin(x / 100.0)  # strictly increasing, curved
+
+    a, b = frame_lut(levels), frame_lut(levels - 100.0)
+    blended = blend_luts(a, b, 0.3)
+    inside = slice(150, 850)  # where both frames' inverses are defined
+    assert np.allclose(blended[inside], frame_lut(levels - 30.0)[inside], atol=1e-6)
+    assert not np.allclose((0.7 * a + 0.3 * b)[inside], frame_lut(levels - 30.0)[inside], atol=1.0)
+
+
+def test_a_blend_of_increasing_luts_is_increasing_and_exact_at_its_ends():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        a, b = (np.cumsum(rng.random(256) + 1e-3) * rng.uniform(0.5, 2) + rng.uniform(-50, 50) for _ in range(2))
+        for w in (0.1, 0.5, 0.9):
+            assert np.all(np.diff(blend_luts(a, b, w)) > 0)
+        assert blend_luts(a, b, 0.0) is a and blend_luts(a, b, 1.0) is b
+    with pytest.raises(ValueError, match="blend weight"):
+        blend_luts(a, b, 1.5)

@@ -3,8 +3,8 @@
 A thermal frame's photometric condition (drift, flat-field jumps, gain) is modelled twice: by
 its frame embedding (the emission and background MLPs) and, for preprocessed methods, by the LUT
 that took its raw levels to the training space. state(t) = (embedding, LUT) at any capture
-position t: a training frame's own at its index, linear between the neighbouring training frames
-in between (level by level for the LUT, which keeps it strictly increasing). No held-out pixel
+position t: a training frame's own at its index, between the neighbouring training frames in
+between (the embedding linearly, the LUT through its inverse: `blend_luts`). No held-out pixel
 enters a state: a held-out frame's state is predicted from its neighbours.
 
 States by name (`--photometric-state` of `wild-thermal-render`; `parse_state`):

@@ -244,10 +244,20 @@ def time_weights(times: Sequence[float], t: float) -> Tuple[int, int, float]:
 
 
 def blend_luts(lut_a: np.ndarray, lut_b: np.ndarray, weight: float) -> np.ndarray:
-    """Level-by-level blend (1 - w) a + w b of two LUTs: strictly increasing when both are (a convex
-    combination of increasing functions), so the blend has an exact inverse too."""
-    if weight == 0.0:
-        return lut_a
+    """The LUT a weight `weight` of the way from frame a's LUT to frame b's [levels]: the one whose
+    inverse is (1 - w) a^-1 + w b^-1, so a processed value maps back to the blend of the original
+    levels the two frames gave it. For frames that differ by a drifting offset or gain this is the
+    in-between frame's LUT (a blend of the maps' outputs, level by level, is not; it predicted a
+    held-out frame's own LUT worse on a real flight: docs/results/lut_prediction). Exact: both
+    inverses are piecewise linear between the two LUTs' values, where they are blended. Strictly
+    increasing when both are; a itself at w = 0, b at w = 1."""
     if not 0.0 <= weight <= 1.0:
         raise ValueError(f"blend weight must be in [0, 1], got {weight}")
-    return (1.0 - weight) * lut_a + weight * lut_b
+    if weight == 0.0:
+        return lut_a
+    if weight == 1.0:
+        return lut_b
+    levels = np.arange(len(lut_a), dtype=np.float64)  # [L]
+    outputs = np.union1d(lut_a, lut_b)  # [<= 2L] every corner of either inverse
+    inverse = (1.0 - weight) * np.interp(outputs, lut_a, levels) + weight * np.interp(outputs, lut_b, levels)
+    return np.interp(levels, inverse, outputs)

@@ -197,8 +197,8 @@ class PreprocessedSequence:
         return np.asarray(self.luts[index])
 
     def lut_at(self, t: float, without: Sequence[int] = ()) -> np.ndarray:
-        """The LUT at capture position `t`: level by level between the neighbouring training
-        frames' LUTs (exactly a training frame's own at its index), strictly increasing.
+        """The LUT at capture position `t`: between the neighbouring training frames' LUTs, through
+        their inverses (`blend_luts`; exactly a training frame's own at its index), strictly increasing.
         `without`: training frames (capture indices) not to interpolate from (held back from
         training: their own LUT is made from their pixels)."""
         left_out = set(without)

@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# The GPU runs of 2026-11-27 (issue 33: how a held-out frame's LUT is predicted), one plan per device call
+# on one warm machine, from the repository root:
+#     bash experiments/gpu_2026-11-27.sh install                 # .devicebundle carried
+#     bash experiments/gpu_2026-11-27.sh lut-blend-flight2       # .data/flight2 .data/cache .baseline carried
+#     bash experiments/gpu_2026-11-27.sh lut-blend-dunr          # .data/dunr .data/cache .baseline carried
+# `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
+# | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
+# 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
+# `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
+# Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
+set -uo pipefail
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
+
+case "$plan" in
+  install)
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    tail -2 "$OUT/bundle_setup.log"
+    ;;
+  lut-blend-flight2|lut-blend-dunr)
+    scene=${plan#lut-blend-}
+    PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench --output-dir "/tmp/$scene" \
+      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+      --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000 \
+      > "$OUT/$scene-bench.log" 2>&1 || tail -5 "$OUT/$scene-bench.log"
+    cp "/tmp/$scene/bench.json" "$OUT/$scene-bench.json"; cp "/tmp/$scene/bench.md" "$OUT/$scene-bench.md"
+    for config in $(python3 -c "import json; [print(r['config']) for r in json.load(open('/tmp/$scene/bench.json'))['runs']]"); do
+      for code in after before; do
+        tree=$PWD; [ "$code" = before ] && tree=$PWD/.baseline
+        scores=$(cd "$tree" && PYTHONPATH=$tree:/tmp/site timeout 100 python3 -m experiments.score_checkpoint "$config" \
+          --protocols time 2>/dev/null | tail -1)
+        echo "{\"code\": \"$code\", \"config\": \"$config\", \"scores\": ${scores:-null}}" | tee -a "$OUT/$scene-time.jsonl"
+      done
+    done
+    ;;
+  *) echo "unknown plan $plan" >&2; exit 2 ;;
+esac
