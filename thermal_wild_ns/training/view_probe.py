@@ -15,7 +15,9 @@ the training views by something else than the view (each frame's own noise) does
 them. A camera's vignetting does carry over (every frame has it), and the term can mimic it (it
 did on the generated vignetting scene, where the held-back frames rose with it: docs/results/view_trial_gpu);
 so both scores are taken after fitting each held-back frame a radial fall-off as well as its gain and
-offset: the term is credited only with what the camera's own fall-off cannot explain.
+offset: the term is credited only with what the camera's own fall-off cannot explain. That shrank
+the vignetting scene's gain but did not remove it (the rule still keeps the term there), so the rule
+is off by default.
 """
 
 from __future__ import annotations
