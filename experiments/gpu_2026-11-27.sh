@@ -16,9 +16,8 @@ mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
 
 case "$plan" in
-  install)
-    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
-    tail -2 "$OUT/bundle_setup.log"
+  install)  # the bundle, as every device script installs it
+    bash experiments/gpu_2026-11-26.sh install
     ;;
   lut-blend-flight2|lut-blend-dunr)
     scene=${plan#lut-blend-}
