@@ -4,13 +4,15 @@
 #     bash experiments/gpu_2026-11-27.sh install                 # .devicebundle carried
 #     bash experiments/gpu_2026-11-27.sh lut-blend-flight2       # .data/flight2 .data/cache .baseline carried
 #     bash experiments/gpu_2026-11-27.sh lut-blend-dunr          # .data/dunr .data/cache .baseline carried
+#     bash experiments/gpu_2026-11-27.sh schedule-dunr           # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh step-guard-dunr         # the same
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -32,6 +34,25 @@ case "$plan" in
         scores=$(cd "$tree" && PYTHONPATH=$tree:/tmp/site timeout 100 python3 -m experiments.score_checkpoint "$config" \
           --protocols time 2>/dev/null | tail -1)
         echo "{\"code\": \"$code\", \"config\": \"$config\", \"scores\": ${scores:-null}}" | tee -a "$OUT/$scene-time.jsonl"
+      done
+    done
+    ;;
+  schedule-dunr)  # issue 34: where a default DUNR run's seconds go (experiments.schedule_profile), seeds 0-2 one after another
+    for seed in 0 1 2; do
+      PYTHONPATH=$PWD:/tmp/site timeout 180 python3 -m experiments.schedule_profile --scene "$PWD/.data/dunr" \
+        --cache-dir "$PWD/.data/cache" --seed $seed --output-dir "/tmp/schedule/seed$seed" > "$OUT/schedule-seed$seed.log" 2>&1
+      cp "/tmp/schedule/seed$seed/schedule.json" "$OUT/schedule-seed$seed.json"
+      sed -n '/^# /,$p' "$OUT/schedule-seed$seed.log" | head -12
+    done
+    ;;
+  step-guard-dunr)  # issue 34: the first 3,000 steps with and without the divergence guard (its host sync per step)
+    for seed in 0 1 2; do
+      for guard in True False; do
+        PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.schedule_profile --scene "$PWD/.data/dunr" \
+          --cache-dir "$PWD/.data/cache" --seed $seed --steps 3000 --set guard.enabled=$guard \
+          --output-dir "/tmp/guard/$guard-seed$seed" > "$OUT/guard-$guard-seed$seed.log" 2>&1
+        cp "/tmp/guard/$guard-seed$seed/schedule.json" "$OUT/guard-$guard-seed$seed.json"
+        grep "ms/step" "$OUT/guard-$guard-seed$seed.log"
       done
     done
     ;;
