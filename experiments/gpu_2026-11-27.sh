@@ -6,13 +6,15 @@
 #     bash experiments/gpu_2026-11-27.sh lut-blend-dunr          # .data/dunr .data/cache .baseline carried
 #     bash experiments/gpu_2026-11-27.sh schedule-dunr           # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh step-guard-dunr         # the same
+#     bash experiments/gpu_2026-11-27.sh falloff-flight2         # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh falloff-dunr            # .data/dunr .data/cache carried
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -54,6 +56,21 @@ case "$plan" in
         cp "/tmp/guard/$guard-seed$seed/schedule.json" "$OUT/guard-$guard-seed$seed.json"
         grep "ms/step" "$OUT/guard-$guard-seed$seed.log"
       done
+    done
+    ;;
+  falloff-flight2|falloff-dunr)  # issue 33: the camera's fall-off fitted (camera_falloff) or not, 3 seeds each,
+    # both benches at once on the GPU (6 runs side by side: their timings are shared, their scores are not)
+    scene=${plan#falloff-}
+    for falloff in False True; do
+      PYTHONPATH=$PWD:/tmp/site timeout 520 python3 -m experiments.bench --output-dir "/tmp/falloff-$falloff" \
+        --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
+        --set pipeline.model.camera_falloff=$falloff > "$OUT/$scene-falloff-$falloff.log" 2>&1 &
+    done
+    wait
+    for falloff in False True; do
+      cp "/tmp/falloff-$falloff/bench.json" "$OUT/$scene-falloff-$falloff.json"
+      grep -A3 "^PSNR / SSIM, \`\(novel\|time\|aligned\)\`" "/tmp/falloff-$falloff/bench.md" | grep wild
     done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;

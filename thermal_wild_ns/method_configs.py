@@ -45,6 +45,8 @@ def wild_thermal_optimizers() -> dict:
         "frame_embed": _adam(5e-3, _APPEARANCE_WEIGHT_DECAY),
         "emission_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
         "background_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
+        # four coefficients shared by every frame (`camera_falloff`): the MLPs' rate, no decay towards no fall-off
+        "camera_falloff": _adam(1e-3),
         "camera_opt": _adam(1e-4),
     }
 

@@ -29,6 +29,7 @@ from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
 from thermal_wild_ns.model.background import ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
+from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, describe_falloff, off_axis_squared
 from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews
 from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
@@ -115,6 +116,13 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     drone survey, cost a scene with vignetting: docs/results/view_term_gpu). On that survey it is what
     keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
     `--auto-stop.decide-view-term` lets each capture's held-back frames decide whether it stays."""
+    camera_falloff: bool = False
+    """Fit the camera's own radial fall-off (a gain and an offset growing towards the image corners,
+    the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image
+    compared with a recorded frame (training, the held-back scores, the evaluation protocols) and left
+    out of the scene's renders (viewer, `ns-render`, exports), so vignetting is neither baked into the
+    Gaussians nor shown to the user. Off by default: one real capture gained, another did not
+    (docs/results/camera_falloff)."""
     nonnegative_emission: bool = False
     """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
     spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
@@ -223,6 +231,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
         )
         self.background_field = ThermalBackground(self.background_mlp, cfg)
+        # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.apply_falloff`); zero: no fall-off
+        self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -264,6 +274,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             groups["emission_mlp"] = list(self.emission_mlp.parameters())
         if self.background_mlp is not None:
             groups["background_mlp"] = list(self.background_mlp.parameters())
+        if self.camera_falloff is not None:
+            groups["camera_falloff"] = [self.camera_falloff]
         self.camera_optimizer.get_param_groups(param_groups=groups)
         return groups
 
@@ -463,7 +475,19 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if viewing:
             return self.viewing_outputs(render, alpha, background)
         thermal, alpha, depth = composite(render, alpha, background)
+        if self.training and self.camera_falloff is not None:  # compared with a recorded frame
+            thermal = apply_falloff(thermal, self.camera_falloff, off_axis_squared(view.K[0], W, H))
         return self._outputs(thermal, alpha, background, depth)
+
+    def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
+        """A render `thermal` [H, W, 1] of `camera` (outside training: the scene) as the camera records
+        it, with its fitted fall-off (`camera_falloff`); unchanged without one. For every image compared
+        with a recorded frame (`pipeline.photometric_state.render`)."""
+        if self.camera_falloff is None:
+            return thermal
+        K = camera.get_intrinsics_matrices()[0].to(thermal.device)  # [3, 3], the camera's full resolution
+        height, width = thermal.shape[:2]
+        return apply_falloff(thermal, self.camera_falloff.detach(), off_axis_squared(K, width, height))
 
     def activated_splats(self, ids: Optional[Tensor] = None) -> Tuple[Tensor, Tensor]:
         """gsplat's scales [N, 3] and opacities [N] of every (or the selected) Gaussian (outside training
@@ -611,6 +635,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("view-dependent emission", cfg.view_sh_degree > 0, f"view_sh_degree {cfg.view_sh_degree}"),
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
+        falloff = "off" if self.camera_falloff is None else f"on: {describe_falloff(self.camera_falloff)}"
+        entries.append(Decision("camera fall-off", falloff, "camera_falloff", "config"))
         return entries
 
     def has_view_term(self) -> bool:
@@ -665,8 +691,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
-        has_mlps = (self.emission_mlp is not None, self.background_mlp is not None)
-        refuse_mismatched_checkpoint(state_dict, *has_mlps, tuple(self.frame_embed.weight.shape))
+        has_parts = (self.emission_mlp is not None, self.background_mlp is not None, self.camera_falloff is not None)
+        refuse_mismatched_checkpoint(state_dict, *has_parts, tuple(self.frame_embed.weight.shape))
         return super().load_state_dict(state_dict, strict=strict, **kwargs)
 
     # densification statistics and torch's RNG (gsplat's splits draw from it) are saved: a resume continues the run

@@ -44,6 +44,7 @@ from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.image_metrics import psnr, ssim
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
+    as_recorded,
     canonical_state,
     check_same_geometry,
     preprocessed_sequence,
@@ -121,7 +122,8 @@ def fit_embedding(
         with torch.enable_grad():
             for _ in range(steps):
                 optimizer.zero_grad()
-                pred = thermal_output(model.get_outputs(camera, frame_embedding=embedding))[..., 0]
+                rendered = thermal_output(model.get_outputs(camera, frame_embedding=embedding))  # [H, W, 1]
+                pred = as_recorded(model, rendered, camera)[..., 0]  # compared with the recorded frame
                 loss = (pred[:, columns] - target[:, columns]).abs().mean()
                 loss.backward()
                 optimizer.step()

@@ -144,6 +144,12 @@ def thermal_output(outputs: dict) -> Tensor:
     return outputs["thermal"] if "thermal" in outputs else outputs["rgb"].mean(dim=-1, keepdim=True)
 
 
+def as_recorded(model, thermal: Tensor, camera) -> Tensor:
+    """A render `thermal` [H, W, 1] of `camera` through the camera's own fall-off where the model fits
+    one (`WildThermalModel.as_recorded`): what is compared with a recorded frame. Unchanged otherwise."""
+    return model.as_recorded(thermal, camera) if hasattr(model, "as_recorded") else thermal
+
+
 def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.ndarray]:
     """One view at `state`: ([H, W] training space, [H, W] original space), float32 numpy.
 
@@ -153,22 +159,26 @@ def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.nd
     the warm-up's coarser training resolution), over the baked background, with no densification
     statistics. The model's training mode and its record of the last training render (`info`,
     `last_size`, which the densification after a training step reads) are left as they were."""
-    layers = render_layers(pipeline, camera, state)
+    layers = render_layers(pipeline, camera, state, recorded=True)
     return layers["training"], layers["original"]
 
 
-def render_layers(pipeline, camera, state: PhotometricState) -> Dict[str, np.ndarray]:
+def render_layers(pipeline, camera, state: PhotometricState, recorded: bool = False) -> Dict[str, np.ndarray]:
     """`render` ('training', 'original'), with the Gaussians' 'coverage' of each pixel ([H, W]
     accumulated opacity, 0..1; ones for a model without it: where it is low the pixel is the
     background model, not the scene) and their 'depth' ([H, W] along the camera's axis, the
-    model's units; NaN for a model without it)."""
+    model's units; NaN for a model without it). `recorded`: through the camera's own fall-off
+    (`as_recorded`), for a comparison with a recorded frame; else the scene (the exports)."""
     model = pipeline.model
     was_training = model.training
     model.eval()
     try:
         with torch.no_grad(), training_state_kept(model):
             outputs = outputs_at(model, camera, state)
-            rendered = thermal_output(outputs)[..., 0].float().cpu().numpy()  # [H, W]
+            thermal = thermal_output(outputs)  # [H, W, 1]
+            if recorded:
+                thermal = as_recorded(model, thermal, camera)
+            rendered = thermal[..., 0].float().cpu().numpy()  # [H, W]
             alpha, depth = outputs.get("accumulation"), outputs.get("depth")
             coverage = np.ones_like(rendered) if alpha is None else alpha[..., 0].float().cpu().numpy()
             depth = np.full_like(rendered, np.nan) if depth is None else depth[..., 0].float().cpu().numpy()

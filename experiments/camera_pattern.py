@@ -1,0 +1,103 @@
+"""`python -m experiments.camera_pattern`: the pattern a capture's camera adds to every frame, without
+a model: each frame standardised (its own mean and standard deviation), then averaged over the
+capture, whose moving content averages out while what is fixed to the sensor stays. Reported as the
+mean standardised value in rings of the normalised radius (0 at the centre, 1 at the middle of the
+long edge), over the whole capture and over its two halves apart (a pattern of the camera is the same
+in both; one of the scene is not). Writes `camera_pattern.json` and `camera_pattern.md`.
+
+    python -m experiments.camera_pattern --scenes ../shared/data/flight2/rjpeg ../shared/data/dunr/images \
+        --output-dir docs/results/camera_falloff
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Tuple
+
+import numpy as np
+import tyro
+
+from experiments import write_report
+from thermal_wild_ns.data.thermal_io import read_raw_frame
+
+RINGS = 8
+FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".npy")
+
+
+@dataclass
+class PatternArgs:
+    scenes: Tuple[Path, ...] = ()
+    """Folders of frames (radiometric JPEGs, 16-bit PNG/TIFF, .npy), read in name order."""
+    output_dir: Path = Path("outputs/camera_pattern")
+
+
+def ring_means(frames: np.ndarray, rings: int = RINGS) -> Tuple[List[float], np.ndarray]:
+    """The mean over `frames` [F, H, W] of each standardised frame, per ring of the normalised radius
+    (rings of equal width out to the corners) [rings], with the rings' outer radii [rings]."""
+    mean = frames.mean(axis=(1, 2), keepdims=True)
+    std = frames.std(axis=(1, 2), keepdims=True)
+    average = ((frames - mean) / np.maximum(std, 1e-12)).mean(axis=0)  # [H, W]
+    height, width = average.shape
+    v, u = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+    radius = np.hypot(u - width / 2, v - height / 2) / (max(width, height) / 2)  # [H, W]
+    edges = np.linspace(0.0, radius.max() + 1e-9, rings + 1)
+    values = [float(average[(radius >= a) & (radius < b)].mean()) for a, b in zip(edges[:-1], edges[1:])]
+    return values, edges[1:]
+
+
+def pattern(folder: Path) -> Dict:
+    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES)
+    if not paths:
+        raise SystemExit(f"{folder}: no frames ({', '.join(FRAME_SUFFIXES)})")
+    frames = np.stack([read_raw_frame(p).astype(np.float64) for p in paths])  # [F, H, W]
+    half = len(paths) // 2
+    whole, edges = ring_means(frames)
+    first, _ = ring_means(frames[:half])
+    second, _ = ring_means(frames[half:])
+    return {
+        "scene": str(folder),
+        "frames": len(paths),
+        "ring_outer_radius": [round(float(e), 3) for e in edges],
+        "whole": whole,
+        "first_half": first,
+        "second_half": second,
+        # centre ring minus the outermost (corner) ring, in frame standard deviations
+        "centre_minus_corner": {
+            k: round(v[0] - v[-1], 3) for k, v in (("whole", whole), ("first_half", first), ("second_half", second))
+        },
+    }
+
+
+def markdown(results: List[Dict]) -> str:
+    lines = ["# Each capture's fixed pattern: mean standardised frame per ring of the radius", ""]
+    for r in results:
+        lines += [
+            f"## {r['scene']} ({r['frames']} frames)",
+            "",
+            "| ring (outer radius) | " + " | ".join(f"{e:.2f}" for e in r["ring_outer_radius"]) + " |",
+            "| --- " * (len(r["ring_outer_radius"]) + 1) + "|",
+        ]
+        for key in ("whole", "first_half", "second_half"):
+            lines.append(f"| {key.replace('_', ' ')} | " + " | ".join(f"{v:+.3f}" for v in r[key]) + " |")
+        c = r["centre_minus_corner"]
+        lines += [
+            "",
+            f"Centre minus corner: {c['whole']:+.2f} frame standard deviations (halves {c['first_half']:+.2f}, "
+            f"{c['second_half']:+.2f}).",
+            "",
+        ]
+    return "\n".join(lines)
+
+
+def main(args: PatternArgs) -> List[Dict]:
+    results = [pattern(Path(s)) for s in args.scenes]
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    (args.output_dir / "camera_pattern.json").write_text(json.dumps(results, indent=1))
+    write_report(args.output_dir / "camera_pattern.md", markdown(results))
+    return results
+
+
+if __name__ == "__main__":
+    main(tyro.cli(PatternArgs))

@@ -1,0 +1,102 @@
+"""The camera's own fall-off (`model/camera_falloff.py`): fitted in training, rendered into what is
+compared with recorded frames, left out of the scene's renders."""
+
+import pytest
+import torch
+from test_model import make_camera, make_model
+
+from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, falloff_at_corner, off_axis_squared
+from thermal_wild_ns.pipeline.photometric_state import as_recorded
+
+
+def intrinsics(f=50.0, width=48, height=32):
+    return torch.tensor([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+
+
+def test_no_falloff_is_the_identity_and_a_falloff_grows_towards_the_corners():
+    rho = off_axis_squared(intrinsics(), 48, 32)  # [H, W, 1]
+    assert rho.shape == (32, 48, 1)
+    assert float(rho.min()) == pytest.approx(2 * (0.5 / 50) ** 2)  # the four pixels around the principal point
+    assert torch.allclose(rho, rho.flip(0)) and torch.allclose(rho, rho.flip(1))  # centred
+    image = torch.rand(32, 48, 1)
+    assert torch.equal(apply_falloff(image, torch.zeros(2, FALLOFF_ORDER), rho), image)
+    darker = apply_falloff(torch.ones(32, 48, 1), torch.tensor([[-0.5, 0.0], [0.0, 0.0]]), rho)
+    assert float(darker[16, 24]) == pytest.approx(1.0, abs=1e-3) and float(darker[0, 0]) < 0.9
+    gain, offset = falloff_at_corner(torch.tensor([[-0.5, 0.0], [0.1, 0.0]]), intrinsics(), 48, 32)
+    assert gain == pytest.approx(float(darker[0, 0])) and offset == pytest.approx(0.2 * (1 - gain))
+
+
+def test_the_pattern_is_the_same_at_any_render_resolution():
+    """The warm-up trains at a fraction of the resolution: the same fall-off at the same places."""
+    full = off_axis_squared(intrinsics(50.0, 48, 32), 48, 32)[..., 0]  # [32, 48]
+    half = off_axis_squared(intrinsics(25.0, 24, 16), 24, 16)[..., 0]  # [16, 24]
+    blocks = full.reshape(16, 2, 24, 2).mean(dim=(1, 3))  # each half-resolution pixel's four
+    assert torch.allclose(half, blocks, atol=(1 / 50) ** 2)
+
+
+def test_training_renders_through_the_fitted_falloff_and_the_scenes_renders_do_not():
+    camera = make_camera(1)
+    model = make_model(camera_falloff=True)
+    assert "camera_falloff" in model.get_param_groups()
+    model.train()
+    plain = model.get_outputs(camera)["thermal"].detach()
+    model.eval()
+    scene = model.get_outputs(camera)["thermal"].clone()
+    coefficients = torch.tensor([[-0.4, 0.1], [0.05, 0.0]])
+    with torch.no_grad():
+        model.camera_falloff.copy_(coefficients)
+    model.train()
+    recorded = model.get_outputs(camera)["thermal"].detach()
+    rho = off_axis_squared(intrinsics(), 48, 32)
+    assert not torch.allclose(recorded, plain)
+    assert torch.allclose(recorded, apply_falloff(plain, coefficients, rho), atol=1e-6)
+    model.eval()
+    assert torch.allclose(model.get_outputs(camera)["thermal"], scene)  # the viewer's, ns-render's: the scene
+    assert torch.allclose(as_recorded(model, scene, camera), apply_falloff(scene, coefficients, rho), atol=1e-6)
+    assert torch.equal(as_recorded(object(), scene, camera), scene)  # a model without one (splatfacto)
+
+
+def test_the_run_reports_the_fitted_falloff():
+    model = make_model(camera_falloff=True)
+    with torch.no_grad():
+        model.camera_falloff.copy_(torch.tensor([[-0.4, 0.1], [0.05, 0.0]]))
+    entries = {d.part: d.choice for d in model.decisions()}
+    assert entries["camera fall-off"] == "on: gain 1 -0.400 rho +0.100 rho^2, offset +0.050 rho +0.000 rho^2"
+    assert {d.part: d.choice for d in make_model().decisions()}["camera fall-off"] == "off"
+
+
+def test_the_falloff_trains_and_is_found_from_frames_that_carry_it():
+    """Gradient reaches the four coefficients in a training step; and fitted alone to frames that carry a
+    known fall-off over the model's own renders, they converge to it."""
+    camera = make_camera(1)
+    model = make_model(camera_falloff=True)
+    model.train()
+    outputs = model.get_outputs(camera)
+    losses = model.get_loss_dict(outputs, {"image": torch.rand(32, 48, 1), "image_idx": 1})
+    sum(losses.values()).backward()
+    assert model.camera_falloff.grad is not None and model.camera_falloff.grad.abs().sum() > 0
+    truth = torch.tensor([[-0.3, 0.0], [0.02, 0.0]])
+    rho = off_axis_squared(intrinsics(), 48, 32)
+    with torch.no_grad():
+        model.camera_falloff.zero_()
+        scenes = [model.get_outputs(make_camera(i))["thermal"] + 0.5 for i in range(3)]  # [H, W, 1] each
+    frames = [apply_falloff(s, truth, rho) for s in scenes]
+    optimizer = torch.optim.Adam([model.camera_falloff], lr=0.01)
+    for step in range(1500):
+        optimizer.zero_grad()
+        i = step % 3
+        loss = (apply_falloff(scenes[i], model.camera_falloff, rho) - frames[i]).abs().mean()
+        loss.backward()
+        optimizer.step()
+    fitted = falloff_at_corner(model.camera_falloff.detach(), intrinsics(), 48, 32)
+    expected = falloff_at_corner(truth, intrinsics(), 48, 32)
+    assert fitted == pytest.approx(expected, abs=0.02)
+
+
+def test_a_checkpoint_with_or_without_the_falloff_is_refused_by_a_model_of_the_other_kind():
+    with_falloff = make_model(camera_falloff=True).state_dict()
+    with pytest.raises(ValueError, match=r"checkpoint has the camera fall-off \(camera_falloff\) but this config"):
+        make_model().load_state_dict(dict(with_falloff))
+    with pytest.raises(ValueError, match=r"checkpoint lacks the camera fall-off"):
+        make_model(camera_falloff=True).load_state_dict(make_model().state_dict())
+    make_model(camera_falloff=True).load_state_dict(dict(with_falloff))
