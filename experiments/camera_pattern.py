@@ -3,7 +3,10 @@ a model: each frame standardised (its own mean and standard deviation), then ave
 capture, whose moving content averages out while what is fixed to the sensor stays. Reported as the
 mean standardised value in rings of the normalised radius (0 at the centre, 1 at the middle of the
 long edge), over the whole capture and over its two halves apart (a pattern of the camera is the same
-in both; one of the scene is not). Writes `camera_pattern.json` and `camera_pattern.md`.
+in both; one of the scene is not). Consecutive frames overlap, so the content does not fully average
+out: also reported are the share of the average frame's variance a radial polynomial (1, r^2, r^4)
+explains, and the correlation of the two halves' average frames (pixel by pixel). Writes
+`camera_pattern.json` and `camera_pattern.md`.
 
     python -m experiments.camera_pattern --scenes ../shared/data/flight2/rjpeg ../shared/data/dunr/images \
         --output-dir docs/results/camera_falloff
@@ -33,18 +36,37 @@ class PatternArgs:
     output_dir: Path = Path("outputs/camera_pattern")
 
 
-def ring_means(frames: np.ndarray, rings: int = RINGS) -> Tuple[List[float], np.ndarray]:
-    """The mean over `frames` [F, H, W] of each standardised frame, per ring of the normalised radius
-    (rings of equal width out to the corners) [rings], with the rings' outer radii [rings]."""
+def average_standardised(frames: np.ndarray) -> np.ndarray:
+    """The mean [H, W] of `frames` [F, H, W], each standardised by its own mean and standard deviation."""
     mean = frames.mean(axis=(1, 2), keepdims=True)
     std = frames.std(axis=(1, 2), keepdims=True)
-    average = ((frames - mean) / np.maximum(std, 1e-12)).mean(axis=0)  # [H, W]
-    height, width = average.shape
+    return ((frames - mean) / np.maximum(std, 1e-12)).mean(axis=0)
+
+
+def normalised_radius(height: int, width: int) -> np.ndarray:
+    """[H, W] distance of each pixel centre from the image centre, 1 at the middle of the long edge."""
     v, u = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
-    radius = np.hypot(u - width / 2, v - height / 2) / (max(width, height) / 2)  # [H, W]
+    return np.hypot(u - width / 2, v - height / 2) / (max(width, height) / 2)
+
+
+def ring_means(frames: np.ndarray, rings: int = RINGS) -> Tuple[List[float], np.ndarray]:
+    """`average_standardised(frames)` per ring of the normalised radius (rings of equal width out to
+    the corners) [rings], with the rings' outer radii [rings]."""
+    average = average_standardised(frames)  # [H, W]
+    radius = normalised_radius(*average.shape)
     edges = np.linspace(0.0, radius.max() + 1e-9, rings + 1)
     values = [float(average[(radius >= a) & (radius < b)].mean()) for a, b in zip(edges[:-1], edges[1:])]
     return values, edges[1:]
+
+
+def radial_share(frames: np.ndarray) -> float:
+    """The share of `average_standardised(frames)`'s variance a least-squares polynomial in r^2
+    (1, r^2, r^4) explains: how much of the fixed pattern a radial fall-off can model."""
+    average = average_standardised(frames)
+    r2 = normalised_radius(*average.shape) ** 2
+    basis = np.stack([np.ones_like(r2), r2, r2**2], axis=-1).reshape(-1, 3)  # [P, 3]
+    coefficients, *_ = np.linalg.lstsq(basis, average.reshape(-1), rcond=None)
+    return float(1.0 - (average.reshape(-1) - basis @ coefficients).var() / average.var())
 
 
 def pattern(folder: Path) -> Dict:
@@ -64,6 +86,15 @@ def pattern(folder: Path) -> Dict:
         "first_half": first,
         "second_half": second,
         # centre ring minus the outermost (corner) ring, in frame standard deviations
+        "radial_share": round(radial_share(frames), 3),
+        "halves_correlation": round(
+            float(
+                np.corrcoef(average_standardised(frames[:half]).ravel(), average_standardised(frames[half:]).ravel())[
+                    0, 1
+                ]
+            ),
+            3,
+        ),
         "centre_minus_corner": {
             k: round(v[0] - v[-1], 3) for k, v in (("whole", whole), ("first_half", first), ("second_half", second))
         },
@@ -85,7 +116,8 @@ def markdown(results: List[Dict]) -> str:
         lines += [
             "",
             f"Centre minus corner: {c['whole']:+.2f} frame standard deviations (halves {c['first_half']:+.2f}, "
-            f"{c['second_half']:+.2f}).",
+            f"{c['second_half']:+.2f}). A radial polynomial explains {r['radial_share']:.0%} of the average frame's "
+            f"variance; the two halves' average frames correlate at {r['halves_correlation']:.2f} pixel by pixel.",
             "",
         ]
     return "\n".join(lines)

@@ -3,7 +3,8 @@ pattern fixed to the sensor, the same in every frame, that belongs to the camera
 
 A thermal core's frames are darker (or warmer) towards their corners: a real survey's frames,
 each standardised and averaged over the flight, fall towards the corners in both halves of the
-flight alike (`python -m experiments.camera_pattern`, docs/results/camera_falloff). Without a model
+flight alike (`python -m experiments.camera_pattern`, docs/results/camera_falloff; a radial fall-off
+is only part of a camera's fixed pattern). Without a model
 of it the Gaussians and the view-dependent term have to absorb it as scene content: a point seen near
 the image edge in one frame and near its centre in the next looks like a view effect, or gets a
 floater in front of it.
