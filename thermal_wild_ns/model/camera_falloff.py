@@ -4,10 +4,9 @@ pattern fixed to the sensor, the same in every frame, that belongs to the camera
 A thermal core's frames are darker (or warmer) towards their corners: a real survey's frames,
 each standardised and averaged over the flight, fall towards the corners in both halves of the
 flight alike (`python -m experiments.camera_pattern`, docs/results/camera_falloff; a radial fall-off
-is only part of a camera's fixed pattern). Without a model
-of it the Gaussians and the view-dependent term have to absorb it as scene content: a point seen near
-the image edge in one frame and near its centre in the next looks like a view effect, or gets a
-floater in front of it.
+is only part of a camera's fixed pattern). Without a model of it the Gaussians and the view-dependent
+term have to absorb it as scene content: a point seen near the image edge in one frame and near its
+centre in the next looks like a view effect, or gets a floater in front of it.
 
 Here the camera's response is a gain and an offset, each a polynomial in the squared off-axis
 tangent rho = ((u - cx) / fx)^2 + ((v - cy) / fy)^2 (zero at the principal point, so it cannot take
@@ -48,8 +47,8 @@ def apply_falloff(image: Tensor, coefficients: Tensor, rho: Tensor) -> Tensor:
 
 
 def falloff_at_corner(coefficients: Tensor, K: Tensor, width: int, height: int) -> tuple:
-    """(gain, offset) of the response at the image corner farthest off-axis: how strong the fitted
-    fall-off is, in the units the decisions report."""
+    """(gain, offset) of the response at the pixel of a `width` x `height` camera with intrinsics `K`
+    farthest off-axis: how strong a fitted fall-off is at the edge of that camera's image."""
     rho = off_axis_squared(K, width, height).max()
     powers = torch.stack([rho**k for k in range(1, coefficients.shape[1] + 1)])  # [K]
     return float(1.0 + powers @ coefficients[0]), float(powers @ coefficients[1])
