@@ -8,13 +8,14 @@
 #     bash experiments/gpu_2026-11-27.sh step-guard-dunr         # the same
 #     bash experiments/gpu_2026-11-27.sh falloff-flight2         # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh falloff-dunr            # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh trial-vignetting        # nothing carried (a generated scene)
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -72,6 +73,17 @@ case "$plan" in
       cp "/tmp/falloff-$falloff/bench.json" "$OUT/$scene-falloff-$falloff.json"
       grep -A3 "^PSNR / SSIM, \`\(novel\|time\|aligned\)\`" "/tmp/falloff-$falloff/bench.md" | grep wild
     done
+    ;;
+  trial-vignetting)  # issue 33: the view-term rule on the vignetting scene (where it kept the term wrongly,
+    # docs/results/view_trial_gpu) with the camera's fall-off fitted, 3 seeds; the synthetic protocol of
+    # gpu_2026-11-26.sh trial-synthetic
+    PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir /tmp/trial-vignetting \
+      --scenes stress:vignetting --methods wild-thermal --seeds 3 --runs-per-gpu 3 --steps 5000 --num-downscales 1 \
+      --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 \
+      --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True pipeline.model.camera_falloff=True \
+      > "$OUT/trial-vignetting.log" 2>&1
+    cp /tmp/trial-vignetting/bench.json "$OUT/trial-vignetting-bench.json"
+    cp /tmp/trial-vignetting/bench.md "$OUT/trial-vignetting-bench.md"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
