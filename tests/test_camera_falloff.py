@@ -100,3 +100,25 @@ def test_a_checkpoint_with_or_without_the_falloff_is_refused_by_a_model_of_the_o
     with pytest.raises(ValueError, match=r"checkpoint lacks the camera fall-off"):
         make_model(camera_falloff=True).load_state_dict(make_model().state_dict())
     make_model(camera_falloff=True).load_state_dict(dict(with_falloff))
+
+
+def test_a_clean_truth_is_scored_against_the_scene_and_a_recorded_frame_through_the_camera(tmp_path, demo_scene_dir):
+    """The demo's held-out views are its clean truth (no camera recorded them): `novel` compares the scene
+    with them, whatever the fitted fall-off; `time` compares with the frame as recorded, through it."""
+    from thermal_wild_ns.demo import demo_trainer_config
+    from thermal_wild_ns.pipeline.evaluation import evaluate
+    from thermal_wild_ns.training.trainer import seeded_trainer
+
+    config = demo_trainer_config(tmp_path, steps=1, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.pipeline.model.camera_falloff = True
+    pipeline = seeded_trainer(config).pipeline
+    dataset = pipeline.datamanager.eval_dataset
+    assert all(dataset.is_clean_truth(i) for i in range(len(dataset)))
+    assert not pipeline.datamanager.train_dataset.is_clean_truth(0)
+    none = evaluate(pipeline, protocols=("novel", "time"))
+    with torch.no_grad():
+        pipeline.model.camera_falloff.copy_(torch.tensor([[-0.5, 0.0], [0.1, 0.0]]))
+    strong = evaluate(pipeline, protocols=("novel", "time"))
+    assert strong["psnr_novel"] == pytest.approx(none["psnr_novel"], abs=1e-9)
+    assert abs(strong["psnr_time"] - none["psnr_time"]) > 0.1

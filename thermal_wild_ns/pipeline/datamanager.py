@@ -70,6 +70,12 @@ class ThermalDataset(InputDataset):
     def _read(self, path: Path) -> np.ndarray:
         return self._scaled(self.thermal_range.read(path))
 
+    def is_clean_truth(self, image_idx: int) -> bool:
+        """Whether this image is a generated scene's clean truth (a held-out view no camera recorded)
+        rather than a frame as the camera recorded it (`recorded_image`)."""
+        flags = self.metadata.get("is_ground_truth")
+        return bool(flags[image_idx]) if flags is not None else False
+
     def recorded_image(self, image_idx: int) -> np.ndarray:
         """The frame as the camera recorded it [H, W] (dataset-normalised, never preprocessed), in the
         geometry the model renders: scaled and undistorted as the cached images are. It is the cached

@@ -150,8 +150,10 @@ def as_recorded(model, thermal: Tensor, camera) -> Tensor:
     return model.as_recorded(thermal, camera) if hasattr(model, "as_recorded") else thermal
 
 
-def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.ndarray]:
-    """One view at `state`: ([H, W] training space, [H, W] original space), float32 numpy.
+def render(pipeline, camera, state: PhotometricState, recorded: bool = True) -> Tuple[np.ndarray, np.ndarray]:
+    """One view at `state`: ([H, W] training space, [H, W] original space), float32 numpy; through
+    the camera's own fall-off (`as_recorded`) unless `recorded` is False (compared with a generated
+    scene's clean truth, which no camera recorded).
 
     The one render every scorer and command compares with a frame (the automatic stop, the
     evaluation protocols, the demo's panels): always as outside training, whatever mode the model is
@@ -159,7 +161,7 @@ def render(pipeline, camera, state: PhotometricState) -> Tuple[np.ndarray, np.nd
     the warm-up's coarser training resolution), over the baked background, with no densification
     statistics. The model's training mode and its record of the last training render (`info`,
     `last_size`, which the densification after a training step reads) are left as they were."""
-    layers = render_layers(pipeline, camera, state, recorded=True)
+    layers = render_layers(pipeline, camera, state, recorded=recorded)
     return layers["training"], layers["original"]
 
 
