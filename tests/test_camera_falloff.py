@@ -1,6 +1,7 @@
 """The camera's own fall-off (`model/camera_falloff.py`): fitted in training, rendered into what is
 compared with recorded frames, left out of the scene's renders."""
 
+import numpy as np
 import pytest
 import torch
 from test_model import make_camera, make_model
@@ -122,3 +123,13 @@ def test_a_clean_truth_is_scored_against_the_scene_and_a_recorded_frame_through_
     strong = evaluate(pipeline, protocols=("novel", "time"))
     assert strong["psnr_novel"] == pytest.approx(none["psnr_novel"], abs=1e-9)
     assert abs(strong["psnr_time"] - none["psnr_time"]) > 0.1
+    # nerfstudio's eval image during training (`time`) compares with the frame as recorded too
+    metrics, images = pipeline.get_eval_image_metrics_and_images(0)
+    frame = images["img"][..., 0].numpy()  # [H, 2W]: the frame | the render
+    width = frame.shape[1] // 2
+    recorded = [dataset.recorded_image(i).clip(0, 1) for i in range(len(dataset))]
+    assert any(np.allclose(frame[:, :width], r, atol=1e-6) for r in recorded)
+    assert not any(
+        np.allclose(frame[:, :width], dataset.get_image_float32(i)[..., 0].numpy().clip(0, 1))
+        for i in range(len(dataset))
+    )

@@ -137,13 +137,14 @@ class ThermalPipeline(VanillaPipeline):
     @torch.no_grad()
     def get_eval_image_metrics_and_images(self, step: int):
         """One held-out view during training (nerfstudio's eval image): scored at its `time` state
-        in the original space, like `ns-eval`."""
+        in the original space against the frame as recorded, like `ns-eval`'s `time`."""
 
         self.eval()
         camera, batch = self.datamanager.next_eval_image(step)
-        frame = int(self.datamanager.eval_dataset.metadata["frame_indices"][int(batch["image_idx"])])
+        dataset = self.datamanager.eval_dataset
+        frame = int(dataset.metadata["frame_indices"][int(batch["image_idx"])])
         _, pred = render(self, camera, state_at(self, frame))
-        gt = batch["image"].float().mean(dim=-1).cpu().numpy()
+        gt = dataset.recorded_image(int(batch["image_idx"]))  # [H, W]: a generated scene's image is its truth
         metrics = {f"{key}_time": value for key, value in scores(pred, gt).items()}
         metrics["num_rays"] = int(gt.size)
         image = torch.from_numpy(np.concatenate([gt, pred], axis=1)).clamp(0, 1)[..., None].expand(-1, -1, 3)
