@@ -32,6 +32,12 @@ def test_trained_run_checks(tmp_path):
     (tmp_path / "bad.yml").write_text("key: [unclosed")
     with pytest.raises(SystemExit, match=r"bad\.yml: the run.s config is damaged or cut short"):
         check_trained_run(tmp_path / "bad.yml")
+    # cut inside a tag, the file names a module where a class was: PyYAML calls it (a TypeError)
+    text = _saved_config(tmp_path / "c", "wild-thermal").read_text()
+    tag = "!!python/object:thermal_wild_ns.model"
+    (tmp_path / "cut.yml").write_text(text[: text.index(tag + ".") + len(tag)] + "\n")
+    with pytest.raises(SystemExit, match=r"cut\.yml: the run.s config is damaged or cut short.*not callable"):
+        check_trained_run(tmp_path / "cut.yml")
     with pytest.raises(SystemExit, match=r"a 'splatfacto' run; this command needs a wild-thermal\* run"):
         check_trained_run(_saved_config(tmp_path / "a", "splatfacto"))
     untrained = _saved_config(tmp_path / "b", "wild-thermal")

@@ -23,14 +23,13 @@ from typing import Callable, Dict, Optional
 import numpy as np
 import torch
 import torchmetrics.image.lpip as lpip
-import yaml
 from gsplat.strategy import DefaultStrategy
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, _undistort_image
 from nerfstudio.engine.trainer import Trainer
 from nerfstudio.viewer.viewer_elements import ViewerControl
 
-from thermal_wild_ns.errors import EXPLAINERS, IncompleteConfig
+from thermal_wild_ns.errors import EXPLAINERS, raised_reading_yaml
 
 CHECKED = {"nerfstudio": "1.1.5", "gsplat": "1.4.0"}
 """The versions every patch here was written and tested against (pyproject.toml pins them)."""
@@ -323,10 +322,11 @@ def undistorted_as_cached(camera, image):
 def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
     """nerfstudio 1.1.5's `eval_setup` (ns-eval, ns-render, ns-viewer, ns-export) reads a run's config
     with `yaml.load(config_path.read_text())`: a damaged file fails there with a YAML error about
-    "<unicode string>", or (cut short at a line end) with the plugin's `IncompleteConfig`, neither
+    "<unicode string>", (cut short at a line end) with the plugin's `IncompleteConfig`, or (cut
+    inside a tag) with whatever the object it then names raises (`errors.raised_reading_yaml`), none
     naming the file. Where `error` rose inside `eval_setup`, the one-line explanation naming its
     `config_path` (a local of that function); None for any other error. One of `errors.EXPLAINERS`."""
-    if not isinstance(error, (yaml.YAMLError, IncompleteConfig)):
+    if not raised_reading_yaml(error, traceback):
         return None
     while traceback is not None:
         frame = traceback.tb_frame

@@ -51,3 +51,18 @@ def report_input_errors_briefly() -> None:
 
     hook.thermal_wild_ns = True
     sys.excepthook = hook
+
+
+def raised_reading_yaml(error: BaseException, traceback=None) -> bool:
+    """Whether `error` is PyYAML's, or rose while PyYAML built the objects a YAML file names (a run's
+    config.yml cut short can name a module where a class was, `!!python/object/apply:pathlib`, and
+    calling it fails with a TypeError): the file's fault, not the code's. `traceback`: the error's
+    (default: its own)."""
+    if type(error).__module__.split(".")[0] == "yaml" or isinstance(error, IncompleteConfig):
+        return True
+    traceback = traceback if traceback is not None else error.__traceback__
+    while traceback is not None:
+        if traceback.tb_frame.f_code.co_filename.endswith(os.path.join("yaml", "constructor.py")):
+            return True
+        traceback = traceback.tb_next
+    return False

@@ -26,7 +26,7 @@ import yaml
 from nerfstudio.engine.trainer import TrainerConfig
 
 from thermal_wild_ns.data.thermal_io import process_alive
-from thermal_wild_ns.errors import IncompleteConfig, InputError
+from thermal_wild_ns.errors import InputError, raised_reading_yaml
 
 PARTIAL_FOLDER = ".partial"
 """Beside a run's config: files being written, before their rename into place."""
@@ -125,7 +125,9 @@ def check_trained_run(load_config: Path) -> None:
         raise SystemExit(f"--load-config {path}: no such file (a run's config is RUN/config.yml)")
     try:
         config = yaml.load(path.read_text(), Loader=yaml.Loader)  # as nerfstudio's eval_setup reads it
-    except (yaml.YAMLError, IncompleteConfig) as err:
+    except Exception as err:
+        if not raised_reading_yaml(err):
+            raise
         raise SystemExit(
             f"--load-config {path}: the run's config is damaged or cut short, or not a config ({err})"
         ) from None
