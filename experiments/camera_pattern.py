@@ -5,34 +5,41 @@ mean standardised value in rings of the normalised radius (0 at the centre, 1 at
 long edge), over the whole capture and over its two halves apart (a pattern of the camera is the same
 in both; one of the scene is not). Consecutive frames overlap, so the content does not fully average
 out: also reported are the share of the average frame's variance a radial polynomial (1, r^2, r^4)
-explains, and the correlation of the two halves' average frames (pixel by pixel). Writes
-`camera_pattern.json` and `camera_pattern.md`.
+explains, and the correlation of the two halves' average frames (pixel by pixel). `--training-space`:
+each frame first mapped through its LUT of the full method's preprocessing (every frame a training
+frame), where the model fits the camera's fall-off. Writes `camera_pattern.json` and `camera_pattern.md`.
 
-    python -m experiments.camera_pattern --scenes ../shared/data/flight2/rjpeg ../shared/data/dunr/images \
-        --output-dir docs/results/camera_falloff
+    python -m experiments.camera_pattern --scenes ../shared/data/flight2 ../shared/data/dunr \
+        --cache-dir .data/cache --output-dir docs/results/camera_falloff
 """
 
 from __future__ import annotations
 
 import json
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import tyro
 
 from experiments import write_report
+from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 
 RINGS = 8
-FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".npy")
 
 
 @dataclass
 class PatternArgs:
     scenes: Tuple[Path, ...] = ()
-    """Folders of frames (radiometric JPEGs, 16-bit PNG/TIFF, .npy), read in name order."""
+    """Dataset folders (any layout the plugin reads); their frames in capture order."""
+    training_space: bool = False
+    """Each frame through its preprocessing LUT first (the full method's preprocessing, forced on)."""
+    cache_dir: Optional[Path] = None
+    """The triangulation cache of the datasets (a layout without poses triangulates); the preprocessing's
+    goes to a temporary folder."""
     output_dir: Path = Path("outputs/camera_pattern")
 
 
@@ -69,23 +76,39 @@ def radial_share(frames: np.ndarray) -> float:
     return float(1.0 - (average.reshape(-1) - basis @ coefficients).var() / average.var())
 
 
-def pattern(folder: Path) -> Dict:
-    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES)
-    if not paths:
-        raise SystemExit(f"{folder}: no frames ({', '.join(FRAME_SUFFIXES)})")
-    frames = np.stack([read_raw_frame(p).astype(np.float64) for p in paths])  # [F, H, W]
-    half = len(paths) // 2
+def capture_frames(scene: Path, cache_dir: Optional[Path], training_space: bool) -> np.ndarray:
+    """[F, H, W] float64: the capture's frames in capture order, raw or through their preprocessing LUTs."""
+    parser = ThermalDataParserConfig(data=scene.resolve(), cache_dir=(cache_dir or scene / ".cache").resolve()).setup()
+    capture, rng = parser.capture(), parser.radiometric_range()
+    frames = np.stack([read_raw_frame(f.image, rng.palette).astype(np.float64) for f in capture.frames])
+    if not training_space:
+        return frames
+    from thermal_wild_ns.method_configs import method_trainer
+    from thermal_wild_ns.preprocessing.photometric import apply_lut
+    from thermal_wild_ns.preprocessing.stage import preprocess
+
+    config = method_trainer("wild-thermal").pipeline.datamanager.preprocessing
+    with tempfile.TemporaryDirectory() as work:
+        sequence = preprocess(capture.frames, rng, config, Path(work), train=[True] * len(frames))
+        return np.stack(
+            [np.asarray(apply_lut(sequence.luts[t], raw, sequence.grid), np.float64) for t, raw in enumerate(frames)]
+        )
+
+
+def pattern(scene: Path, cache_dir: Optional[Path], training_space: bool) -> Dict:
+    frames = capture_frames(scene, cache_dir, training_space)  # [F, H, W]
+    half = len(frames) // 2
     whole, edges = ring_means(frames)
     first, _ = ring_means(frames[:half])
     second, _ = ring_means(frames[half:])
     return {
-        "scene": str(folder),
-        "frames": len(paths),
+        "scene": str(scene),
+        "space": "training (preprocessed)" if training_space else "raw",
+        "frames": len(frames),
         "ring_outer_radius": [round(float(e), 3) for e in edges],
         "whole": whole,
         "first_half": first,
         "second_half": second,
-        # centre ring minus the outermost (corner) ring, in frame standard deviations
         "radial_share": round(radial_share(frames), 3),
         "halves_correlation": round(
             float(
@@ -95,6 +118,7 @@ def pattern(folder: Path) -> Dict:
             ),
             3,
         ),
+        # centre ring minus the outermost (corner) ring, in frame standard deviations
         "centre_minus_corner": {
             k: round(v[0] - v[-1], 3) for k, v in (("whole", whole), ("first_half", first), ("second_half", second))
         },
@@ -105,7 +129,7 @@ def markdown(results: List[Dict]) -> str:
     lines = ["# Each capture's fixed pattern: mean standardised frame per ring of the radius", ""]
     for r in results:
         lines += [
-            f"## {r['scene']} ({r['frames']} frames)",
+            f"## {r['scene']} ({r['frames']} frames, {r['space']})",
             "",
             "| ring (outer radius) | " + " | ".join(f"{e:.2f}" for e in r["ring_outer_radius"]) + " |",
             "| --- " * (len(r["ring_outer_radius"]) + 1) + "|",
@@ -124,7 +148,7 @@ def markdown(results: List[Dict]) -> str:
 
 
 def main(args: PatternArgs) -> List[Dict]:
-    results = [pattern(Path(s)) for s in args.scenes]
+    results = [pattern(Path(s), args.cache_dir, args.training_space) for s in args.scenes]
     args.output_dir.mkdir(parents=True, exist_ok=True)
     (args.output_dir / "camera_pattern.json").write_text(json.dumps(results, indent=1))
     write_report(args.output_dir / "camera_pattern.md", markdown(results))
