@@ -451,3 +451,22 @@ def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scen
     assert not got[("b", "aligned")]["met"] and got[("b", "time")]["met"]
     text = (tmp_path / "out.md").read_text()
     assert "**no**, 1.00 dB short" in text and "| b | 1 | 200 | 500 | 300 | 3.00 |" in text
+
+
+def test_the_schedule_profile_times_a_runs_events_apart_from_its_steps_and_leaves_nerfstudio_as_it_was(tmp_path):
+    import importlib
+
+    import thermal_wild_ns.training.trainer as trainer_module
+    from experiments.schedule_profile import ScheduleArgs, main
+
+    writer = importlib.import_module("nerfstudio.utils.writer")  # after the above: alone it imports in a circle
+
+    originals = (writer.write_out_storage, trainer_module.snapshot)
+    result = main(ScheduleArgs(steps=40, window=20, output_dir=tmp_path / "profile"))
+    events = result["events"]
+    assert events["log writes"]["calls"] == 41  # every step, and once more at the end
+    assert events["checkpoints written"]["calls"] >= 2  # at least SAVES_PER_RUN's, and the final one
+    assert 0 < result["ms_per_step_steps_only"] < result["ms_per_step_all"]
+    assert [w["last_step"] for w in result["windows"]] == [19, 39]
+    assert (writer.write_out_storage, trainer_module.snapshot) == originals
+    assert "ms/step" in (tmp_path / "profile" / "schedule.md").read_text()
