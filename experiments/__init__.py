@@ -74,3 +74,26 @@ def train_with_hooks(
         trainer.train()
     finally:
         trainer.callbacks = [c for c in trainer.callbacks if c not in hooks]
+
+
+def read_capture(scene, cache_dir):
+    """A dataset folder read as the full method reads it (any layout; `cache_dir` holds its
+    triangulation): (its data parser, its capture, its radiometric range)."""
+    from pathlib import Path
+
+    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+
+    parser = ThermalDataParserConfig(data=Path(scene).resolve(), cache_dir=Path(cache_dir).resolve()).setup()
+    return parser, parser.capture(), parser.radiometric_range()
+
+
+def full_method_luts(capture, rng, cache_dir, train):
+    """The `PreprocessedSequence` (each frame's LUT) of the full method's preprocessing of `capture`,
+    forced on (its rule may skip it in training); `train` [frames]: which are training frames."""
+    from pathlib import Path
+
+    from thermal_wild_ns.method_configs import method_trainer
+    from thermal_wild_ns.preprocessing.stage import preprocess
+
+    config = method_trainer("wild-thermal").pipeline.datamanager.preprocessing
+    return preprocess(capture.frames, rng, config, Path(cache_dir).resolve(), train=list(train))

@@ -24,9 +24,9 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 import tyro
 
-from experiments import write_report
-from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+from experiments import full_method_luts, read_capture, write_report
 from thermal_wild_ns.data.thermal_io import read_raw_frame
+from thermal_wild_ns.preprocessing.photometric import apply_lut
 
 RINGS = 8
 
@@ -38,8 +38,8 @@ class PatternArgs:
     training_space: bool = False
     """Each frame through its preprocessing LUT first (the full method's preprocessing, forced on)."""
     cache_dir: Optional[Path] = None
-    """The triangulation cache of the datasets (a layout without poses triangulates); the preprocessing's
-    goes to a temporary folder."""
+    """The triangulation cache of the datasets (a layout without poses triangulates; default: under
+    `output_dir`); the preprocessing's goes to a temporary folder."""
     output_dir: Path = Path("outputs/camera_pattern")
 
 
@@ -76,26 +76,20 @@ def radial_share(frames: np.ndarray) -> float:
     return float(1.0 - (average.reshape(-1) - basis @ coefficients).var() / average.var())
 
 
-def capture_frames(scene: Path, cache_dir: Optional[Path], training_space: bool) -> np.ndarray:
+def capture_frames(scene: Path, cache_dir: Path, training_space: bool) -> np.ndarray:
     """[F, H, W] float64: the capture's frames in capture order, raw or through their preprocessing LUTs."""
-    parser = ThermalDataParserConfig(data=scene.resolve(), cache_dir=(cache_dir or scene / ".cache").resolve()).setup()
-    capture, rng = parser.capture(), parser.radiometric_range()
+    _, capture, rng = read_capture(scene, cache_dir)
     frames = np.stack([read_raw_frame(f.image, rng.palette).astype(np.float64) for f in capture.frames])
     if not training_space:
         return frames
-    from thermal_wild_ns.method_configs import method_trainer
-    from thermal_wild_ns.preprocessing.photometric import apply_lut
-    from thermal_wild_ns.preprocessing.stage import preprocess
-
-    config = method_trainer("wild-thermal").pipeline.datamanager.preprocessing
-    with tempfile.TemporaryDirectory() as work:
-        sequence = preprocess(capture.frames, rng, config, Path(work), train=[True] * len(frames))
+    with tempfile.TemporaryDirectory() as work:  # the preprocessing's cache: not kept
+        sequence = full_method_luts(capture, rng, work, [True] * len(frames))
         return np.stack(
             [np.asarray(apply_lut(sequence.luts[t], raw, sequence.grid), np.float64) for t, raw in enumerate(frames)]
         )
 
 
-def pattern(scene: Path, cache_dir: Optional[Path], training_space: bool) -> Dict:
+def pattern(scene: Path, cache_dir: Path, training_space: bool) -> Dict:
     frames = capture_frames(scene, cache_dir, training_space)  # [F, H, W]
     half = len(frames) // 2
     whole, edges = ring_means(frames)
@@ -148,7 +142,8 @@ def markdown(results: List[Dict]) -> str:
 
 
 def main(args: PatternArgs) -> List[Dict]:
-    results = [pattern(Path(s), args.cache_dir, args.training_space) for s in args.scenes]
+    cache_dir = args.cache_dir or args.output_dir / "cache"
+    results = [pattern(Path(s), cache_dir, args.training_space) for s in args.scenes]
     args.output_dir.mkdir(parents=True, exist_ok=True)
     (args.output_dir / "camera_pattern.json").write_text(json.dumps(results, indent=1))
     write_report(args.output_dir / "camera_pattern.md", markdown(results))

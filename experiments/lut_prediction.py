@@ -24,12 +24,10 @@ import numpy as np
 import torch
 import tyro
 
-from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
+from experiments import full_method_luts, read_capture
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.image_metrics import psnr
-from thermal_wild_ns.method_configs import method_trainer
 from thermal_wild_ns.preprocessing.photometric import apply_lut, blend_luts, invert_lut, time_weights
-from thermal_wild_ns.preprocessing.stage import preprocess
 
 
 def blend_levelwise(lut_a: np.ndarray, lut_b: np.ndarray, weight: float) -> np.ndarray:
@@ -47,13 +45,9 @@ class Args:
 
 
 def scene_scores(scene: Path, cache_dir: Path) -> Dict:
-    parser = ThermalDataParserConfig(data=scene.resolve(), cache_dir=cache_dir.resolve()).setup()
-    capture, rng = parser.capture(), parser.radiometric_range()
+    parser, capture, rng = read_capture(scene, cache_dir)
     train = set(parser.get_dataparser_outputs("train").metadata["frame_indices"])
-    config = method_trainer("wild-thermal").pipeline.datamanager.preprocessing
-    sequence = preprocess(
-        capture.frames, rng, config, cache_dir, train=[t in train for t in range(len(capture.frames))]
-    )
+    sequence = full_method_luts(capture, rng, cache_dir, [t in train for t in range(len(capture.frames))])
     frames = sorted(train)
     rows: List[Tuple[int, float, float]] = []
     for t in range(len(capture.frames)):

@@ -6,7 +6,8 @@ import pytest
 import torch
 from test_model import make_camera, make_model
 
-from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, falloff_at_corner, off_axis_squared
+from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, off_axis_squared
+from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.pipeline.photometric_state import as_recorded
 
 
@@ -14,8 +15,20 @@ def intrinsics(f=50.0, width=48, height=32):
     return torch.tensor([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
+def rho_of(K, width, height):
+    """The off-axis grid [H, W, 1] of a camera with intrinsics `K` [3, 3], as the model builds it."""
+    return off_axis_squared(ray_directions(K, torch.eye(3, 4), width, height))
+
+
+def falloff_at_corner(coefficients, K, width, height):
+    """(gain, offset) of the response at the camera's pixel farthest off-axis."""
+    rho = rho_of(K, width, height).max()
+    powers = torch.stack([rho**k for k in range(1, coefficients.shape[1] + 1)])  # [K]
+    return float(1.0 + powers @ coefficients[0]), float(powers @ coefficients[1])
+
+
 def test_no_falloff_is_the_identity_and_a_falloff_grows_towards_the_corners():
-    rho = off_axis_squared(intrinsics(), 48, 32)  # [H, W, 1]
+    rho = rho_of(intrinsics(), 48, 32)  # [H, W, 1]
     assert rho.shape == (32, 48, 1)
     assert float(rho.min()) == pytest.approx(2 * (0.5 / 50) ** 2)  # the four pixels around the principal point
     assert torch.allclose(rho, rho.flip(0)) and torch.allclose(rho, rho.flip(1))  # centred
@@ -29,8 +42,8 @@ def test_no_falloff_is_the_identity_and_a_falloff_grows_towards_the_corners():
 
 def test_the_pattern_is_the_same_at_any_render_resolution():
     """The warm-up trains at a fraction of the resolution: the same fall-off at the same places."""
-    full = off_axis_squared(intrinsics(50.0, 48, 32), 48, 32)[..., 0]  # [32, 48]
-    half = off_axis_squared(intrinsics(25.0, 24, 16), 24, 16)[..., 0]  # [16, 24]
+    full = rho_of(intrinsics(50.0, 48, 32), 48, 32)[..., 0]  # [32, 48]
+    half = rho_of(intrinsics(25.0, 24, 16), 24, 16)[..., 0]  # [16, 24]
     blocks = full.reshape(16, 2, 24, 2).mean(dim=(1, 3))  # each half-resolution pixel's four
     assert torch.allclose(half, blocks, atol=(1 / 50) ** 2)
 
@@ -48,7 +61,7 @@ def test_training_renders_through_the_fitted_falloff_and_the_scenes_renders_do_n
         model.camera_falloff.copy_(coefficients)
     model.train()
     recorded = model.get_outputs(camera)["thermal"].detach()
-    rho = off_axis_squared(intrinsics(), 48, 32)
+    rho = rho_of(intrinsics(), 48, 32)
     assert not torch.allclose(recorded, plain)
     assert torch.allclose(recorded, apply_falloff(plain, coefficients, rho), atol=1e-6)
     model.eval()
@@ -77,7 +90,7 @@ def test_the_falloff_trains_and_is_found_from_frames_that_carry_it():
     sum(losses.values()).backward()
     assert model.camera_falloff.grad is not None and model.camera_falloff.grad.abs().sum() > 0
     truth = torch.tensor([[-0.3, 0.0], [0.02, 0.0]])
-    rho = off_axis_squared(intrinsics(), 48, 32)
+    rho = rho_of(intrinsics(), 48, 32)
     with torch.no_grad():
         model.camera_falloff.zero_()
         scenes = [model.get_outputs(make_camera(i))["thermal"] + 0.5 for i in range(3)]  # [H, W, 1] each

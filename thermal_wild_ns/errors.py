@@ -55,8 +55,8 @@ def report_input_errors_briefly() -> None:
 
 def raised_reading_yaml(error: BaseException, traceback=None) -> bool:
     """Whether `error` is PyYAML's, or rose while PyYAML built the objects a YAML file names (a run's
-    config.yml cut short can name a module where a class was, `!!python/object/apply:pathlib`, and
-    calling it fails with a TypeError): the file's fault, not the code's. `traceback`: the error's
+    config.yml cut inside a tag can name a module where a class was, `!!python/object:thermal_wild_ns.model`,
+    and calling it fails with a TypeError): the file's fault, not the code's. `traceback`: the error's
     (default: its own)."""
     if type(error).__module__.split(".")[0] == "yaml" or isinstance(error, IncompleteConfig):
         return True

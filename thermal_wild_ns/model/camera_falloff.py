@@ -28,13 +28,11 @@ FALLOFF_ORDER = 2
 """Powers of rho in the gain and in the offset (rho, rho^2): a smooth fall-off to the corners."""
 
 
-def off_axis_squared(K: Tensor, width: int, height: int) -> Tensor:
-    """rho [H, W, 1] of every pixel centre of a pinhole camera with intrinsics `K` [3, 3] (no host
-    sync: the grid is built on K's device from its values)."""
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    u = (torch.arange(width, device=K.device, dtype=K.dtype) + 0.5 - cx) / fx  # [W]
-    v = (torch.arange(height, device=K.device, dtype=K.dtype) + 0.5 - cy) / fy  # [H]
-    return (v[:, None] ** 2 + u[None, :] ** 2)[..., None]  # [H, W, 1]
+def off_axis_squared(directions: Tensor) -> Tensor:
+    """rho [H, W, 1], the squared tangent of each pixel's angle off the optical axis, from the camera's
+    unit view directions in its own frame [H, W, 3] (`camera_views.ray_directions` without rotation,
+    as `background.CameraFrameDirections` keeps them per camera and size)."""
+    return directions[..., :2].square().sum(dim=-1, keepdim=True) / directions[..., 2:].square()
 
 
 def apply_falloff(image: Tensor, coefficients: Tensor, rho: Tensor) -> Tensor:
@@ -44,14 +42,6 @@ def apply_falloff(image: Tensor, coefficients: Tensor, rho: Tensor) -> Tensor:
     gain = 1.0 + powers @ coefficients[0]  # [H, W]
     offset = powers @ coefficients[1]  # [H, W]
     return image * gain[..., None] + offset[..., None]
-
-
-def falloff_at_corner(coefficients: Tensor, K: Tensor, width: int, height: int) -> tuple:
-    """(gain, offset) of the response at the pixel of a `width` x `height` camera with intrinsics `K`
-    farthest off-axis: how strong a fitted fall-off is at the edge of that camera's image."""
-    rho = off_axis_squared(K, width, height).max()
-    powers = torch.stack([rho**k for k in range(1, coefficients.shape[1] + 1)])  # [K]
-    return float(1.0 + powers @ coefficients[0]), float(powers @ coefficients[1])
 
 
 def describe_falloff(coefficients: Tensor) -> str:

@@ -27,10 +27,10 @@ from torch.profiler import record_function
 from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
-from thermal_wild_ns.model.background import ThermalBackground
+from thermal_wild_ns.model.background import CameraFrameDirections, ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, describe_falloff, off_axis_squared
-from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews
+from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews, host_sizes, intrinsics
 from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
@@ -233,6 +233,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_field = ThermalBackground(self.background_mlp, cfg)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.apply_falloff`); zero: no fall-off
         self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
+        self.camera_frame_directions = CameraFrameDirections()  # the fall-off's off-axis angles, per camera and size
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -476,7 +477,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             return self.viewing_outputs(render, alpha, background)
         thermal, alpha, depth = composite(render, alpha, background)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
-            thermal = apply_falloff(thermal, self.camera_falloff, off_axis_squared(view.K[0], W, H))
+            directions = self.camera_frame_directions(view.K[0], view.pinhole, W, H, 1)  # [H, W, 3], kept
+            thermal = apply_falloff(thermal, self.camera_falloff, off_axis_squared(directions))
         return self._outputs(thermal, alpha, background, depth)
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
@@ -485,9 +487,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         with a recorded frame (`pipeline.photometric_state.render`)."""
         if self.camera_falloff is None:
             return thermal
-        K = camera.get_intrinsics_matrices()[0].to(thermal.device)  # [3, 3], the camera's full resolution
+        _, _, pinhole = host_sizes(camera)  # the camera's full resolution, as the render
         height, width = thermal.shape[:2]
-        return apply_falloff(thermal, self.camera_falloff.detach(), off_axis_squared(K, width, height))
+        directions = self.camera_frame_directions(intrinsics(camera)[0].to(thermal.device), pinhole, width, height, 1)
+        return apply_falloff(thermal, self.camera_falloff.detach(), off_axis_squared(directions))
 
     def activated_splats(self, ids: Optional[Tensor] = None) -> Tuple[Tensor, Tensor]:
         """gsplat's scales [N, 3] and opacities [N] of every (or the selected) Gaussian (outside training
