@@ -57,8 +57,10 @@ def test_importing_the_package_patches_nothing():
         # upstream's own imports extend the allow-list (torch.distributed's DTensor types): import them first
         "import torch, pkgutil, importlib\n"
         "from nerfstudio.scripts import render, exporter, train, eval, viewer\n"
+        "from nerfstudio.utils import writer\n"
         "import torchmetrics.image.lpip as lpip\n"
         "before = set(map(str, torch.serialization.get_safe_globals()))\n"
+        "write_out_storage = writer.write_out_storage\n"
         "import thermal_wild_ns\n"
         "for m in pkgutil.walk_packages(thermal_wild_ns.__path__, 'thermal_wild_ns.'):\n"
         "    importlib.import_module(m.name)\n"
@@ -66,10 +68,53 @@ def test_importing_the_package_patches_nothing():
         "assert render._render_trajectory_video.__module__ == 'nerfstudio.scripts.render'\n"
         "assert exporter.eval_setup.__module__ == 'nerfstudio.utils.eval_utils'\n"
         "assert lpip.LearnedPerceptualImagePatchSimilarity.__module__ == 'torchmetrics.image.lpip'\n"
+        "assert writer.write_out_storage is write_out_storage\n"
         "print('clean')\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.stdout.strip().endswith("clean"), result.stderr[-2000:]
+
+
+def test_step_timings_are_written_with_the_losses_every_other_event_at_once(monkeypatch):
+    """The per-step timings reach the event writers at the log steps alone; a loss put at any step,
+    an image or a timing not of that list, are written at once; the terminal's table is untouched."""
+    from thermal_wild_ns._upstream import log_step_timings_with_the_losses  # before the writer: its import cycle
+
+    from nerfstudio.utils import writer  # isort: skip
+
+    written = []
+
+    class Recorder(writer.Writer):
+        def write_image(self, name, image, step):
+            written.append((name, step))
+
+        def write_scalar(self, name, scalar, step):
+            written.append((name, step))
+
+        def write_config(self, name, config_dict, step):
+            pass
+
+    monkeypatch.setattr(writer, "write_out_storage", writer.write_out_storage)  # put back after the test
+    monkeypatch.setattr(writer, "EVENT_WRITERS", [Recorder()])
+    monkeypatch.setattr(writer, "GLOBAL_BUFFER", {"steps_per_log": 10, "events": {}, "max_buffer_size": 20})
+    log_step_timings_with_the_losses()
+    log_step_timings_with_the_losses()  # a second trainer in the process: installed once
+    for step in range(25):
+        writer.put_time(writer.EventName.TRAIN_RAYS_PER_SEC, 1.0, step)
+        writer.put_scalar(writer.EventName.ETA, 1.0, step)
+        writer.put_scalar("Train Iter (time)", 1.0, step)
+        if step in (3, 10):
+            writer.put_scalar("Train Loss", 0.5, step)
+            writer.put_time(writer.EventName.TEST_RAYS_PER_SEC, 1.0, step, avg_over_steps=False)
+        writer.write_out_storage()
+    timings = {"Train Rays / Sec", "ETA (time)", "Train Iter (time)"}
+    assert sorted({step for name, step in written if name in timings}) == [0, 10, 20]
+    assert len([1 for name, _ in written if name in timings]) == 9
+    assert [step for name, step in written if name == "Train Loss"] == [3, 10]
+    assert [step for name, step in written if name == "Test Rays / Sec"] == [3, 10]
+    assert writer.EVENT_STORAGE == []  # nothing left over for a later step
+    # the running average behind the terminal's table took in every step
+    assert len(writer.GLOBAL_BUFFER["events"]["Train Rays / Sec"]["buffer"]) == 20
 
 
 def test_fused_adam_step_is_adams_step():

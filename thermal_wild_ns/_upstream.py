@@ -208,6 +208,33 @@ def guard_optimizer_steps(optimizers, before_step: Callable[[list], bool]) -> No
     optimizers.optimizer_scaler_step_some = guarded
 
 
+def log_step_timings_with_the_losses() -> None:
+    """nerfstudio 1.1.5's `Trainer.train` puts three running timings (the iteration's time, the ETA,
+    rays per second) as scalar events at every step, and `writer.write_out_storage` hands each one to
+    every event writer (tensorboard: an `add_scalar` each): host work inside every training step.
+    From now on, in this process, they are written at the steps the losses are written
+    (`--logging.steps-per-log`, which `writer.GLOBAL_BUFFER` holds), where the terminal's table prints
+    them anyway; their running averages still take in every step, and every other event is written as
+    before. Installed once (each trainer's setup calls this)."""
+    import nerfstudio.utils.writer as writer
+
+    if getattr(writer.write_out_storage, "keeps_step_timings_at_log_steps", False):
+        return
+    original = writer.write_out_storage
+    per_step = {name.value for name in (writer.EventName.ITER_TRAIN_TIME, writer.EventName.ETA)}
+    per_step.add(writer.EventName.TRAIN_RAYS_PER_SEC.value)
+
+    def write_out_storage() -> None:
+        every = writer.GLOBAL_BUFFER.get("steps_per_log")
+        if every:
+            events = writer.EVENT_STORAGE
+            events[:] = [e for e in events if e["name"] not in per_step or e["step"] % every == 0]
+        original()
+
+    write_out_storage.keeps_step_timings_at_log_steps = True  # type: ignore[attr-defined]
+    writer.write_out_storage = write_out_storage
+
+
 def replace_gaussians(pipeline, optimizers, values: Dict[str, torch.Tensor]) -> None:
     """Give the model `values` [N', ...] as its Gaussian parameters (the same keys as its `gauss_params`),
     with fresh Adam moments and densification statistics for them, every optimizer pointed at them
