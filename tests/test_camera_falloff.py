@@ -6,7 +6,8 @@ import pytest
 import torch
 from test_model import make_camera, make_model
 
-from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, off_axis_squared
+from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, flat_field_maps, off_axis_squared
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.pipeline.photometric_state import as_recorded
 
@@ -146,3 +147,68 @@ def test_a_clean_truth_is_scored_against_the_scene_and_a_recorded_frame_through_
         np.allclose(frame[:, :width], dataset.get_image_float32(i)[..., 0].numpy().clip(0, 1))
         for i in range(len(dataset))
     )
+
+
+def test_a_flat_field_map_is_zero_mean_and_at_the_same_places_at_any_resolution():
+    cells = torch.randn(2, 4, 4)
+    maps = flat_field_maps(cells, 32, 48)  # [2, H, W]
+    assert maps.shape == (2, 32, 48)
+    assert torch.allclose(maps.mean(dim=(1, 2)), torch.zeros(2), atol=1e-5)  # no overall level or gain
+    # a map that is constant is no map: a frame's level and gain are the photometric state's
+    assert torch.allclose(flat_field_maps(torch.full((2, 4, 4), 0.3), 32, 48), torch.zeros(2, 32, 48), atol=1e-6)
+    half = flat_field_maps(cells, 16, 24)
+    blocks = maps.reshape(2, 16, 2, 24, 2).mean(dim=(2, 4))  # each half-resolution pixel's four
+    assert torch.allclose(half, blocks, atol=0.15 * float(cells.abs().max()))
+    # cell (0, 3) (top right) raised: the map is highest in the top right corner, lowest far from it
+    raised = torch.zeros(2, 4, 4)
+    raised[0, 0, 3] = 1.0
+    gain = flat_field_maps(raised, 32, 48)[0]
+    assert float(gain[0, -1]) == float(gain.max()) and float(gain[-1, 0]) == float(gain.min())
+
+
+def test_the_flat_field_map_is_rendered_into_training_and_found_from_frames_that_carry_it():
+    """A left-to-right offset no radial fall-off can hold: the map fits it, the scene's renders leave it out."""
+    with pytest.raises(InputError, match="camera_flat_field 4: .*needs camera_falloff True"):
+        make_model(camera_flat_field=4)
+    camera = make_camera(1)
+    model = make_model(camera_falloff=True, camera_flat_field=4)
+    assert "camera_flat_field" in model.get_param_groups()
+    truth = torch.zeros(2, 4, 4)
+    truth[1] = torch.linspace(-0.05, 0.05, 4)  # the offset grows from left to right
+    with torch.no_grad():
+        model.camera_flat_field.copy_(truth)
+    model.train()
+    recorded = model.get_outputs(camera)["thermal"]
+    model.eval()
+    scene = model.get_outputs(camera)["thermal"]
+    assert torch.allclose(recorded - scene, flat_field_maps(truth, 32, 48)[1][..., None], atol=1e-5)
+    assert (
+        "flat field 4x4: gain +-0.000, offset +-0.050"
+        in {d.part: d.choice for d in model.decisions()}["camera fall-off"]
+    )
+    model.train()
+    losses = model.get_loss_dict(model.get_outputs(camera), {"image": torch.rand(32, 48, 1), "image_idx": 1})
+    sum(losses.values()).backward()
+    assert model.camera_flat_field.grad is not None and model.camera_flat_field.grad.abs().sum() > 0
+    rho = rho_of(intrinsics(), 48, 32)
+    with torch.no_grad():
+        model.camera_flat_field.zero_()
+        scenes = [model.get_outputs(make_camera(i))["thermal"] + 0.5 for i in range(3)]  # [H, W, 1] each
+    frames = [apply_falloff(s, torch.zeros(2, FALLOFF_ORDER), rho, truth) for s in scenes]
+    radial_only = torch.zeros(2, FALLOFF_ORDER, requires_grad=True)
+    optimizer = torch.optim.Adam([model.camera_flat_field, radial_only], lr=0.01)
+    for step in range(600):
+        optimizer.zero_grad()
+        i = step % 3
+        loss = (apply_falloff(scenes[i], radial_only, rho, model.camera_flat_field) - frames[i]).abs().mean()
+        loss.backward()
+        optimizer.step()
+    fitted = flat_field_maps(model.camera_flat_field.detach(), 32, 48)
+    assert torch.allclose(fitted, flat_field_maps(truth, 32, 48), atol=0.01)
+
+
+def test_a_checkpoint_with_or_without_the_flat_field_map_is_refused_by_a_model_of_the_other_kind():
+    with_map = make_model(camera_falloff=True, camera_flat_field=4).state_dict()
+    with pytest.raises(ValueError, match=r"checkpoint has the camera flat-field map \(camera_flat_field\)"):
+        make_model(camera_falloff=True).load_state_dict(dict(with_map))
+    make_model(camera_falloff=True, camera_flat_field=4).load_state_dict(dict(with_map))

@@ -47,6 +47,7 @@ def wild_thermal_optimizers() -> dict:
         "background_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
         # four coefficients shared by every frame (`camera_falloff`): the MLPs' rate, no decay towards no fall-off
         "camera_falloff": _adam(1e-3),
+        "camera_flat_field": _adam(1e-3),  # its cells, likewise
         "camera_opt": _adam(1e-4),
     }
 

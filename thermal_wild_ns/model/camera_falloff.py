@@ -14,14 +14,22 @@ a frame's overall level or gain from the photometric state; independent of the r
 
     recorded = (1 + sum_k g_k rho^k) * scene + sum_k o_k rho^k,   k = 1 .. FALLOFF_ORDER
 
-The model fits (g, o) with the scene; the response is rendered into every image compared with a
+On top of it, optionally, a flat-field map: a gain and an offset per cell of an n x n grid laid
+over the image, bilinear between cell centres, each made zero-mean (so it too cannot take a frame's
+overall level or gain): the part of the camera's fixed pattern that is not radial (an off-centre
+fall-off, a shutter's or the housing's uneven warmth).
+
+The model fits (g, o) (and the map) with the scene; the response is rendered into every image compared with a
 recorded frame (the training loss, the held-back scores, the evaluation protocols) and left out of
 the scene's renders (the viewer, `ns-render`, the survey exports): those show the scene, not the
 lens."""
 
 from __future__ import annotations
 
+from typing import Optional
+
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 FALLOFF_ORDER = 2
@@ -35,21 +43,40 @@ def off_axis_squared(directions: Tensor) -> Tensor:
     return directions[..., :2].square().sum(dim=-1, keepdim=True) / directions[..., 2:].square()
 
 
-def apply_falloff(image: Tensor, coefficients: Tensor, rho: Tensor) -> Tensor:
+def flat_field_maps(cells: Tensor, height: int, width: int) -> Tensor:
+    """The flat-field map's gain and offset [2, H, W] at every pixel of a height x width image, from
+    its cells [2, n, n] (row 0 the gain's, row 1 the offset's), each made zero-mean, bilinear between
+    cell centres: the same places of the sensor at any render resolution."""
+    centred = cells - cells.mean(dim=(1, 2), keepdim=True)  # [2, n, n]
+    return F.interpolate(centred[None], size=(height, width), mode="bilinear", align_corners=False)[0]
+
+
+def apply_falloff(image: Tensor, coefficients: Tensor, rho: Tensor, flat_field: Optional[Tensor] = None) -> Tensor:
     """`image` [H, W, 1] as the camera records it: the gain and offset polynomials of
-    `coefficients` [2, FALLOFF_ORDER] (row 0 the gain's, row 1 the offset's) at `rho` [H, W, 1]."""
+    `coefficients` [2, FALLOFF_ORDER] (row 0 the gain's, row 1 the offset's) at `rho` [H, W, 1],
+    plus the flat-field map of `flat_field` [2, n, n] where given (`flat_field_maps`)."""
     powers = torch.cat([rho**k for k in range(1, coefficients.shape[1] + 1)], dim=-1)  # [H, W, K]
     gain = 1.0 + powers @ coefficients[0]  # [H, W]
     offset = powers @ coefficients[1]  # [H, W]
+    if flat_field is not None:
+        maps = flat_field_maps(flat_field, image.shape[0], image.shape[1])  # [2, H, W]
+        gain, offset = gain + maps[0], offset + maps[1]
     return image * gain[..., None] + offset[..., None]
 
 
-def describe_falloff(coefficients: Tensor) -> str:
+def describe_falloff(coefficients: Tensor, flat_field: Optional[Tensor] = None) -> str:
     """The fitted response as a person reads it (the run's decisions), e.g. 'gain 1 -0.120 rho
-    +0.010 rho^2, offset -0.050 rho +0.000 rho^2' (rho: the squared off-axis tangent)."""
+    +0.010 rho^2, offset -0.050 rho +0.000 rho^2' (rho: the squared off-axis tangent), and the
+    flat-field map's spread, e.g. '; flat field 8x8: gain +-0.031, offset +-0.012' (the largest
+    deviation of a cell from the map's mean)."""
 
     def polynomial(row: list) -> str:
         return " ".join(f"{c:+.3f} rho" + (f"^{k}" if k > 1 else "") for k, c in enumerate(row, start=1))
 
     gain, offset = coefficients.detach().cpu().tolist()
-    return f"gain 1 {polynomial(gain)}, offset {polynomial(offset)}"
+    text = f"gain 1 {polynomial(gain)}, offset {polynomial(offset)}"
+    if flat_field is not None:
+        spread = (flat_field - flat_field.mean(dim=(1, 2), keepdim=True)).abs().amax(dim=(1, 2)).tolist()
+        size = "x".join(map(str, flat_field.shape[1:]))
+        text += f"; flat field {size}: gain +-{spread[0]:.3f}, offset +-{spread[1]:.3f}"
+    return text

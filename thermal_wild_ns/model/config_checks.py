@@ -45,16 +45,18 @@ def refuse_mismatched_checkpoint(
     emission_mlp: bool,
     background_mlp: bool,
     camera_falloff: bool,
+    camera_flat_field: bool,
     frame_embed_shape: Tuple[int, int],
 ) -> None:
     """A ValueError where a checkpoint's `state_dict` does not fit a model with (or without) the
-    emission and background MLPs, the camera's fall-off and frame embeddings of `frame_embed_shape`,
+    emission and background MLPs, the camera's fall-off and flat-field map and frame embeddings of `frame_embed_shape`,
     before nerfstudio's loader falls back to a non-strict load that would silently drop a part."""
     parts = {
         "emission MLP (use_emission_mlp)": ("emission_mlp.", emission_mlp),
         "per-Gaussian embeddings (use_emission_mlp)": ("gauss_params.gauss_embed", emission_mlp),
         "background MLP (use_background_mlp)": ("background_mlp.", background_mlp),
         "camera fall-off (camera_falloff)": ("camera_falloff", camera_falloff),
+        "camera flat-field map (camera_flat_field)": ("camera_flat_field", camera_flat_field),
     }
     for what, (prefix, wanted) in parts.items():
         present = any(k.startswith(prefix) for k in state_dict)

@@ -123,6 +123,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     out of the scene's renders (viewer, `ns-render`, exports), so vignetting is neither baked into the
     Gaussians nor shown to the user. Off by default: one real capture gained, another did not
     (docs/results/camera_falloff)."""
+    camera_flat_field: int = 0
+    """With `camera_falloff`: cells per image side of a flat-field map fitted on top of the radial
+    fall-off (a gain and an offset per cell, bilinear between cells, zero-mean: the camera's fixed
+    pattern that is not radial; `camera_falloff.py`). 0: the radial fall-off alone."""
     nonnegative_emission: bool = False
     """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
     spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
@@ -233,6 +237,14 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_field = ThermalBackground(self.background_mlp, cfg)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.apply_falloff`); zero: no fall-off
         self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
+        if cfg.camera_flat_field < 0 or (cfg.camera_flat_field and not cfg.camera_falloff):
+            raise InputError(
+                f"camera_flat_field {cfg.camera_flat_field}: cells per side (0 or more) of a map fitted on top of "
+                "the radial fall-off, which needs camera_falloff True"
+            )
+        n = cfg.camera_flat_field
+        # [2, n, n]: row 0 the gain's cells, row 1 the offset's (`camera_falloff.flat_field_maps`); zero: flat
+        self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n else None
         self.camera_frame_directions = CameraFrameDirections()  # the fall-off's off-axis angles, per camera and size
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
@@ -277,6 +289,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             groups["background_mlp"] = list(self.background_mlp.parameters())
         if self.camera_falloff is not None:
             groups["camera_falloff"] = [self.camera_falloff]
+        if self.camera_flat_field is not None:
+            groups["camera_flat_field"] = [self.camera_flat_field]
         self.camera_optimizer.get_param_groups(param_groups=groups)
         return groups
 
@@ -477,9 +491,19 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             return self.viewing_outputs(render, alpha, background)
         thermal, alpha, depth = composite(render, alpha, background)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
-            directions = self.camera_frame_directions(view.K[0], view.pinhole, W, H, 1)  # [H, W, 3], kept
-            thermal = apply_falloff(thermal, self.camera_falloff, off_axis_squared(directions))
+            thermal = self.camera_response(thermal, view.K[0], view.pinhole)
         return self._outputs(thermal, alpha, background, depth)
+
+    def camera_response(self, thermal: Tensor, K: Tensor, pinhole: bool, detach: bool = False) -> Tensor:
+        """A render `thermal` [H, W, 1] of a camera of intrinsics `K` [3, 3] at that size, through the
+        fitted fall-off and flat-field map (`camera_falloff.apply_falloff`)."""
+        height, width = thermal.shape[:2]
+        directions = self.camera_frame_directions(K, pinhole, width, height, 1)  # [H, W, 3], kept
+        coefficients, flat_field = self.camera_falloff, self.camera_flat_field
+        if detach:
+            coefficients = coefficients.detach()
+            flat_field = None if flat_field is None else flat_field.detach()
+        return apply_falloff(thermal, coefficients, off_axis_squared(directions), flat_field)
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
         """A render `thermal` [H, W, 1] of `camera` (outside training: the scene) as the camera records
@@ -488,9 +512,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if self.camera_falloff is None:
             return thermal
         _, _, pinhole = host_sizes(camera)  # the camera's full resolution, as the render
-        height, width = thermal.shape[:2]
-        directions = self.camera_frame_directions(intrinsics(camera)[0].to(thermal.device), pinhole, width, height, 1)
-        return apply_falloff(thermal, self.camera_falloff.detach(), off_axis_squared(directions))
+        return self.camera_response(thermal, intrinsics(camera)[0].to(thermal.device), pinhole, detach=True)
 
     def activated_splats(self, ids: Optional[Tensor] = None) -> Tuple[Tensor, Tensor]:
         """gsplat's scales [N, 3] and opacities [N] of every (or the selected) Gaussian (outside training
@@ -638,7 +660,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("view-dependent emission", cfg.view_sh_degree > 0, f"view_sh_degree {cfg.view_sh_degree}"),
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
-        falloff = "off" if self.camera_falloff is None else f"on: {describe_falloff(self.camera_falloff)}"
+        falloff = "off"
+        if self.camera_falloff is not None:
+            falloff = f"on: {describe_falloff(self.camera_falloff, self.camera_flat_field)}"
         entries.append(Decision("camera fall-off", falloff, "camera_falloff", "config"))
         return entries
 
@@ -695,6 +719,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
         has_parts = (self.emission_mlp is not None, self.background_mlp is not None, self.camera_falloff is not None)
+        has_parts += (self.camera_flat_field is not None,)
         refuse_mismatched_checkpoint(state_dict, *has_parts, tuple(self.frame_embed.weight.shape))
         return super().load_state_dict(state_dict, strict=strict, **kwargs)
 
