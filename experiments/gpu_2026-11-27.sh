@@ -9,13 +9,17 @@
 #     bash experiments/gpu_2026-11-27.sh falloff-flight2         # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh falloff-dunr            # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh trial-vignetting        # nothing carried (a generated scene)
+#     bash experiments/gpu_2026-11-27.sh log-writes-dunr         # .data/dunr .data/cache .baseline carried
+#     bash experiments/gpu_2026-11-27.sh falloff-vignetting      # nothing carried
+#     bash experiments/gpu_2026-11-27.sh flat-field-flight2      # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh flat-field-dunr         # .data/dunr .data/cache carried
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -84,6 +88,51 @@ case "$plan" in
       > "$OUT/trial-vignetting.log" 2>&1
     cp /tmp/trial-vignetting/bench.json "$OUT/trial-vignetting-bench.json"
     cp /tmp/trial-vignetting/bench.md "$OUT/trial-vignetting-bench.md"
+    ;;
+  log-writes-dunr)  # issue 34: the first 3,000 steps of a default DUNR run, the code before (.baseline) and after the
+    # per-step timing scalars were thinned to the log steps, in turn, seeds 0-2 (experiments.schedule_profile)
+    root=$PWD
+    for seed in 0 1 2; do
+      for code in before after; do
+        tree=$root; [ "$code" = before ] && tree=$root/.baseline
+        (cd "$tree" && PYTHONPATH=$tree:/tmp/site timeout 100 python3 -m experiments.schedule_profile --scene "$root/.data/dunr" \
+          --cache-dir "$root/.data/cache" --seed $seed --steps 3000 --output-dir "/tmp/logw/$code-seed$seed" \
+          > "/tmp/logw-$code-seed$seed.log" 2>&1)
+        python3 -c "import json, sys; d = json.load(open(sys.argv[1])); d.pop('windows'); d['code'] = sys.argv[2]; print(json.dumps(d))" \
+          "/tmp/logw/$code-seed$seed/schedule.json" $code | tee -a "$OUT/log-writes.jsonl" | cut -c1-200
+      done
+    done
+    ;;
+  falloff-vignetting)  # issue 33: the vignetting scene without the view term, with the camera's fall-off fitted or not,
+    # 3 seeds each, both side by side (the trial-vignetting plan's protocol)
+    for falloff in False True; do
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/vignetting-$falloff" \
+        --scenes stress:vignetting --methods wild-thermal --seeds 3 --runs-per-gpu 3 --steps 5000 --num-downscales 1 \
+        --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --set pipeline.model.camera_falloff=$falloff \
+        > "$OUT/vignetting-falloff-$falloff.log" 2>&1 &
+    done
+    wait
+    for falloff in False True; do cp "/tmp/vignetting-$falloff/bench.json" "$OUT/vignetting-falloff-$falloff.json"; done
+    ;;
+  flat-field-flight2|flat-field-dunr)  # issue 33: no camera model, the radial fall-off, the fall-off and an 8x8 flat-field
+    # map, 3 seeds each, all nine runs side by side (their timings are shared, their scores are not)
+    scene=${plan#flat-field-}
+    for variant in none radial map8; do
+      case $variant in
+        none) set_args="pipeline.model.camera_falloff=False" ;;
+        radial) set_args="pipeline.model.camera_falloff=True" ;;
+        map8) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8" ;;
+      esac
+      PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/ff-$variant" \
+        --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
+        --set $set_args > "$OUT/$scene-$variant.log" 2>&1 &
+    done
+    wait
+    for variant in none radial map8; do
+      cp "/tmp/ff-$variant/bench.json" "$OUT/$scene-$variant.json"
+      grep -A3 "^PSNR / SSIM, \`\(novel\|time\|aligned\)\`" "/tmp/ff-$variant/bench.md" | grep wild
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
