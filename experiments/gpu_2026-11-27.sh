@@ -13,13 +13,14 @@
 #     bash experiments/gpu_2026-11-27.sh falloff-vignetting      # nothing carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-flight2      # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-dunr         # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh flat-field-generated    # nothing carried
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -133,6 +134,19 @@ case "$plan" in
       cp "/tmp/ff-$variant/bench.json" "$OUT/$scene-$variant.json"
       grep -A3 "^PSNR / SSIM, \`\(novel\|time\|aligned\)\`" "/tmp/ff-$variant/bench.md" | grep wild
     done
+    ;;
+  flat-field-generated)  # issue 33: the generated scenes without a camera model and with the fall-off and an 8x8
+    # flat-field map, 3 seeds each (the protocol of gpu_2026-11-24.sh generated), both benches side by side
+    for variant in none map8; do
+      set_args="pipeline.model.camera_falloff=False"
+      [ $variant = map8 ] && set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8"
+      PYTHONPATH=$PWD:/tmp/site timeout 550 python3 -m experiments.bench --output-dir "/tmp/gen-$variant" \
+        --scenes demo stress:clean stress:drift stress:ffc stress:outlier --methods wild-thermal --seeds 3 \
+        --steps 5000 --num-downscales 1 --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --runs-per-gpu 5 \
+        --set $set_args > "$OUT/generated-$variant.log" 2>&1 &
+    done
+    wait
+    for variant in none map8; do cp "/tmp/gen-$variant/bench.json" "$OUT/generated-$variant.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
