@@ -14,13 +14,14 @@
 #     bash experiments/gpu_2026-11-27.sh flat-field-flight2      # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-dunr         # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-generated    # nothing carried
+#     bash experiments/gpu_2026-11-27.sh flat-field-decay        # .data/flight2 .data/cache carried
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -147,6 +148,25 @@ case "$plan" in
     done
     wait
     for variant in none map8; do cp "/tmp/gen-$variant/bench.json" "$OUT/generated-$variant.json"; done
+    ;;
+  flat-field-decay)  # issue 33: the 8x8 flat-field map with its cells decayed towards a flat field (Adam's L2 weight
+    # decay, 0.1 and 1.0): flight2 and the two generated scenes where the plain map cost `aligned` most, 3 seeds each,
+    # the four benches side by side (18 runs; timings shared)
+    for decay in 0.1 1.0; do
+      map="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8 optimizers.camera_flat_field.optimizer.weight_decay=$decay"
+      PYTHONPATH=$PWD:/tmp/site timeout 470 python3 -m experiments.bench --output-dir "/tmp/decay-flight2-$decay" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
+        --set $map > "$OUT/decay-flight2-$decay.log" 2>&1 &
+      PYTHONPATH=$PWD:/tmp/site timeout 470 python3 -m experiments.bench --output-dir "/tmp/decay-generated-$decay" \
+        --scenes stress:clean stress:drift --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 \
+        --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --runs-per-gpu 6 \
+        --set $map > "$OUT/decay-generated-$decay.log" 2>&1 &
+    done
+    wait
+    for decay in 0.1 1.0; do
+      for part in flight2 generated; do cp "/tmp/decay-$part-$decay/bench.json" "$OUT/decay-$part-$decay.json"; done
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
