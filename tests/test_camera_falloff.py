@@ -127,6 +127,7 @@ def test_a_clean_truth_is_scored_against_the_scene_and_a_recorded_frame_through_
     config = demo_trainer_config(tmp_path, steps=1, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.camera_falloff = True
+    config.pipeline.model.camera_pattern_min_motion = 0.0  # fitted here although the demo's content barely moves
     pipeline = seeded_trainer(config).pipeline
     dataset = pipeline.datamanager.eval_dataset
     assert all(dataset.is_clean_truth(i) for i in range(len(dataset)))
@@ -212,3 +213,63 @@ def test_a_checkpoint_with_or_without_the_flat_field_map_is_refused_by_a_model_o
     with pytest.raises(ValueError, match=r"checkpoint has the camera flat-field map \(camera_flat_field\)"):
         make_model(camera_falloff=True).load_state_dict(dict(with_map))
     make_model(camera_falloff=True, camera_flat_field=4).load_state_dict(dict(with_map))
+
+
+def test_content_motion_is_how_far_the_scene_points_move_across_the_frames_that_see_them():
+    from nerfstudio.cameras.cameras import Cameras
+
+    from thermal_wild_ns.data.content_motion import content_motion
+
+    def cameras(x_positions):  # looking down -z (nerfstudio's axes) from 10 m above the origin, moved along x
+        c2w = torch.zeros(len(x_positions), 3, 4)
+        c2w[:, :, :3] = torch.eye(3)
+        c2w[:, 0, 3] = torch.tensor(x_positions)
+        c2w[:, 2, 3] = 10.0
+        return Cameras(camera_to_worlds=c2w, fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+
+    points = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, -1.0, 0.0]])
+    assert content_motion(cameras([0.0, 0.0, 0.0]), points) == pytest.approx(0.0, abs=1e-6)  # the camera never moves
+    # moved by 2 m at 10 m, focal 100 px over 100 px: each point moves 0.2 of the frame; two frames: spread 0.1
+    assert content_motion(cameras([0.0, 2.0]), points) == pytest.approx(0.1, abs=1e-4)
+    assert content_motion(cameras([0.0, 2.0, 4.0]), points) > content_motion(cameras([0.0, 1.0, 2.0]), points)
+    assert content_motion(cameras([0.0, 100.0]), points) is None  # no point seen twice
+    assert content_motion(cameras([0.0, 2.0]), None) is None
+
+
+def test_the_camera_pattern_is_fitted_where_the_content_crosses_the_sensor_and_not_on_an_orbit(
+    tmp_path, demo_scene_dir
+):
+    """The full method's rule (`camera_pattern_min_motion`): a synthetic drone survey, whose ground crosses
+    the frames, gets the fall-off and the map; the demo's orbit, which keeps its target in the middle, does
+    not; the run's decisions say which and why."""
+    from thermal_wild_ns.data.content_motion import content_motion
+    from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+    from thermal_wild_ns.method_configs import method_trainer
+
+    config = method_trainer("wild-thermal").pipeline.model
+    assert config.camera_falloff and config.camera_flat_field > 0 and config.camera_pattern_min_motion > 0
+    assert not method_trainer("wild-thermal-emission-mlp").pipeline.model.camera_falloff  # the paper's rows
+    verdicts = {}
+    for name, parser in (
+        ("survey", ThermalDemoDataParserConfig(data=tmp_path / "survey", scene="survey", survey_frames=9)),
+        ("demo", ThermalDemoDataParserConfig(data=demo_scene_dir)),
+    ):
+        outputs = parser.setup().get_dataparser_outputs("train")
+        motion = content_motion(outputs.cameras, outputs.metadata["points3D_xyz"])
+        overrides = {
+            f: getattr(config, f) for f in ("camera_falloff", "camera_flat_field", "camera_pattern_min_motion")
+        }
+        model = make_model(**overrides, metadata={"content_motion": motion})
+        decision = {d.part: d for d in model.decisions()}["camera fall-off"]
+        verdicts[name] = (motion, model.camera_falloff is not None, model.camera_flat_field is not None, decision)
+    motion, falloff, flat_field, decision = verdicts["survey"]
+    assert motion >= config.camera_pattern_min_motion and falloff and flat_field
+    assert decision.choice.startswith("on: gain 1") and decision.decided_by == "data"
+    assert f"moves {motion:.2f} of the frame" in decision.why
+    motion, falloff, flat_field, decision = verdicts["demo"]
+    assert motion < config.camera_pattern_min_motion and not falloff and not flat_field
+    assert decision.choice == "off" and decision.decided_by == "data" and "not told apart" in decision.why
+    unknown = make_model(**overrides)  # no seed points seen twice: nothing says the pattern can be told apart
+    assert (
+        unknown.camera_falloff is None and "unknown" in {d.part: d for d in unknown.decisions()}["camera fall-off"].why
+    )

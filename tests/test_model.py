@@ -21,15 +21,16 @@ def background(model, *args, **kwargs):
     return model.background_field(*args, training=model.training, step=model.step, **kwargs)
 
 
-def make_model(n=400, frames=5, **overrides):
+def make_model(n=400, frames=5, metadata=None, **overrides):
+    """A model of `n` random seed points and `frames` training frames; `metadata`: the training
+    dataset's, as the pipeline hands it over (none by default)."""
     g = torch.Generator().manual_seed(0)
     points = torch.randn(n, 3, generator=g) * 0.5
     grey = (torch.rand(n, 1, generator=g) * 255).to(torch.uint8).repeat(1, 3)
     config = WildThermalModelConfig(num_downscales=0, **overrides)
-    model = config.setup(
-        scene_box=SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=frames, seed_points=(points, grey)
-    )
-    return model
+    box = SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    extra = {} if metadata is None else {"metadata": metadata}
+    return config.setup(scene_box=box, num_train_data=frames, seed_points=(points, grey), **extra)
 
 
 def perturb_output_layers(model):

@@ -127,6 +127,12 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """With `camera_falloff`: cells per image side of a flat-field map fitted on top of the radial
     fall-off (a gain and an offset per cell, bilinear between cells, zero-mean: the camera's fixed
     pattern that is not radial; `camera_falloff.py`). 0: the radial fall-off alone."""
+    camera_pattern_min_motion: float = 0.0
+    """Fit the camera's fall-off and flat-field map (as set above) only where the capture's content
+    moves across the sensor by at least this much: the seed points' mean spread of image position over
+    the frames that see them, in frame sizes (`data/content_motion.py`). Below it a pattern fixed to the
+    sensor cannot be told from the content that sits at the same pixels in every frame, and a map takes
+    scene content into it (docs/results/camera_flat_field). 0: fit them as set, on any capture."""
     nonnegative_emission: bool = False
     """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
     spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
@@ -236,7 +242,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         self.background_field = ThermalBackground(self.background_mlp, cfg)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.apply_falloff`); zero: no fall-off
-        self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
+        fits_pattern, self.camera_pattern_why, self.camera_pattern_decided_by = self._camera_pattern_fitted()
+        self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if fits_pattern else None
         if cfg.camera_flat_field < 0 or (cfg.camera_flat_field and not cfg.camera_falloff):
             raise InputError(
                 f"camera_flat_field {cfg.camera_flat_field}: cells per side (0 or more) of a map fitted on top of "
@@ -244,7 +251,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             )
         n = cfg.camera_flat_field
         # [2, n, n]: row 0 the gain's cells, row 1 the offset's (`camera_falloff.flat_field_maps`); zero: flat
-        self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n else None
+        self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n and fits_pattern else None
         self.camera_frame_directions = CameraFrameDirections()  # the fall-off's off-axis angles, per camera and size
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
@@ -265,6 +272,20 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self._growth_ceiling: Optional[int] = None  # where a step ran out of GPU memory (`limit_growth`)
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
+
+    def _camera_pattern_fitted(self) -> Tuple[bool, str, str]:
+        """Whether the camera's fall-off (and flat-field map) is fitted, why, and what decided it
+        ('config', or 'data': the capture's content motion against `camera_pattern_min_motion`)."""
+        cfg = self.config
+        threshold = cfg.camera_pattern_min_motion
+        if not cfg.camera_falloff or threshold <= 0:
+            return cfg.camera_falloff, "camera_falloff", "config"
+        motion = (self.kwargs.get("metadata") or {}).get("content_motion")
+        if motion is None:
+            return False, "no seed point is seen in two frames: how far the content moves is unknown", "data"
+        verdict = ">=" if motion >= threshold else "<: a fixed pattern is not told apart from the scene there"
+        why = f"the content moves {motion:.2f} of the frame across the sensor ({verdict} {threshold:g})"
+        return motion >= threshold, why, "data"
 
     @property
     def frame_times(self) -> List[float]:
@@ -663,7 +684,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         falloff = "off"
         if self.camera_falloff is not None:
             falloff = f"on: {describe_falloff(self.camera_falloff, self.camera_flat_field)}"
-        entries.append(Decision("camera fall-off", falloff, "camera_falloff", "config"))
+        entries.append(Decision("camera fall-off", falloff, self.camera_pattern_why, self.camera_pattern_decided_by))
         return entries
 
     def has_view_term(self) -> bool:

@@ -20,6 +20,7 @@ from nerfstudio.data.datasets.base_dataset import InputDataset
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns._upstream import SingleChannelFullImageDatamanager, undistorted_as_cached
+from thermal_wild_ns.data.content_motion import content_motion
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.decisions import Decision
@@ -201,6 +202,8 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
     def _with_metadata(self, outputs: DataparserOutputs, preprocessed: bool) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed if preprocessed else None
         outputs.metadata["grey_rgb"] = self.config.grey_rgb
+        # what tells the camera's fixed pattern from the scene (the model's `camera_pattern_min_motion`)
+        outputs.metadata["content_motion"] = content_motion(outputs.cameras, outputs.metadata.get("points3D_xyz"))
         return outputs
 
     held_back: Tuple[int, ...] = ()
