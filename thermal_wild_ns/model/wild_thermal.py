@@ -121,8 +121,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image
     compared with a recorded frame (training, the held-back scores, the evaluation protocols) and left
     out of the scene's renders (viewer, `ns-render`, exports), so vignetting is neither baked into the
-    Gaussians nor shown to the user. Off by default: one real capture gained, another did not
-    (docs/results/camera_falloff)."""
+    Gaussians nor shown to the user. `wild-thermal` fits it, with an 8x8 flat-field map, on captures
+    whose content crosses the sensor (`camera_pattern_min_motion`; docs/results/camera_flat_field); its
+    ablations do not."""
     camera_flat_field: int = 0
     """With `camera_falloff`: cells per image side of a flat-field map fitted on top of the radial
     fall-off (a gain and an offset per cell, bilinear between cells, zero-mean: the camera's fixed
@@ -528,8 +529,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
         """A render `thermal` [H, W, 1] of `camera` (outside training: the scene) as the camera records
-        it, with its fitted fall-off (`camera_falloff`); unchanged without one. For every image compared
-        with a recorded frame (`pipeline.photometric_state.render`)."""
+        it, with its fitted fall-off and flat-field map (`camera_response`); unchanged without them.
+        For every image compared with a recorded frame (`pipeline.photometric_state.render`)."""
         if self.camera_falloff is None:
             return thermal
         _, _, pinhole = host_sizes(camera)  # the camera's full resolution, as the render
