@@ -273,3 +273,29 @@ def test_the_camera_pattern_is_fitted_where_the_content_crosses_the_sensor_and_n
     assert (
         unknown.camera_falloff is None and "unknown" in {d.part: d for d in unknown.decisions()}["camera fall-off"].why
     )
+
+
+def test_a_run_fitting_the_camera_pattern_trains_through_ns_train_and_loads_with_it(tmp_path):
+    """The full method's defaults on a capture whose content crosses the sensor: the fall-off and the map
+    are fitted in training (their own Adam groups), saved, and a loading command (ns-eval's `eval_setup`)
+    decides the same from the same data and loads them."""
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+    from thermal_wild_ns.demo import demo_trainer_config
+    from thermal_wild_ns.training.trainer import seeded_trainer
+
+    config = demo_trainer_config(tmp_path, steps=3, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser = ThermalDemoDataParserConfig(
+        data=tmp_path / "survey", scene="survey", survey_frames=9
+    )
+    config.pipeline.datamanager.camera_res_scale_factor = 0.125  # 80 x 64 renders: a quick CPU run
+    config.save_config()  # as ns-train does
+    trainer = seeded_trainer(config)
+    model = trainer.pipeline.model
+    assert model.camera_flat_field is not None and "camera_flat_field" in trainer.optimizers.optimizers
+    trainer.train()
+    fitted = model.camera_flat_field.detach().clone()
+    assert fitted.abs().sum() > 0  # trained: the map moved from flat
+    _, pipeline, _, _ = eval_setup(config.get_base_dir() / "config.yml", test_mode="test")
+    assert torch.equal(pipeline.model.camera_flat_field.detach().cpu(), fitted.cpu())
