@@ -57,6 +57,7 @@ def main(out: Path) -> None:
         torch.save(saved, out / f"rank{rank}-packed{packed}.pt")
     ranks = RankGroup.current()  # the decisions taken once for all ranks (the guard's, the automatic stop's)
     decisions = {"any": ranks.any(rank == 1, torch.device("cpu")), "from_rank_0": ranks.from_rank_0(10.0 + rank)}
+    decisions["all_agree"] = bool(ranks.all_agree(torch.tensor(rank == 0)))  # the guard's verdict: rank 1 rejects
     # a checkpoint's gather: rank 0 holds 5 rows, rank 1 holds 3, two rows of each rank at a time
     rows = torch.arange(5 if rank == 0 else 3, dtype=torch.float32)[:, None] + 100 * rank
     decisions["gathered"] = ranks.gather_rows_on_host(rows.repeat(1, 2), chunk_rows=2)

@@ -55,8 +55,9 @@ def test_a_single_bad_step_is_skipped_and_training_goes_on(tmp_path, demo_scene_
 def test_persistent_divergence_stops_with_a_clear_error(tmp_path, demo_scene_dir):
     trainer = _trainer(tmp_path, demo_scene_dir, steps=20, max_consecutive_skips=3, max_rollbacks=1)
     _poison_loss(trainer.pipeline.model, from_step=5)
-    # steps 5-7 skipped -> back to the state of step 0; 8-10 skipped again -> no rollback left: stop
-    with pytest.raises(TrainingDiverged, match=r"step 10: 3 steps in a row were skipped \(last: non-finite loss"):
+    # each verdict is read back at the next step: steps 5-7 skipped, the third read at step 8 -> back to the
+    # state of step 0 (step 8 makes no update); 9-11 skipped again, read at step 12 -> no rollback left: stop
+    with pytest.raises(TrainingDiverged, match=r"step 11: 3 steps in a row were skipped \(last: non-finite loss"):
         trainer.train()
     assert trainer.guard.rollbacks == 1
 
@@ -209,3 +210,28 @@ def test_out_of_gpu_memory_with_no_rollback_left_says_what_to_do(tmp_path, demo_
     model.get_loss_dict = out_of_memory
     with pytest.raises(SystemExit, match="out of GPU memory.*max-gaussians.*multi_gpu"):
         trainer.train()
+
+
+def test_the_verdict_is_decided_on_the_device_and_read_back_at_the_next_step():
+    """`verdict` returns a tensor the optimizer reads where it lives; the skip is counted and said when
+    the next step's verdict (or `settle`) reads the values back; a hard frame's threshold holds on the
+    device as on the host."""
+    guard = DivergenceGuard(DivergenceGuardConfig(spike_window=3, loss_spike_factor=10.0, max_consecutive_skips=2))
+    param = torch.nn.Parameter(torch.ones(3))
+    param.grad = torch.ones(3)
+    for step in range(3):
+        accepted = guard.verdict(torch.tensor(1.0), {"means": [param]}, ["means"], frame=step, step=step)
+        assert isinstance(accepted, torch.Tensor) and accepted.dtype == torch.bool and bool(accepted)
+    assert guard.spike_threshold(9) == (float("inf"), None)  # the third loss is not read back yet
+    assert guard.settle() is None and guard.spike_threshold(9) == (10.0, 1.0)  # now the window is full
+    accepted = guard.verdict(torch.tensor(50.0), {"means": [param]}, ["means"], frame=5, step=3)
+    assert not bool(accepted) and guard.skipped == 0  # decided; not yet read back
+    accepted = guard.verdict(torch.tensor(60.0), {"means": [param]}, ["means"], frame=5, step=4)
+    assert guard.skipped == 1 and bool(accepted)  # step 3 counted; frame 5 was at 50 last time: a hard frame
+    param.grad = torch.tensor([1.0, float("inf"), 0.0])
+    guard.verdict(torch.tensor(1.0), {"means": [param]}, ["means"], frame=6, step=5)
+    assert guard.settle() == "non-finite gradients in means" and guard.skipped == 2
+    assert guard.settle() is None  # nothing pending
+    guard.verdict(torch.tensor(float("nan")), {"means": [param]}, ["means"], step=6)
+    with pytest.raises(TrainingDiverged, match=r"step 6: 2 steps in a row were skipped \(last: non-finite loss"):
+        guard.settle()

@@ -70,13 +70,14 @@ def test_the_launcher_sets_every_adam_for_its_images_per_step():
 
 def test_one_decision_for_all_ranks(tmp_path_factory):
     """What the guard and the automatic stop decide across GPUs: a flag any rank raises, every rank
-    sees; rank 0's score is every rank's. And a checkpoint's gather of shares of unequal size."""
+    sees; a step one rank rejects (on the device) every rank rejects; rank 0's score is every rank's.
+    And a checkpoint's gather of shares of unequal size."""
     out = split_render_run(tmp_path_factory)
     rows = torch.tensor([0.0, 1, 2, 3, 4, 100, 101, 102])[:, None].repeat(1, 2)  # rank 0's rows, then rank 1's
     for rank in range(2):
         decisions = torch.load(out / f"rank{rank}-decisions.pt")
         gathered = decisions.pop("gathered")
-        assert decisions == {"any": True, "from_rank_0": 10.0}
+        assert decisions == {"any": True, "from_rank_0": 10.0, "all_agree": False}
         # a checkpoint's Gaussians: whole on rank 0, in host memory, gathered a few rows at a time
         assert torch.equal(gathered, rows if rank == 0 else rows[:0])
 

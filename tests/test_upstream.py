@@ -120,7 +120,8 @@ def test_step_timings_are_written_with_the_losses_every_other_event_at_once(monk
 def test_fused_adam_step_is_adams_step():
     """`fused_adam_step` over several optimizers (with and without weight decay, parameters without
     gradients, a state created mid-way as densification creates one) against each optimizer's own
-    `step()`, bit for bit over a few steps."""
+    `step()`, bit for bit over a few steps; a step the divergence guard rejects on the device
+    (`accepted` False) is one torch never took, an accepted one is `step()`."""
     import torch
 
     from thermal_wild_ns._upstream import fused_adam_ready, fused_adam_step
@@ -137,17 +138,20 @@ def test_fused_adam_step_is_adams_step():
     mine, theirs = build(), build()
     assert all(fused_adam_ready(o) for o in mine[1][:2]) and not fused_adam_ready(mine[1][2])  # AdamW: no
     assert not fused_adam_ready(torch.optim.Adam([torch.nn.Parameter(torch.ones(1))]))  # not fused
-    for step in range(4):
+    verdicts = [None, torch.tensor(True), torch.tensor(False), None, torch.tensor(True)]  # step 2 rejected
+    for step, accepted in enumerate(verdicts):
         for (params, optimizers), stepper in ((mine, "ours"), (theirs, "torch")):
             torch.manual_seed(step)
             for k, p in enumerate(params):
                 p.grad = None if (step == 0 and k == 1) else torch.randn_like(p)  # the second starts at step 1
             if stepper == "ours":
-                fused_adam_step(optimizers[:2])
-                optimizers[2].step()
-            else:
+                fused_adam_step(optimizers[:2], accepted)
+                if accepted is None or bool(accepted):
+                    optimizers[2].step()
+            elif accepted is None or bool(accepted):
                 for optimizer in optimizers:
                     optimizer.step()
+    assert float(mine[1][0].state[mine[0][0]]["step"]) == 4  # five steps, one rejected
     for p, q, o, r in zip(mine[0], theirs[0], mine[1], theirs[1]):
         assert torch.equal(p, q)
         assert o.state[p].keys() == r.state[q].keys()

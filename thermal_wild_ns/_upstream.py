@@ -88,7 +88,7 @@ def fused_adam_ready(optimizer) -> bool:
     )
 
 
-def fused_adam_step(optimizers) -> None:
+def fused_adam_step(optimizers, accepted: Optional[torch.Tensor] = None) -> None:
     """`step()` of every optimizer in `optimizers` (each `fused_adam_ready`), in one go: what torch's
     `Adam.step` does with fused=True (state created at the first step as `Adam._init_group` creates
     it, the step counts raised, then `torch._fused_adam_` per param group with the arguments
@@ -97,7 +97,9 @@ def fused_adam_step(optimizers) -> None:
     training step here. The step counts of every parameter go up in one foreach kernel.
     Checked against torch 2.11 (the GPU machines) and 2.13 (CPU): tests/test_upstream.py compares
     the parameters and optimizer states with `Optimizer.step`'s, bit for bit, and
-    tests/test_resume.py a training run with nerfstudio's."""
+    tests/test_resume.py a training run with nerfstudio's. `accepted` ([] bool on the device, the
+    divergence guard's verdict): where False, nothing moves, step counts included (torch's
+    `found_inf`, as a grad scaler's skipped step), decided on the device without a host sync."""
 
     work = []
     for optimizer in optimizers:
@@ -116,7 +118,9 @@ def fused_adam_step(optimizers) -> None:
             work.append((group, params, states))
     if not work:
         return
-    torch._foreach_add_([state["step"] for _, _, states in work for state in states], 1)
+    steps = [state["step"] for _, _, states in work for state in states]
+    torch._foreach_add_(steps, 1 if accepted is None else accepted.float())
+    found_inf = None if accepted is None else (~accepted).float()
     for group, params, states in work:
         beta1, beta2 = group["betas"]
         kernel = torch._fused_adamw_ if group.get("decoupled_weight_decay", False) else torch._fused_adam_
@@ -135,7 +139,7 @@ def fused_adam_step(optimizers) -> None:
             eps=group["eps"],
             maximize=False,
             grad_scale=None,
-            found_inf=None,
+            found_inf=found_inf,
         )
 
 
@@ -311,8 +315,11 @@ class DefaultStrategyWithHooks(DefaultStrategy):
         return super()._grow_gs(params, optimizers, state, step)
 
     def _update_state(self, params, state, info, packed: bool = False):
-        if not self.update_statistics(params, state, info, packed):
-            super()._update_state(params, state, info, packed=packed)
+        if self.update_statistics(params, state, info, packed):
+            return
+        if "accepted" in info and not bool(info["accepted"]):  # gsplat's own sums: a host sync (packed renders)
+            return
+        super()._update_state(params, state, info, packed=packed)
 
 
 class SingleChannelFullImageDatamanager(FullImageDatamanager):

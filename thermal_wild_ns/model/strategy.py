@@ -163,6 +163,8 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
             if state[key] is None:
                 state[key] = torch.zeros(n, device=grads.device)
         visible = info["radii"] > 0.0  # [C, N]
+        if "accepted" in info:  # the divergence guard's verdict on this step, on the device
+            visible = visible & info["accepted"]
         state["grad2d"] += torch.where(visible, grads.norm(dim=-1), 0.0).sum(0)
         state["count"] += visible.sum(0)
         if self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(

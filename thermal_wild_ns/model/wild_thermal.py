@@ -226,6 +226,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.frame_states = FrameStates(self.frame_embed, indices if indices is not None else range(num_frames))
         self._last_training_loss: Tuple[Optional[Tensor], Optional[int]] = (None, None)  # `last_training_loss`
         self._discard_statistics = False  # `discard_step_statistics`
+        self._step_accepted: Optional[Tensor] = None  # `weigh_step_statistics`
         self._view_term = "on" if "view_sh" in self.gauss_params else "off"  # `use_view_term`, `try_view_term`
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
@@ -735,8 +736,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self._growth_ceiling = count if self._growth_ceiling is None else min(self._growth_ceiling, count)
 
     def discard_step_statistics(self) -> None:
-        """This step's gradients stay out of the densification statistics (a step the guard skipped)."""
+        """This step's gradients stay out of the densification statistics (a rolled-back step)."""
         self._discard_statistics = True
+
+    def weigh_step_statistics(self, accepted: Tensor) -> None:
+        """This step's gradients enter the densification statistics where `accepted` ([] bool on the
+        device: the divergence guard's verdict, read there, not waited for) is True."""
+        self._step_accepted = accepted
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
@@ -759,10 +765,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             torch.set_rng_state(state["torch_rng_state"])
 
     def step_post_backward(self, step):
-        if self._discard_statistics:  # the guard skipped this step: no statistics from it
+        accepted, self._step_accepted = self._step_accepted, None
+        if self._discard_statistics:  # a rolled-back step: no statistics from it
             self._discard_statistics = False
             return
         assert step == self.step
+        info = self.info if accepted is None else {**self.info, "accepted": accepted}
         with record_function("thermal/densify"):  # splatfacto's, but with the layout this model rendered
             # splatfacto passes packed=False; across GPUs the render is packed ([nnz] per visible splat), and
             # statistics read as [C, N] summed every splat into every Gaussian: each rank's screen-size
@@ -772,7 +780,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 optimizers=self.optimizers,
                 state=self.strategy_state,
                 step=step,
-                info=self.info,
+                info=info,
                 packed=self.ranks.split,
             )
 

@@ -114,6 +114,15 @@ class RankGroup:
         dist.broadcast_object_list(box, src=0)
         return float(box[0])
 
+    def all_agree(self, flag: Tensor) -> Tensor:
+        """Whether `flag` ([] bool on the device) is set on every rank, without a host sync (every
+        rank gets the same answer: one decision for all)."""
+        if not self.split:
+            return flag
+        value = flag.float()
+        dist.all_reduce(value, op=dist.ReduceOp.MIN)
+        return value > 0
+
     def any(self, flag: bool, device: torch.device) -> bool:
         """Whether `flag` is set on any rank (every rank gets the same answer: one decision for all)."""
         if not self.split:

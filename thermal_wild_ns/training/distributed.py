@@ -16,7 +16,7 @@ share) continues with fresh moments for the Gaussians.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Optional, Type
+from typing import List, Type
 
 import torch
 from torch.nn import Parameter
@@ -87,13 +87,10 @@ class DistributedTrainer(GuardedTrainer):
             self.pipeline, self.optimizers, step, accept, after_backward=lambda: self.ranks.sum_gradients(self.shared)
         )
 
-    def _step_problem(self, param_groups) -> Optional[str]:
+    def _agree(self, accepted):
         """The guard's verdict on this step, one for all ranks: a step any rank must skip, every rank skips
         (the shared copies stay equal, and the guard's counters, which decide a rollback, agree)."""
-        reason = super()._step_problem(param_groups)
-        if self.ranks.any(reason is not None, self.pipeline.model.device) and reason is None:
-            reason = "skipped on another GPU"
-        return reason
+        return self.ranks.all_agree(accepted)
 
     def _check_model(self, step: int) -> None:
         """The guard's model check, one for all ranks: where any rank's share is broken, every rank rolls

@@ -1,14 +1,21 @@
-"""The divergence guard, apart from any trainer: `check_step` says why a step must be skipped (its
-loss or gradients are not finite, or its loss spikes far above the recent median), `check_model` now
-and then whether the model itself is broken (NaN/inf parameters, every Gaussian gone or transparent),
-`record` counts skips and stops after too many in a row (`TrainingDiverged`)."""
+"""The divergence guard, apart from any trainer: `verdict` decides on the device whether a step's
+update may happen (its loss or gradients are not finite, or its loss spikes far above the recent
+median), `settle` reads the step's values back later and says why a step was skipped, `check_model`
+now and then whether the model itself is broken (NaN/inf parameters, every Gaussian gone or
+transparent), `record` counts skips and stops after too many in a row (`TrainingDiverged`).
+
+The verdict needs no host sync: the spike threshold comes from the losses already read back (every
+step before this one), the comparisons run on the device, and the optimizer takes the verdict as
+fused Adam's `found_inf` (`_upstream.fused_adam_step`). The step's values travel to host memory
+behind the queued work and are read at the next step's verdict, when they have long arrived: a
+skip is counted, said and can stop the run one step later than it happened."""
 
 from __future__ import annotations
 
 import collections
 import math
 from dataclasses import dataclass
-from typing import Deque, Dict, List, Optional
+from typing import Callable, Deque, Dict, List, Optional, Tuple
 
 import torch
 from nerfstudio.models.splatfacto import SplatfactoModel
@@ -42,8 +49,23 @@ class DivergenceGuardConfig:
     """Stop when the mean Gaussian opacity falls below this (everything turned transparent)."""
 
 
+@dataclass
+class PendingVerdict:
+    """A step's verdict on its way to the host: `values` [3 + G] (accepted 1/0, the loss, the sum of
+    the gradient norms, each gradient's norm), readable once `ready` (None: already on the host)."""
+
+    step: Optional[int]
+    frame: Optional[int]
+    values: torch.Tensor
+    ready: Optional[torch.cuda.Event]
+    gradient_groups: List[str]  # the parameter group of each gradient norm
+    has_loss: bool
+    threshold: float  # the loss above which the step was a spike
+    median: Optional[float]  # the recent median it came from
+
+
 class DivergenceGuard:
-    """The checks, independent of the trainer (`check_step` before the optimizer step,
+    """The checks, independent of the trainer (`verdict` before the optimizer step, `settle` after,
     `check_model` now and then)."""
 
     def __init__(self, config: DivergenceGuardConfig):
@@ -53,43 +75,112 @@ class DivergenceGuard:
         self.skipped = 0
         self.consecutive = 0
         self.rollbacks = 0
+        self.pending: Optional[PendingVerdict] = None  # the last verdict, not yet read back
+
+    def spike_threshold(self, frame: Optional[int]) -> Tuple[float, Optional[float]]:
+        """(the loss above which this step is a spike, the recent median it comes from): inf before the
+        window is full; a frame whose previous loss was already within `persistent_frame_factor` of
+        the loss is a hard frame, not a spike, so the threshold is at least that far above it."""
+        if len(self.recent) < self.recent.maxlen:
+            return math.inf, None
+        median = sorted(self.recent)[len(self.recent) // 2]
+        threshold = self.config.loss_spike_factor * median
+        previous = self.frame_loss.get(frame) if frame is not None else None
+        if previous is not None:
+            threshold = max(threshold, self.config.persistent_frame_factor * previous)
+        return threshold, median
+
+    def verdict(
+        self,
+        loss: Optional[torch.Tensor],
+        parameters: dict,
+        groups: List[str],
+        frame: Optional[int] = None,
+        step: Optional[int] = None,
+        agree: Callable[[torch.Tensor], torch.Tensor] = lambda accepted: accepted,
+    ) -> Optional[torch.Tensor]:
+        """Whether this step's update may happen, [] bool on the loss's device, decided there without
+        waiting for it (None: no loss and no gradients to check). The previous step is settled first:
+        its loss joins the history this step's threshold reads. `frame`: the step's training image
+        (a spike tells from a hard frame by it); `step`: `settle` records the skip under it;
+        `agree(accepted)`: one verdict for all GPUs of a run (default: this one's)."""
+        self.settle()
+        grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
+        if loss is None and not grads:
+            return None
+        device = loss.device if loss is not None else grads[0][1].device
+        threshold, median = self.spike_threshold(frame) if loss is not None else (math.inf, None)
+        nan = torch.full((1,), math.nan, device=device)
+        value = loss.detach().float().reshape(1) if loss is not None else nan  # [1]
+        accepted = torch.ones((), dtype=torch.bool, device=device)
+        if loss is not None:
+            accepted = accepted & torch.isfinite(value[0]) & (value[0] <= threshold)
+        norms = torch.zeros(0, device=device)
+        total = torch.zeros(1, device=device)
+        if grads:  # one fused kernel for every gradient's norm; NaN/inf anywhere makes the sum non-finite
+            norms = torch.stack(torch._foreach_norm([grad for _, grad in grads])).float()  # [G]
+            total = norms.sum().reshape(1)
+            accepted = accepted & torch.isfinite(total[0])
+        accepted = agree(accepted)
+        values = torch.cat([accepted.float().reshape(1), value, total, norms])  # [3 + G]
+        ready = None
+        if values.is_cuda:  # behind the queued work, into pinned memory: no wait here
+            host = torch.empty(values.shape, dtype=values.dtype, pin_memory=True)
+            host.copy_(values, non_blocking=True)
+            values, ready = host, torch.cuda.Event()
+            ready.record()
+        self.pending = PendingVerdict(
+            step, frame, values, ready, [g for g, _ in grads], loss is not None, threshold, median
+        )
+        return accepted
+
+    def settle(self) -> Optional[str]:
+        """Read the last verdict back: why its step was skipped (None: it was not, or nothing is
+        pending). Its loss joins the frame's and, accepted, the recent losses; with a step, the
+        skip is recorded (`record`, which stops the run after too many in a row)."""
+        pending, self.pending = self.pending, None
+        if pending is None:
+            return None
+        if pending.ready is not None:
+            pending.ready.synchronize()  # arrived long ago: the next step's render waited for it
+        accepted, value, total, *norms = pending.values.tolist()
+        reason = self._reason(pending, bool(accepted), value, total, norms)
+        if pending.step is not None:
+            self.record(pending.step, reason)
+        return reason
+
+    def _reason(self, pending: PendingVerdict, accepted: bool, value: float, total: float, norms: List[float]):
+        if pending.has_loss:
+            if not math.isfinite(value):
+                return f"non-finite loss ({value})"
+            if pending.frame is not None:
+                self.frame_loss[pending.frame] = value
+            if accepted:
+                self.recent.append(value)
+            elif value > pending.threshold:
+                return (
+                    f"loss spike ({value:.4g} > {self.config.loss_spike_factor:g} x recent median {pending.median:.4g})"
+                )
+        if accepted:
+            return None
+        if not math.isfinite(total):
+            bad = sorted({g for g, n in zip(pending.gradient_groups, norms) if not math.isfinite(n)})
+            return f"non-finite gradients in {', '.join(bad or ['(norm overflow)'])}"
+        return "skipped on another GPU"
 
     def check_step(
         self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str], frame: Optional[int] = None
     ) -> Optional[str]:
-        """Why this step must be skipped, or None. One host sync: the loss and the sum of all
-        gradient norms (one fused kernel; NaN/inf anywhere makes it non-finite) travel together.
-        `frame`: the training image of this step, for telling spikes from hard frames."""
-        grads = [(g, p.grad) for g in groups for p in parameters[g] if p.grad is not None]
-        checks = [loss.detach().float().reshape(1)] if loss is not None else []
-        if grads:
-            checks.append(torch.stack(torch._foreach_norm([grad for _, grad in grads])).sum().float().reshape(1))
-        if not checks:
-            return None
-        values = torch.cat([c.to(checks[0].device) for c in checks]).tolist()
-        if loss is not None:
-            value = values.pop(0)
-            if not math.isfinite(value):
-                return f"non-finite loss ({value})"
-            previous = self.frame_loss.get(frame) if frame is not None else None
-            if frame is not None:
-                self.frame_loss[frame] = value
-            if len(self.recent) == self.recent.maxlen:
-                median = sorted(self.recent)[len(self.recent) // 2]
-                hard_frame = previous is not None and value <= self.config.persistent_frame_factor * previous
-                if value > self.config.loss_spike_factor * median and not hard_frame:
-                    return f"loss spike ({value:.4g} > {self.config.loss_spike_factor:g} x recent median {median:.4g})"
-        if grads and not math.isfinite(values[0]):  # rare: find the culprits one by one
-            bad = sorted({g for g, grad in grads if not bool(torch.isfinite(grad).all())}) or ["(norm overflow)"]
-            return f"non-finite gradients in {', '.join(bad)}"
-        if loss is not None:
-            self.recent.append(value)
-        return None
+        """Why this step must be skipped, or None: `verdict` and `settle` at once (one host sync)."""
+        self.verdict(loss, parameters, groups, frame)
+        return self.settle()
 
     def rebaseline(self) -> None:
         """Forget the recent losses: the schedule itself just moved the loss (an opacity reset, a
         finer training resolution). Without this, every frame's first visit after such a step
-        looks like a spike and is skipped, right when the model must recover."""
+        looks like a spike and is skipped, right when the model must recover. The last verdict is
+        read back first: its loss belongs to the history being forgotten."""
+        self.settle()
         self.recent.clear()
         self.frame_loss.clear()
 

@@ -23,8 +23,13 @@ class GuardedModel(Protocol):
         ...
 
     def discard_step_statistics(self) -> None:
-        """This step's gradients must not enter the densification statistics (the guard skipped
-        the step, or rolled the model back)."""
+        """This step's gradients must not enter the densification statistics (the guard rolled the
+        model back)."""
+        ...
+
+    def weigh_step_statistics(self, accepted: Tensor) -> None:
+        """This step's gradients enter the densification statistics only where `accepted` ([] bool on
+        the device, the divergence guard's verdict) is True."""
         ...
 
     def schedule_moves_loss(self, step: int) -> bool:

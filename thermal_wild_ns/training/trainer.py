@@ -122,7 +122,7 @@ class GuardedTrainer(TrainerAfterLoad):
         if unsupported is not None:
             CONSOLE.log(f"nerfstudio's training step (not the lean one): {unsupported}")
         if self.config.guard.enabled and not self.lean:  # the lean step calls the guard itself
-            guard_optimizer_steps(self.optimizers, self._accept_step)
+            guard_optimizer_steps(self.optimizers, self._accept_step_now)
         self.auto_stop = AutoStopRun.start(
             self.config.auto_stop,
             self.pipeline,
@@ -135,25 +135,36 @@ class GuardedTrainer(TrainerAfterLoad):
         self.decisions = RunDecisions(self.config.get_base_dir(), RankGroup.current().rank)
         self.decisions.start(self)
 
-    def _step_problem(self, param_groups) -> Optional[str]:
-        """Why this step's update must not happen (the guard's checks on its loss and gradients), or None."""
+    def _step_verdict(self, param_groups) -> Optional[torch.Tensor]:
+        """Whether this step's update may happen: the guard's checks on its loss and gradients, decided
+        on the device ([] bool; None: nothing to check), recorded by the guard a step later."""
         loss, frame = self.pipeline.model.last_training_loss() if self.guarded_model else (None, None)
         with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
-            return self.guard.check_step(loss, self.optimizers.parameters, param_groups, frame)
+            return self.guard.verdict(
+                loss, self.optimizers.parameters, param_groups, frame, step=self._step, agree=self._agree
+            )
+
+    def _agree(self, accepted: torch.Tensor) -> torch.Tensor:
+        """One verdict for every GPU of the run (here one GPU: its own)."""
+        return accepted
 
     def _check_model(self, step: int) -> None:
         """The guard's check of the model itself (`TrainingDiverged` when broken)."""
         self.guard.check_model(self.pipeline.model, step)
 
-    def _accept_step(self, param_groups) -> bool:
-        """Whether this step's update may happen (`_step_problem`), recorded by the guard."""
-        model = self.pipeline.model
-        guarded = self.guarded_model
-        reason = self._step_problem(param_groups)
-        if reason is not None and guarded:
-            model.discard_step_statistics()  # the strategy must not record this step's gradients either
-        self.guard.record(self._step, reason)
-        return reason is None
+    def _accept_step(self, param_groups) -> Optional[torch.Tensor]:
+        """The lean step's verdict (`_step_verdict`), on the device: the optimizers take it as
+        `found_inf`, the model keeps a rejected step's gradients out of its densification statistics."""
+        accepted = self._step_verdict(param_groups)
+        if accepted is not None and self.guarded_model:
+            self.pipeline.model.weigh_step_statistics(accepted)
+        return accepted
+
+    def _accept_step_now(self, param_groups) -> bool:
+        """nerfstudio's step asks before its optimizers step: the verdict, read back at once."""
+        accepted = self._accept_step(param_groups)
+        self.guard.settle()
+        return accepted is None or bool(accepted)
 
     def train(self) -> None:
         # nerfstudio trains max_num_iterations steps after the step it resumed from; here it is the
@@ -192,6 +203,7 @@ class GuardedTrainer(TrainerAfterLoad):
             self.auto_stop.forget_older_best()
 
     def before_final_checkpoint(self) -> None:
+        self.guard.settle()  # the last step's skip, if it was one, is counted
         if self.auto_stop is not None:
             self.step = self._step  # the last step trained (nerfstudio's loop counted one past it at a stop)
             self.auto_stop.finish(self._step)
@@ -207,8 +219,6 @@ class GuardedTrainer(TrainerAfterLoad):
     def _guarded_iteration(self, step: int):
         if not self.config.guard.enabled:
             return self._iteration(step)
-        if self.guarded_model and self.pipeline.model.schedule_moves_loss(step):
-            self.guard.rebaseline()
         out_of_memory = None
         try:
             return self._checked_iteration(step)
@@ -243,8 +253,11 @@ class GuardedTrainer(TrainerAfterLoad):
 
     def _checked_iteration(self, step: int):
         try:
+            if self.guarded_model and self.pipeline.model.schedule_moves_loss(step):
+                self.guard.rebaseline()  # reads the last verdict back first: it may stop the run
             result = self._iteration(step)
             if step % self.config.guard.check_every == 0:
+                self.guard.settle()  # this step's skip counted before the model is judged
                 self._check_model(step)
                 self._healthy = None  # the older copy goes before the new one is made
                 self._healthy = snapshot(self.pipeline, self.optimizers, step)
