@@ -110,17 +110,21 @@ class DivergenceGuard:
             return None
         device = loss.device if loss is not None else grads[0][1].device
         threshold, median = self.spike_threshold(frame) if loss is not None else (math.inf, None)
-        nan = torch.full((1,), math.nan, device=device)
-        value = loss.detach().float().reshape(1) if loss is not None else nan  # [1]
-        accepted = torch.ones((), dtype=torch.bool, device=device)
+        checks = []  # [] bool each
         if loss is not None:
-            accepted = accepted & torch.isfinite(value[0]) & (value[0] <= threshold)
-        norms = torch.zeros(0, device=device)
-        total = torch.zeros(1, device=device)
+            value = loss.detach().float().reshape(1)  # [1]
+            checks += [torch.isfinite(value[0]), value[0] <= threshold]
+        else:
+            value = torch.full((1,), math.nan, device=device)
         if grads:  # one fused kernel for every gradient's norm; NaN/inf anywhere makes the sum non-finite
             norms = torch.stack(torch._foreach_norm([grad for _, grad in grads])).float()  # [G]
             total = norms.sum().reshape(1)
-            accepted = accepted & torch.isfinite(total[0])
+            checks.append(torch.isfinite(total[0]))
+        else:
+            norms, total = torch.zeros(0, device=device), torch.zeros(1, device=device)
+        accepted = checks[0]
+        for check in checks[1:]:
+            accepted = accepted & check
         accepted = agree(accepted)
         values = torch.cat([accepted.float().reshape(1), value, total, norms])  # [3 + G]
         ready = None
