@@ -15,13 +15,14 @@
 #     bash experiments/gpu_2026-11-27.sh flat-field-dunr         # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-generated    # nothing carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-decay        # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh guard-device-dunr       # .data/dunr .data/cache .baseline carried
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -91,8 +92,9 @@ case "$plan" in
     cp /tmp/trial-vignetting/bench.json "$OUT/trial-vignetting-bench.json"
     cp /tmp/trial-vignetting/bench.md "$OUT/trial-vignetting-bench.md"
     ;;
-  log-writes-dunr)  # issue 34: the first 3,000 steps of a default DUNR run, the code before (.baseline) and after the
-    # per-step timing scalars were thinned to the log steps, in turn, seeds 0-2 (experiments.schedule_profile)
+  log-writes-dunr|guard-device-dunr)  # issue 34: the first 3,000 steps of a default DUNR run, the code before
+    # (.baseline) and after, in turn, seeds 0-2 (experiments.schedule_profile): the per-step timing scalars thinned to
+    # the log steps (.baseline: 5e1816a), the divergence guard's verdict on the device (.baseline: 7b2b9b9)
     root=$PWD
     for seed in 0 1 2; do
       for code in before after; do
@@ -101,7 +103,7 @@ case "$plan" in
           --cache-dir "$root/.data/cache" --seed $seed --steps 3000 --output-dir "/tmp/logw/$code-seed$seed" \
           > "/tmp/logw-$code-seed$seed.log" 2>&1)
         python3 -c "import json, sys; d = json.load(open(sys.argv[1])); d.pop('windows'); d['code'] = sys.argv[2]; print(json.dumps(d))" \
-          "/tmp/logw/$code-seed$seed/schedule.json" $code | tee -a "$OUT/log-writes.jsonl" | cut -c1-200
+          "/tmp/logw/$code-seed$seed/schedule.json" $code | tee -a "$OUT/$plan.jsonl" | cut -c1-200
       done
     done
     ;;
