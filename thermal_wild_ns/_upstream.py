@@ -27,6 +27,7 @@ from gsplat.strategy import DefaultStrategy
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, _undistort_image
 from nerfstudio.engine.trainer import Trainer
+from nerfstudio.utils import writer
 from nerfstudio.viewer.viewer_elements import ViewerControl
 
 from thermal_wild_ns.errors import EXPLAINERS, raised_reading_yaml
@@ -220,8 +221,6 @@ def log_step_timings_with_the_losses() -> None:
     (`--logging.steps-per-log`, which `writer.GLOBAL_BUFFER` holds), where the terminal's table prints
     them anyway; their running averages still take in every step, and every other event is written as
     before. Installed once (each trainer's setup calls this)."""
-    import nerfstudio.utils.writer as writer
-
     if getattr(writer.write_out_storage, "keeps_step_timings_at_log_steps", False):
         return
     original = writer.write_out_storage
