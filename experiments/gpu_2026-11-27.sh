@@ -16,13 +16,15 @@
 #     bash experiments/gpu_2026-11-27.sh flat-field-generated    # nothing carried
 #     bash experiments/gpu_2026-11-27.sh flat-field-decay        # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh guard-device-dunr       # .data/dunr .data/cache .baseline carried
+#     bash experiments/gpu_2026-11-27.sh canonical-flight2       # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh parts-flight2           # .data/flight2 .data/cache carried
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, parts-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -169,6 +171,33 @@ case "$plan" in
     for decay in 0.1 1.0; do
       for part in flight2 generated; do cp "/tmp/decay-$part-$decay/bench.json" "$OUT/decay-$part-$decay.json"; done
     done
+    ;;
+  canonical-flight2)  # issue 33: the canonical state (inference_embedding) mean against typical on a real capture:
+    # the full method's defaults, 3 seeds side by side, each final checkpoint's novel views scored at both states
+    PYTHONPATH=$PWD:/tmp/site timeout 420 python3 -m experiments.bench --output-dir /tmp/canonical \
+      --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+      --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 > "$OUT/canonical-bench.log" 2>&1
+    cp /tmp/canonical/bench.json "$OUT/canonical-bench.json"
+    for config in $(python3 -c "import json; [print(r['config']) for r in json.load(open('/tmp/canonical/bench.json'))['runs']]"); do
+      for state in mean typical; do
+        scores=$(PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.score_checkpoint "$config" \
+          --protocols novel aligned --canonical $state 2>/dev/null | tail -1)
+        echo "{\"canonical\": \"$state\", \"config\": \"$config\", \"scores\": ${scores:-null}}" | tee -a "$OUT/canonical.jsonl"
+      done
+    done
+    ;;
+  parts-flight2)  # issue 33: the full method's parts one at a time on the second real capture (each default so far
+    # chosen on DUNR or the generated scenes alone): no background MLP, plain SSIM, no alpha regulariser, and the
+    # defaults, 3 seeds each, the four benches side by side (12 runs; timings shared)
+    for part in default use_background_mlp=False heat_aware_ssim=False alpha_lambda=0.0; do
+      set_args=(); [ $part != default ] && set_args=(--set "pipeline.model.$part")
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/parts-${part%%=*}" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 "${set_args[@]}" \
+        > "$OUT/parts-${part%%=*}.log" 2>&1 &
+    done
+    wait
+    for part in default use_background_mlp heat_aware_ssim alpha_lambda; do cp "/tmp/parts-$part/bench.json" "$OUT/parts-$part.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
