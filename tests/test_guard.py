@@ -235,3 +235,35 @@ def test_the_verdict_is_decided_on_the_device_and_read_back_at_the_next_step():
     guard.verdict(torch.tensor(float("nan")), {"means": [param]}, ["means"], step=6)
     with pytest.raises(TrainingDiverged, match=r"step 6: 2 steps in a row were skipped \(last: non-finite loss"):
         guard.settle()
+
+
+def test_a_rejected_step_leaves_the_densification_statistics_as_they_were():
+    """The guard's device verdict reaches the statistics: a rejected step's gradients are masked out
+    (the plugin's masked sums, and gsplat's own for a packed render), an accepted one's are counted."""
+    from types import SimpleNamespace
+
+    from test_model import make_camera, make_model
+
+    model = make_model()
+    model.train()
+    groups = model.get_param_groups()
+    optimizers = SimpleNamespace(optimizers={name: torch.optim.Adam(p, lr=1e-3) for name, p in groups.items() if p})
+    for step, (accepted, counted) in enumerate(((torch.tensor(False), False), (torch.tensor(True), True)), start=1):
+        model.step_cb(optimizers, step)  # as the trainer does before a step
+        outputs = model.get_outputs(make_camera(1))
+        losses = model.get_loss_dict(outputs, {"image": torch.rand(32, 48, 1), "image_idx": 1})
+        sum(losses.values()).backward()
+        before = {k: v.clone() for k, v in model.strategy_state.items() if isinstance(v, torch.Tensor)}
+        model.weigh_step_statistics(accepted)
+        model.step_post_backward(model.step)
+        count = model.strategy_state["count"]
+        assert (count is not None and bool((count > before.get("count", torch.zeros_like(count))).any())) == counted
+        model.zero_grad(set_to_none=True)
+    strategy, state = model.strategy, model.strategy_state
+    means2d = torch.zeros(3, 2, requires_grad=True)
+    means2d.sum().backward()
+    packed = {"gaussian_ids": torch.tensor([0, 0, 2]), "radii": torch.tensor([3, 5, 4]), "means2d": means2d}
+    info = {**packed, "width": 100, "height": 50, "n_cameras": 1, "accepted": torch.tensor(False)}
+    counts = state["count"].clone()
+    strategy._update_state(model.gauss_params, state, info, packed=True)  # gsplat's own sums
+    assert torch.equal(state["count"], counts)
