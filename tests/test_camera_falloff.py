@@ -7,7 +7,13 @@ import torch
 from test_model import make_camera, make_model
 
 from thermal_wild_ns.errors import InputError
-from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, flat_field_maps, off_axis_squared
+from thermal_wild_ns.model.camera_falloff import (
+    FALLOFF_ORDER,
+    falloff_basis,
+    flat_field_maps,
+    off_axis_squared,
+    respond,
+)
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.pipeline.photometric_state import as_recorded
 
@@ -19,6 +25,30 @@ def intrinsics(f=50.0, width=48, height=32):
 def rho_of(K, width, height):
     """The off-axis grid [H, W, 1] of a camera with intrinsics `K` [3, 3], as the model builds it."""
     return off_axis_squared(ray_directions(K, torch.eye(3, 4), width, height))
+
+
+def apply_falloff(image, coefficients, rho, flat_field=None):
+    """The camera's response written out, apart from the model's `respond`: at the squared off-axis
+    tangents `rho` [H, W, 1], gain (1 + sum_k g_k rho^k, plus the map's gain) times the image plus the
+    offset (sum_k o_k rho^k, plus the map's offset)."""
+    gain, offset = torch.ones_like(rho), torch.zeros_like(rho)
+    for k in range(1, coefficients.shape[1] + 1):
+        gain = gain + coefficients[0, k - 1] * rho**k
+        offset = offset + coefficients[1, k - 1] * rho**k
+    if flat_field is not None:
+        maps = flat_field_maps(flat_field, image.shape[0], image.shape[1])  # [2, H, W]
+        gain, offset = gain + maps[0][..., None], offset + maps[1][..., None]
+    return image * gain + offset
+
+
+def test_the_models_response_is_the_response_written_out():
+    rho = rho_of(intrinsics(), 48, 32)
+    image, coefficients, cells = torch.rand(32, 48, 1), torch.randn(2, FALLOFF_ORDER) * 0.3, torch.randn(2, 4, 4) * 0.1
+    basis = falloff_basis(ray_directions(intrinsics(), torch.eye(3, 4), 48, 32))
+    assert torch.allclose(respond(image, coefficients, basis), apply_falloff(image, coefficients, rho), atol=1e-6)
+    assert torch.allclose(
+        respond(image, coefficients, basis, cells), apply_falloff(image, coefficients, rho, cells), atol=1e-6
+    )
 
 
 def falloff_at_corner(coefficients, K, width, height):

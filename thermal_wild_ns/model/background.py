@@ -5,7 +5,7 @@ upsampled from the `background_stride` grid."""
 from __future__ import annotations
 
 import math
-from typing import Dict, Optional, Tuple
+from typing import Callable, Dict, Optional, Tuple
 
 import torch
 from torch import Tensor, nn
@@ -63,20 +63,25 @@ def upsampled(coarse: Tensor, width: int, height: int) -> Tensor:
 
 
 class CameraFrameDirections:
-    """`ray_directions` of a camera at the origin, unrotated, per (intrinsics, size, stride): the
-    last few are kept, as a viewer renders the same ones again."""
+    """`ray_directions` of a camera at the origin, unrotated, per (intrinsics, size, stride), or what
+    `derive` makes of them (a fixed function of the directions alone, e.g. the camera fall-off's basis):
+    the last few are kept, as training and a viewer render the same ones again."""
 
     KEPT = 8
 
-    def __init__(self) -> None:
+    def __init__(self, derive: Optional[Callable[[Tensor], Tensor]] = None) -> None:
         self.kept: Dict[tuple, Tensor] = {}
+        self.derive = derive
 
     def __call__(self, K: Tensor, pinhole: Tuple[float, float, float, float], width: int, height: int, stride: int):
-        """[h, w, 3] for intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on the host)."""
+        """[h, w, 3] (or `derive`'s [h, w, ...]) for intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx,
+        cy on the host)."""
         key = (pinhole, width, height, stride)
         cached = self.kept.pop(key, None)
         if cached is None:
             cached = ray_directions(K, torch.eye(3, 4, device=K.device), width, height, stride)
+            if self.derive is not None:
+                cached = self.derive(cached)
         self.kept[key] = cached  # the most recent last
         while len(self.kept) > self.KEPT:
             self.kept.pop(next(iter(self.kept)))

@@ -51,17 +51,23 @@ def flat_field_maps(cells: Tensor, height: int, width: int) -> Tensor:
     return F.interpolate(centred[None], size=(height, width), mode="bilinear", align_corners=False)[0]
 
 
-def apply_falloff(image: Tensor, coefficients: Tensor, rho: Tensor, flat_field: Optional[Tensor] = None) -> Tensor:
-    """`image` [H, W, 1] as the camera records it: the gain and offset polynomials of
-    `coefficients` [2, FALLOFF_ORDER] (row 0 the gain's, row 1 the offset's) at `rho` [H, W, 1],
-    plus the flat-field map of `flat_field` [2, n, n] where given (`flat_field_maps`)."""
-    powers = torch.cat([rho**k for k in range(1, coefficients.shape[1] + 1)], dim=-1)  # [H, W, K]
-    gain = 1.0 + powers @ coefficients[0]  # [H, W]
-    offset = powers @ coefficients[1]  # [H, W]
+def falloff_basis(directions: Tensor, order: int = FALLOFF_ORDER) -> Tensor:
+    """rho, rho^2, ... [H, W, order] at each pixel, from the camera's unit view directions in its own
+    frame [H, W, 3]: what the gain's and the offset's polynomials weigh. A fixed function of the camera
+    and the render size, kept with them (`background.CameraFrameDirections(derive=falloff_basis)`)."""
+    rho = off_axis_squared(directions)  # [H, W, 1]
+    return torch.cat([rho**k for k in range(1, order + 1)], dim=-1)
+
+
+def respond(image: Tensor, coefficients: Tensor, basis: Tensor, flat_field: Optional[Tensor] = None) -> Tensor:
+    """`image` [H, W, 1] as the camera records it: gain (1 + the gain's polynomial) times the image plus
+    the offset's polynomial, at each pixel's `basis` [H, W, K] (`falloff_basis`) with `coefficients`
+    [2, K] (row 0 the gain's, row 1 the offset's), plus the flat-field map of `flat_field` [2, n, n]
+    where given (`flat_field_maps`). Few operations: it runs at every training step."""
+    terms = basis @ coefficients.T  # [H, W, 2]: the gain's and the offset's polynomial
     if flat_field is not None:
-        maps = flat_field_maps(flat_field, image.shape[0], image.shape[1])  # [2, H, W]
-        gain, offset = gain + maps[0], offset + maps[1]
-    return image * gain[..., None] + offset[..., None]
+        terms = terms + flat_field_maps(flat_field, image.shape[0], image.shape[1]).permute(1, 2, 0)
+    return torch.addcmul(terms[..., 1:], image, terms[..., :1] + 1.0)
 
 
 def describe_falloff(coefficients: Tensor, flat_field: Optional[Tensor] = None) -> str:

@@ -29,7 +29,7 @@ from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
 from thermal_wild_ns.model.background import CameraFrameDirections, ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
-from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, apply_falloff, describe_falloff, off_axis_squared
+from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, describe_falloff, falloff_basis, respond
 from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews, host_sizes, intrinsics
 from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
@@ -243,7 +243,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
         )
         self.background_field = ThermalBackground(self.background_mlp, cfg)
-        # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.apply_falloff`); zero: no fall-off
+        # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.respond`); zero: no fall-off
         fits_pattern, self.camera_pattern_why, self.camera_pattern_decided_by = self._camera_pattern_fitted()
         self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if fits_pattern else None
         if cfg.camera_flat_field < 0 or (cfg.camera_flat_field and not cfg.camera_falloff):
@@ -254,7 +254,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         n = cfg.camera_flat_field
         # [2, n, n]: row 0 the gain's cells, row 1 the offset's (`camera_falloff.flat_field_maps`); zero: flat
         self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n and fits_pattern else None
-        self.camera_frame_directions = CameraFrameDirections()  # the fall-off's off-axis angles, per camera and size
+        self.camera_falloff_basis = CameraFrameDirections(derive=falloff_basis)  # per camera and size
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -519,14 +519,14 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def camera_response(self, thermal: Tensor, K: Tensor, pinhole: bool, detach: bool = False) -> Tensor:
         """A render `thermal` [H, W, 1] of a camera of intrinsics `K` [3, 3] at that size, through the
-        fitted fall-off and flat-field map (`camera_falloff.apply_falloff`)."""
+        fitted fall-off and flat-field map (`camera_falloff.respond`)."""
         height, width = thermal.shape[:2]
-        directions = self.camera_frame_directions(K, pinhole, width, height, 1)  # [H, W, 3], kept
+        basis = self.camera_falloff_basis(K, pinhole, width, height, 1)  # [H, W, K], kept
         coefficients, flat_field = self.camera_falloff, self.camera_flat_field
         if detach:
             coefficients = coefficients.detach()
             flat_field = None if flat_field is None else flat_field.detach()
-        return apply_falloff(thermal, coefficients, off_axis_squared(directions), flat_field)
+        return respond(thermal, coefficients, basis, flat_field)
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
         """A render `thermal` [H, W, 1] of `camera` (outside training: the scene) as the camera records
