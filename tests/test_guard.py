@@ -8,6 +8,12 @@ from demo_trainers import demo_trainer
 from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
 
 
+def check_step(guard, loss, parameters, groups, frame=None):
+    """Why this step must be skipped, or None: the guard's verdict and its read-back at once."""
+    guard.verdict(loss, parameters, groups, frame)
+    return guard.settle()
+
+
 def _trainer(tmp_path, demo_scene_dir, steps, **guard):
     return demo_trainer(tmp_path, demo_scene_dir, steps, "guard", **guard)
 
@@ -85,17 +91,17 @@ def test_loss_spike_and_nan_gradient_detection():
     param = torch.nn.Parameter(torch.ones(3))
     param.grad = torch.ones(3)
     for _ in range(5):
-        assert guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"]) is None
-    assert "loss spike" in guard.check_step(torch.tensor(50.0), {"means": [param]}, ["means"])
-    assert guard.check_step(torch.tensor(5.0), {"means": [param]}, ["means"]) is None  # 5x: within the factor
+        assert check_step(guard, torch.tensor(1.0), {"means": [param]}, ["means"]) is None
+    assert "loss spike" in check_step(guard, torch.tensor(50.0), {"means": [param]}, ["means"])
+    assert check_step(guard, torch.tensor(5.0), {"means": [param]}, ["means"]) is None  # 5x: within the factor
     # a hard frame is not a spike: skipped at its first jump, accepted when it stays there, skipped when it jumps again
     for _ in range(5):
-        guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"], frame=3)
-    assert "loss spike" in guard.check_step(torch.tensor(50.0), {"means": [param]}, ["means"], frame=7)
-    assert guard.check_step(torch.tensor(60.0), {"means": [param]}, ["means"], frame=7) is None
-    assert "loss spike" in guard.check_step(torch.tensor(500.0), {"means": [param]}, ["means"], frame=7)
+        check_step(guard, torch.tensor(1.0), {"means": [param]}, ["means"], frame=3)
+    assert "loss spike" in check_step(guard, torch.tensor(50.0), {"means": [param]}, ["means"], frame=7)
+    assert check_step(guard, torch.tensor(60.0), {"means": [param]}, ["means"], frame=7) is None
+    assert "loss spike" in check_step(guard, torch.tensor(500.0), {"means": [param]}, ["means"], frame=7)
     param.grad = torch.tensor([1.0, float("nan"), 0.0])
-    assert guard.check_step(torch.tensor(1.0), {"means": [param]}, ["means"]) == "non-finite gradients in means"
+    assert check_step(guard, torch.tensor(1.0), {"means": [param]}, ["means"]) == "non-finite gradients in means"
 
 
 def test_broken_models_are_named(tmp_path, demo_scene_dir):
@@ -118,10 +124,10 @@ def test_scheduled_loss_jumps_rebaseline_instead_of_skipping(tmp_path, demo_scen
     new baseline there, not skip each frame's first visit (the stress runs skipped ~30 steps per reset)."""
     guard = DivergenceGuard(DivergenceGuardConfig(spike_window=5, loss_spike_factor=10.0))
     for frame in range(5):
-        assert guard.check_step(torch.tensor(0.01), {}, [], frame) is None
-    assert guard.check_step(torch.tensor(0.5), {}, [], 0) is not None  # a jump is a spike...
+        assert check_step(guard, torch.tensor(0.01), {}, [], frame) is None
+    assert check_step(guard, torch.tensor(0.5), {}, [], 0) is not None  # a jump is a spike...
     guard.rebaseline()
-    assert guard.check_step(torch.tensor(0.5), {}, [], 1) is None  # ...unless the schedule moved the loss
+    assert check_step(guard, torch.tensor(0.5), {}, [], 1) is None  # ...unless the schedule moved the loss
 
     model = _trainer(tmp_path, demo_scene_dir, steps=1).pipeline.model
     reset, stop, r = model.strategy.reset_every, model.strategy.refine_stop_iter, model.config.resolution_schedule

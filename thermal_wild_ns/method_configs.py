@@ -68,9 +68,9 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
             # the full method preprocesses only captures whose contrast varies and which it steadies (the
             # rule: preprocessing/stage.py; chosen by docs/results/stress_protocols_3seeds and preprocessing_rule)
             datamanager=ThermalDatamanagerConfig(preprocessing=PhotometricConfig(skip_when_stable=True)),
-            # the camera's fall-off and an 8x8 flat-field map, fitted where the content crosses the sensor: both
-            # real captures (0.28 of the frame) gain, the generated orbits (0.15) lose the scene to the map
-            # (docs/results/camera_flat_field)
+            # the camera's fall-off and an 8x8 flat-field map, fitted where the content crosses the sensor enough to
+            # tell a fixed pattern from the scene: the threshold sits between the real captures, which gain, and the
+            # generated orbits, whose scene the map takes in (docs/results/camera_flat_field)
             model=WildThermalModelConfig(camera_falloff=True, camera_flat_field=8, camera_pattern_min_motion=0.22),
         ),
         optimizers=wild_thermal_optimizers(),

@@ -27,9 +27,10 @@ FRAMES_PER_CHUNK = 256
 
 def content_motion(cameras: Cameras, points: Optional[Tensor]) -> Optional[float]:
     """The mean spread of the seed points' image positions across the training frames that see them,
-    in frame sizes (0: the content never moves across the sensor; about 0.3 for a point crossing the
-    whole frame). `cameras` [F] (nerfstudio's: OpenGL axes, the camera looking down -z), `points`
-    [P, 3] in the same world frame. None where fewer than two frames see any point (or no points)."""
+    in frame sizes (0: the content never moves across the sensor; 1/sqrt(12), about 0.29, for points
+    seen at evenly spread places along a whole frame's width). `cameras` [F] (nerfstudio's: OpenGL
+    axes, the camera looking down -z), `points` [P, 3] in the same world frame. None where fewer than
+    two frames see any point (or no points)."""
     if points is None or len(points) == 0 or len(cameras) < 2:
         return None
     points = points[:: len(points) // MAX_POINTS + 1].float()  # [P', 3]

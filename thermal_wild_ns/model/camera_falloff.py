@@ -43,12 +43,16 @@ def off_axis_squared(directions: Tensor) -> Tensor:
     return directions[..., :2].square().sum(dim=-1, keepdim=True) / directions[..., 2:].square()
 
 
+def centred_cells(cells: Tensor) -> Tensor:
+    """The flat-field cells [2, n, n] less each row's mean: the map never holds an overall level or gain."""
+    return cells - cells.mean(dim=(1, 2), keepdim=True)
+
+
 def flat_field_maps(cells: Tensor, height: int, width: int) -> Tensor:
     """The flat-field map's gain and offset [2, H, W] at every pixel of a height x width image, from
     its cells [2, n, n] (row 0 the gain's, row 1 the offset's), each made zero-mean, bilinear between
     cell centres: the same places of the sensor at any render resolution."""
-    centred = cells - cells.mean(dim=(1, 2), keepdim=True)  # [2, n, n]
-    return F.interpolate(centred[None], size=(height, width), mode="bilinear", align_corners=False)[0]
+    return F.interpolate(centred_cells(cells)[None], size=(height, width), mode="bilinear", align_corners=False)[0]
 
 
 def falloff_basis(directions: Tensor, order: int = FALLOFF_ORDER) -> Tensor:
@@ -82,7 +86,7 @@ def describe_falloff(coefficients: Tensor, flat_field: Optional[Tensor] = None) 
     gain, offset = coefficients.detach().cpu().tolist()
     text = f"gain 1 {polynomial(gain)}, offset {polynomial(offset)}"
     if flat_field is not None:
-        spread = (flat_field - flat_field.mean(dim=(1, 2), keepdim=True)).abs().amax(dim=(1, 2)).tolist()
+        spread = centred_cells(flat_field.detach()).abs().amax(dim=(1, 2)).tolist()
         size = "x".join(map(str, flat_field.shape[1:]))
         text += f"; flat field {size}: gain +-{spread[0]:.3f}, offset +-{spread[1]:.3f}"
     return text

@@ -517,9 +517,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             thermal = self.camera_response(thermal, view.K[0], view.pinhole)
         return self._outputs(thermal, alpha, background, depth)
 
-    def camera_response(self, thermal: Tensor, K: Tensor, pinhole: bool, detach: bool = False) -> Tensor:
-        """A render `thermal` [H, W, 1] of a camera of intrinsics `K` [3, 3] at that size, through the
-        fitted fall-off and flat-field map (`camera_falloff.respond`)."""
+    def camera_response(
+        self, thermal: Tensor, K: Tensor, pinhole: Tuple[float, float, float, float], detach: bool = False
+    ) -> Tensor:
+        """A render `thermal` [H, W, 1] of a camera of intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on
+        the host) at that size, through the fitted fall-off and flat-field map (`camera_falloff.respond`)."""
         height, width = thermal.shape[:2]
         basis = self.camera_falloff_basis(K, pinhole, width, height, 1)  # [H, W, K], kept
         coefficients, flat_field = self.camera_falloff, self.camera_flat_field

@@ -202,8 +202,10 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
     def _with_metadata(self, outputs: DataparserOutputs, preprocessed: bool) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed if preprocessed else None
         outputs.metadata["grey_rgb"] = self.config.grey_rgb
-        # what tells the camera's fixed pattern from the scene (the model's `camera_pattern_min_motion`)
-        outputs.metadata["content_motion"] = content_motion(outputs.cameras, outputs.metadata.get("points3D_xyz"))
+        # what tells the camera's fixed pattern from the scene (the model's `camera_pattern_min_motion`, which
+        # reads the training split's: `preprocessed` marks it)
+        motion = content_motion(outputs.cameras, outputs.metadata.get("points3D_xyz")) if preprocessed else None
+        outputs.metadata["content_motion"] = motion
         return outputs
 
     held_back: Tuple[int, ...] = ()

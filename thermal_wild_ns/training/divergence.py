@@ -7,7 +7,7 @@ transparent), `record` counts skips and stops after too many in a row (`Training
 The verdict needs no host sync: the spike threshold comes from the losses already read back (every
 step before this one), the comparisons run on the device, and the optimizer takes the verdict as
 fused Adam's `found_inf` (`_upstream.fused_adam_step`). The step's values travel to host memory
-behind the queued work and are read at the next step's verdict, when they have long arrived: a
+behind the queued work and are read at the next step's verdict, a step after they were queued: a
 skip is counted, said and can stop the run one step later than it happened."""
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ class DivergenceGuard:
         if pending is None:
             return None
         if pending.ready is not None:
-            pending.ready.synchronize()  # arrived long ago: the next step's render waited for it
+            pending.ready.synchronize()  # queued a step ago: at most the rest of that step is waited for
         accepted, value, total, *norms = pending.values.tolist()
         reason = self._reason(pending, bool(accepted), value, total, norms)
         if pending.step is not None:
@@ -171,13 +171,6 @@ class DivergenceGuard:
             bad = sorted({g for g, n in zip(pending.gradient_groups, norms) if not math.isfinite(n)})
             return f"non-finite gradients in {', '.join(bad or ['(norm overflow)'])}"
         return "skipped on another GPU"
-
-    def check_step(
-        self, loss: Optional[torch.Tensor], parameters: dict, groups: List[str], frame: Optional[int] = None
-    ) -> Optional[str]:
-        """Why this step must be skipped, or None: `verdict` and `settle` at once (one host sync)."""
-        self.verdict(loss, parameters, groups, frame)
-        return self.settle()
 
     def rebaseline(self) -> None:
         """Forget the recent losses: the schedule itself just moved the loss (an opacity reset, a
