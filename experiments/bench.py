@@ -65,7 +65,8 @@ SCORE_PREFIXES = ("psnr_", "ssim_", "celsius_")
 class BenchArgs:
     scenes: Tuple[str, ...] = ("demo",)
     """'demo' (the embedded scene), 'stress:FAULT' (a stress scene, e.g. stress:outlier, stress:all;
-    these are also scored along their smooth camera path) or dataset folders (any supported layout,
+    these are also scored along their smooth camera path), 'survey:FRAMES' (the synthetic drone survey
+    of that many frames, its held-out frames clean) or dataset folders (any supported layout,
     detected; 'LAYOUT:FOLDER' reads the folder with that layout, e.g. exif-gps:DATA)."""
     methods: Tuple[str, ...] = VARIANTS
     steps: int = 30_000
@@ -188,6 +189,13 @@ def scene_dataparser(scene: str, output_dir: Path, cache_dir: Path):
         return ThermalDemoDataParserConfig(data=output_dir / "demo-scene")
     if scene.startswith("stress:"):
         return ThermalDemoDataParserConfig(data=output_dir / scene_name(scene), scene=scene.split(":", 1)[1])  # type: ignore[arg-type]
+    if scene.startswith("survey:"):
+        frames = scene.split(":", 1)[1]
+        if not frames.isdigit():
+            raise ValueError(f"bench scene {scene!r}: 'survey:FRAMES' takes a number of frames, e.g. survey:48")
+        return ThermalDemoDataParserConfig(
+            data=output_dir / scene_name(scene), scene="survey", survey_frames=int(frames)
+        )
     layout, folder = _layout_and_folder(scene)
     return ThermalDataParserConfig(data=Path(folder), layout=layout, cache_dir=cache_dir)  # type: ignore[arg-type]
 
@@ -258,7 +266,7 @@ def file_slug(label: str) -> str:
 
 
 def scene_name(scene: str) -> str:
-    if scene.startswith("stress:"):
+    if scene.startswith(("stress:", "survey:")):
         return scene.replace(":", "-")
     layout, folder = _layout_and_folder(scene)
     return Path(folder).name if layout == "auto" else f"{Path(folder).name}-{layout}"

@@ -2,7 +2,7 @@
 measure the full method's camera-pattern rule reads (`camera_pattern_min_motion`), printed per scene.
 
 python -m experiments.content_motion --scenes ../shared/data/flight2 ../shared/data/dunr demo stress:clean \
-    survey --cache-dir .data/cache
+    survey:24 --cache-dir .data/cache
 """
 
 from __future__ import annotations
@@ -13,25 +13,18 @@ from pathlib import Path
 
 from experiments.bench import scene_dataparser
 from thermal_wild_ns.data.content_motion import content_motion
-from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", nargs="+", required=True, help="bench scenes, or 'survey' (the synthetic survey)")
+    parser.add_argument("--scenes", nargs="+", required=True, help="bench scenes (survey:24: the synthetic survey)")
     parser.add_argument("--cache-dir", type=Path, default=Path(".data/cache"))
-    parser.add_argument("--survey-frames", type=int, default=24)
     args = parser.parse_args()
     print("| scene | training frames | seed points | content motion (frame sizes) |")
     print("| --- | --- | --- | --- |")
     with tempfile.TemporaryDirectory() as work:
         for scene in args.scenes:
-            if scene == "survey":
-                config = ThermalDemoDataParserConfig(
-                    data=Path(work) / "survey", scene="survey", survey_frames=args.survey_frames
-                )
-            else:
-                config = scene_dataparser(scene, Path(work), args.cache_dir.resolve())
+            config = scene_dataparser(scene, Path(work), args.cache_dir.resolve())
             outputs = config.setup().get_dataparser_outputs("train")
             points = outputs.metadata.get("points3D_xyz")
             motion = content_motion(outputs.cameras, points)

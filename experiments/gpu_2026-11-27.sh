@@ -18,13 +18,15 @@
 #     bash experiments/gpu_2026-11-27.sh guard-device-dunr       # .data/dunr .data/cache .baseline carried
 #     bash experiments/gpu_2026-11-27.sh canonical-flight2       # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh parts-flight2           # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh camera-cost-dunr        # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh survey-camera           # nothing carried (a generated scene)
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, parts-flight2}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, parts-flight2, camera-cost-dunr, survey-camera}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -198,6 +200,39 @@ case "$plan" in
     done
     wait
     for part in default use_background_mlp heat_aware_ssim alpha_lambda; do cp "/tmp/parts-$part/bench.json" "$OUT/parts-$part.json"; done
+    ;;
+  camera-cost-dunr)  # issue 34: what the camera model (the fall-off and the 8x8 map DUNR's content motion turns on)
+    # costs a step: the first 3,000 steps of a default DUNR run with it and without it, in turn, seeds 0-2
+    for seed in 0 1 2; do
+      for camera in on off; do
+        set_args=(); [ $camera = off ] && set_args=(--set pipeline.model.camera_falloff=False)
+        PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.schedule_profile --scene "$PWD/.data/dunr" \
+          --cache-dir "$PWD/.data/cache" --seed $seed --steps 3000 "${set_args[@]}" --output-dir "/tmp/camera/$camera-seed$seed" \
+          > "/tmp/camera-$camera-seed$seed.log" 2>&1
+        python3 -c "import json, sys; d = json.load(open(sys.argv[1])); d.pop('windows'); d['camera'] = sys.argv[2]; print(json.dumps(d))" \
+          "/tmp/camera/$camera-seed$seed/schedule.json" $camera | tee -a "$OUT/$plan.jsonl" | cut -c1-200
+      done
+    done
+    ;;
+  survey-camera)  # issue 33: does the camera model take scene content on a capture the rule turns it on for? The
+    # synthetic drone survey (48 frames; content motion above the rule's threshold; radial vignetting and drift; its
+    # held-out frames clean, without either) with no camera model, the radial fall-off, and the fall-off and an 8x8
+    # map (the default there), 3 seeds each, the three benches side by side (9 runs; timings shared)
+    for variant in none radial map8; do
+      case $variant in
+        none) set_args="pipeline.model.camera_falloff=False" ;;
+        radial) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=0" ;;
+        map8) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8" ;;
+      esac
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/survey-$variant" \
+        --scenes survey:48 --methods wild-thermal --seeds 3 --runs-per-gpu 3 --steps 5000 \
+        --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --set $set_args > "$OUT/survey-$variant.log" 2>&1 &
+    done
+    wait
+    for variant in none radial map8; do
+      cp "/tmp/survey-$variant/bench.json" "$OUT/survey-$variant.json"
+      grep -A3 "^PSNR / SSIM, \`\(novel\|time\|aligned\)\`" "/tmp/survey-$variant/bench.md" | grep wild
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
