@@ -203,9 +203,10 @@ case "$plan" in
     ;;
   camera-cost-dunr)  # issue 34: what the camera model (the fall-off and the 8x8 map DUNR's content motion turns on)
     # costs a step: the first 3,000 steps of a default DUNR run with it and without it, in turn, seeds 0-2
+    # (CAMERAS=off: the runs without it alone)
     for seed in 0 1 2; do
-      for camera in on off; do
-        set_args=(); [ $camera = off ] && set_args=(--set pipeline.model.camera_falloff=False)
+      for camera in ${CAMERAS:-on off}; do
+        set_args=(); [ $camera = off ] && set_args=(--set pipeline.model.camera_falloff=False pipeline.model.camera_flat_field=0)
         PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.schedule_profile --scene "$PWD/.data/dunr" \
           --cache-dir "$PWD/.data/cache" --seed $seed --steps 3000 "${set_args[@]}" --output-dir "/tmp/camera/$camera-seed$seed" \
           > "/tmp/camera-$camera-seed$seed.log" 2>&1
@@ -217,10 +218,11 @@ case "$plan" in
   survey-camera)  # issue 33: does the camera model take scene content on a capture the rule turns it on for? The
     # synthetic drone survey (48 frames; content motion above the rule's threshold; radial vignetting and drift; its
     # held-out frames clean, without either) with no camera model, the radial fall-off, and the fall-off and an 8x8
-    # map (the default there), 3 seeds each, the three benches side by side (9 runs; timings shared)
-    for variant in none radial map8; do
+    # map (the default there), 3 seeds each, the three benches side by side (9 runs; timings shared; VARIANTS=none:
+    # that one alone)
+    for variant in ${VARIANTS:-none radial map8}; do
       case $variant in
-        none) set_args="pipeline.model.camera_falloff=False" ;;
+        none) set_args="pipeline.model.camera_falloff=False pipeline.model.camera_flat_field=0" ;;
         radial) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=0" ;;
         map8) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8" ;;
       esac
@@ -229,7 +231,7 @@ case "$plan" in
         --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --set $set_args > "$OUT/survey-$variant.log" 2>&1 &
     done
     wait
-    for variant in none radial map8; do
+    for variant in ${VARIANTS:-none radial map8}; do
       cp "/tmp/survey-$variant/bench.json" "$OUT/survey-$variant.json"
       grep -A3 "^PSNR / SSIM, \`\(novel\|time\|aligned\)\`" "/tmp/survey-$variant/bench.md" | grep wild
     done
