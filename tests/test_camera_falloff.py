@@ -199,8 +199,11 @@ def test_a_flat_field_map_is_zero_mean_and_at_the_same_places_at_any_resolution(
 
 def test_the_flat_field_map_is_rendered_into_training_and_found_from_frames_that_carry_it():
     """A left-to-right offset no radial fall-off can hold: the map fits it, the scene's renders leave it out."""
-    with pytest.raises(InputError, match="camera_flat_field 4: .*needs camera_falloff True"):
-        make_model(camera_flat_field=4)
+    with pytest.raises(InputError, match="camera_flat_field -1: cells per image side"):
+        make_model(camera_falloff=True, camera_flat_field=-1)
+    # the camera model switched off switches its map off too (wild-thermal's default map needs no unsetting)
+    unmodelled = make_model(camera_falloff=False, camera_flat_field=4)
+    assert unmodelled.camera_flat_field is None and "camera_flat_field" not in unmodelled.get_param_groups()
     camera = make_camera(1)
     model = make_model(camera_falloff=True, camera_flat_field=4)
     assert "camera_flat_field" in model.get_param_groups()

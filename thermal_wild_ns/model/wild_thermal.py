@@ -127,7 +127,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     camera_flat_field: int = 0
     """With `camera_falloff`: cells per image side of a flat-field map fitted on top of the radial
     fall-off (a gain and an offset per cell, bilinear between cells, zero-mean: the camera's fixed
-    pattern that is not radial; `camera_falloff.py`). 0: the radial fall-off alone."""
+    pattern that is not radial; `camera_falloff.py`). 0: the radial fall-off alone. Without
+    `camera_falloff` there is no camera model, and no map."""
     camera_pattern_min_motion: float = 0.0
     """Fit the camera's fall-off and flat-field map (as set above) only where the capture's content
     moves across the sensor by at least this much: the seed points' mean spread of image position over
@@ -246,11 +247,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.respond`); zero: no fall-off
         fits_pattern, self.camera_pattern_why, self.camera_pattern_decided_by = self._camera_pattern_fitted()
         self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if fits_pattern else None
-        if cfg.camera_flat_field < 0 or (cfg.camera_flat_field and not cfg.camera_falloff):
-            raise InputError(
-                f"camera_flat_field {cfg.camera_flat_field}: cells per side (0 or more) of a map fitted on top of "
-                "the radial fall-off, which needs camera_falloff True"
-            )
+        if cfg.camera_flat_field < 0:
+            raise InputError(f"camera_flat_field {cfg.camera_flat_field}: cells per image side, 0 (no map) or more")
         n = cfg.camera_flat_field
         # [2, n, n]: row 0 the gain's cells, row 1 the offset's (`camera_falloff.flat_field_maps`); zero: flat
         self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n and fits_pattern else None
