@@ -17,7 +17,11 @@
 #     bash experiments/gpu_2026-11-27.sh flat-field-decay        # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh guard-device-dunr       # .data/dunr .data/cache .baseline carried
 #     bash experiments/gpu_2026-11-27.sh canonical-flight2       # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh canonical-dunr          # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh parts-flight2           # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh parts-dunr              # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh defaults-flight2        # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh growth-camera-flight2   # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh camera-cost-dunr        # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh survey-camera           # nothing carried (a generated scene)
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
@@ -26,7 +30,7 @@
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, parts-flight2, camera-cost-dunr, survey-camera}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, camera-cost-dunr, survey-camera}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -174,10 +178,11 @@ case "$plan" in
       for part in flight2 generated; do cp "/tmp/decay-$part-$decay/bench.json" "$OUT/decay-$part-$decay.json"; done
     done
     ;;
-  canonical-flight2)  # issue 33: the canonical state (inference_embedding) mean against typical on a real capture:
-    # the full method's defaults, 3 seeds side by side, each final checkpoint's novel views scored at both states
+  canonical-flight2|canonical-dunr)  # issue 33: the canonical state (inference_embedding) mean against typical on a
+    # real capture: the full method's defaults, 3 seeds side by side, each final checkpoint's novel views scored at both
+    scene=${plan#canonical-}
     PYTHONPATH=$PWD:/tmp/site timeout 420 python3 -m experiments.bench --output-dir /tmp/canonical \
-      --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
       --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 > "$OUT/canonical-bench.log" 2>&1
     cp /tmp/canonical/bench.json "$OUT/canonical-bench.json"
     for config in $(python3 -c "import json; [print(r['config']) for r in json.load(open('/tmp/canonical/bench.json'))['runs']]"); do
@@ -188,18 +193,49 @@ case "$plan" in
       done
     done
     ;;
-  parts-flight2)  # issue 33: the full method's parts one at a time on the second real capture (each default so far
-    # chosen on DUNR or the generated scenes alone): no background MLP, plain SSIM, no alpha regulariser, and the
-    # defaults, 3 seeds each, the four benches side by side (12 runs; timings shared)
+  parts-flight2|parts-dunr)  # issue 33: the full method's parts one at a time on a real capture: no background MLP,
+    # plain SSIM, no alpha regulariser, and the defaults, 3 seeds each, the four benches side by side (12 runs;
+    # timings shared)
+    scene=${plan#parts-}
     for part in default use_background_mlp=False heat_aware_ssim=False alpha_lambda=0.0; do
       set_args=(); [ $part != default ] && set_args=(--set "pipeline.model.$part")
       PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/parts-${part%%=*}" \
-        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
         --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 "${set_args[@]}" \
         > "$OUT/parts-${part%%=*}.log" 2>&1 &
     done
     wait
     for part in default use_background_mlp heat_aware_ssim alpha_lambda; do cp "/tmp/parts-$part/bench.json" "$OUT/parts-$part.json"; done
+    ;;
+  defaults-flight2)  # issue 33: the defaults so far chosen on DUNR alone, each changed on flight2: no preprocessing
+    # (flight2's contrast spread turns it on), the loss in the frames' original levels, the emission clamped at zero;
+    # and the defaults, 3 seeds each, the four benches side by side (12 runs; timings shared)
+    for setting in default datamanager.preprocessing.variant=none model.loss_space=original model.nonnegative_emission=True; do
+      set_args=(); [ $setting != default ] && set_args=(--set "pipeline.$setting")
+      name=${setting#*.}; name=${name%%=*}
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/defaults-$name" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 "${set_args[@]}" \
+        > "$OUT/defaults-$name.log" 2>&1 &
+    done
+    wait
+    for name in default variant loss_space nonnegative_emission; do cp "/tmp/defaults-$name/bench.json" "$OUT/defaults-$name.json"; done
+    ;;
+  growth-camera-flight2)  # issue 33's growth question with the camera model: does a fixed sensor pattern left to the
+    # Gaussians make the model worse as it grows? The full method (its default camera model on flight2) and the 3DGS
+    # variant given the same camera model, at a 1M budget, the first 10k steps of the 30k schedule, no stop (the
+    # growth-* plans of gpu_2026-11-26.sh, whose rows are without it), 3 seeds each, the two benches side by side
+    camera="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8 pipeline.model.camera_pattern_min_motion=0.22"
+    for method in wild-thermal wild-thermal-3dgs; do
+      PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/growth-$method" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods $method --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --max-gaussians 1000000 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 \
+        --no-auto-stop --set $camera > "$OUT/growth-$method.log" 2>&1 &
+    done
+    wait
+    for method in wild-thermal wild-thermal-3dgs; do
+      tag=${method#wild-thermal}; cp "/tmp/growth-$method/bench.json" "$OUT/flight2-1m${tag}-camera-bench.json"
+    done
     ;;
   camera-cost-dunr)  # issue 34: what the camera model (the fall-off and the 8x8 map DUNR's content motion turns on)
     # costs a step: the first 3,000 steps of a default DUNR run with it and without it, in turn, seeds 0-2
