@@ -35,6 +35,23 @@ OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
 
+one_at_a_time() {  # SCENE PREFIX SETTING...: the full method with its defaults and with each setting alone on
+  # .data/SCENE, 3 seeds each, every run side by side, the first 15,000 steps of the 30k schedule asked, the automatic
+  # stop on; each bench's results to $OUT/PREFIX-NAME.json, NAME the setting's name (`default`: the defaults)
+  local scene=$1 prefix=$2 setting name names=()
+  shift 2
+  for setting in default "$@"; do
+    set_args=(); [ "$setting" != default ] && set_args=(--set "$setting")
+    name=${setting%%=*}; name=${name##*.}; names+=("$name")
+    PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/$prefix-$name" \
+      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+      --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 "${set_args[@]}" \
+      > "$OUT/$prefix-$name.log" 2>&1 &
+  done
+  wait
+  for name in "${names[@]}"; do cp "/tmp/$prefix-$name/bench.json" "$OUT/$prefix-$name.json"; done
+}
+
 case "$plan" in
   install)  # the bundle, as every device script installs it
     bash experiments/gpu_2026-11-26.sh install
@@ -194,32 +211,15 @@ case "$plan" in
     done
     ;;
   parts-flight2|parts-dunr)  # issue 33: the full method's parts one at a time on a real capture: no background MLP,
-    # plain SSIM, no alpha regulariser, and the defaults, 3 seeds each, the four benches side by side (12 runs;
-    # timings shared)
-    scene=${plan#parts-}
-    for part in default use_background_mlp=False heat_aware_ssim=False alpha_lambda=0.0; do
-      set_args=(); [ $part != default ] && set_args=(--set "pipeline.model.$part")
-      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/parts-${part%%=*}" \
-        --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
-        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 "${set_args[@]}" \
-        > "$OUT/parts-${part%%=*}.log" 2>&1 &
-    done
-    wait
-    for part in default use_background_mlp heat_aware_ssim alpha_lambda; do cp "/tmp/parts-$part/bench.json" "$OUT/parts-$part.json"; done
+    # plain SSIM, no alpha regulariser, and the defaults, 3 seeds each, side by side (12 runs; timings shared)
+    one_at_a_time ${plan#parts-} parts pipeline.model.use_background_mlp=False pipeline.model.heat_aware_ssim=False \
+      pipeline.model.alpha_lambda=0.0
     ;;
   defaults-flight2)  # issue 33: the defaults so far chosen on DUNR alone, each changed on flight2: no preprocessing
     # (flight2's contrast spread turns it on), the loss in the frames' original levels, the emission clamped at zero;
-    # and the defaults, 3 seeds each, the four benches side by side (12 runs; timings shared)
-    for setting in default datamanager.preprocessing.variant=none model.loss_space=original model.nonnegative_emission=True; do
-      set_args=(); [ $setting != default ] && set_args=(--set "pipeline.$setting")
-      name=${setting#*.}; name=${name%%=*}
-      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/defaults-$name" \
-        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
-        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 "${set_args[@]}" \
-        > "$OUT/defaults-$name.log" 2>&1 &
-    done
-    wait
-    for name in default variant loss_space nonnegative_emission; do cp "/tmp/defaults-$name/bench.json" "$OUT/defaults-$name.json"; done
+    # and the defaults, 3 seeds each, side by side (12 runs; timings shared)
+    one_at_a_time flight2 defaults pipeline.datamanager.preprocessing.variant=none pipeline.model.loss_space=original \
+      pipeline.model.nonnegative_emission=True
     ;;
   growth-camera-flight2)  # issue 33's growth question with the camera model: does a fixed sensor pattern left to the
     # Gaussians make the model worse as it grows? The full method (its default camera model on flight2) and the 3DGS
