@@ -214,6 +214,16 @@ def test_unknown_method_and_protocol_are_refused(tmp_path):
         evaluate(None, protocols=("best",))
 
 
+def test_a_survey_scene_is_the_synthetic_survey_of_that_many_frames_and_a_bad_count_is_refused(tmp_path):
+    from experiments.bench import scene_dataparser, scene_name
+
+    config = scene_dataparser("survey:12", tmp_path, tmp_path / "cache")
+    assert (config.scene, config.survey_frames) == ("survey", 12)
+    assert config.data == tmp_path / "survey-12" and scene_name("survey:12") == "survey-12"
+    with pytest.raises(ValueError, match="'survey:many'.*a number of frames"):
+        scene_dataparser("survey:many", tmp_path, tmp_path / "cache")
+
+
 def test_bench_on_a_stress_scene_scores_the_path(tmp_path):
     from experiments.bench import BenchArgs, main
 
