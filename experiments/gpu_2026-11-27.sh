@@ -26,6 +26,8 @@
 #     bash experiments/gpu_2026-11-27.sh splatfacto-30k-dunr     # the same with .data/dunr
 #     bash experiments/gpu_2026-11-27.sh ablations-flight2       # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh ablations-dunr          # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh view-camera-flight2     # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh view-camera-dunr        # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh camera-cost-dunr        # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh survey-camera           # nothing carried (a generated scene)
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
@@ -34,7 +36,7 @@
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, camera-cost-dunr, survey-camera}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, camera-cost-dunr, survey-camera}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -261,6 +263,12 @@ case "$plan" in
       --methods wild-thermal-emission-mlp wild-thermal-3dgs wild-thermal-3dgs-stab-bbhe \
       --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 > "$OUT/$scene-ablations.log" 2>&1
     cp /tmp/ablations/bench.json "$OUT/$scene-ablations.json"
+    ;;
+  view-camera-flight2|view-camera-dunr)  # issue 33: does a capture still gain from a view term once the camera's
+    # fixed pattern is modelled? (Before the camera model flight2 gained from it, and on the vignetting scene the
+    # term mimicked the camera's fall-off.) The defaults (camera model on for both captures) and a degree-2 view
+    # term, 3 seeds each, side by side
+    one_at_a_time ${plan#view-camera-} view pipeline.model.view_sh_degree=2
     ;;
   camera-cost-dunr)  # issue 34: what the camera model (the fall-off and the 8x8 map DUNR's content motion turns on)
     # costs a step: the first 3,000 steps of a default DUNR run with it and without it, in turn, seeds 0-2
