@@ -41,6 +41,17 @@ OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
 
+camera_model() {  # none, radial or map8: the --set values of that camera model, fitted whatever the capture's content
+  # motion, as the plans before ab57046 ran them (wild-thermal's default since: the map where the content moves
+  # enough, so each variant is spelled out whole)
+  local fitted="pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0"
+  case $1 in
+    none) echo "pipeline.model.camera_falloff=False pipeline.model.camera_flat_field=0" ;;
+    radial) echo "$fitted pipeline.model.camera_flat_field=0" ;;
+    map8) echo "$fitted pipeline.model.camera_flat_field=8" ;;
+  esac
+}
+
 one_at_a_time() {  # SCENE PREFIX SETTING...: the full method with its defaults and with each setting alone on
   # .data/SCENE, 3 seeds each, every run side by side, the first 15,000 steps of the 30k schedule asked, the automatic
   # stop on; each bench's results to $OUT/PREFIX-NAME.json, NAME the setting's name (`default`: the defaults)
@@ -104,7 +115,7 @@ case "$plan" in
       PYTHONPATH=$PWD:/tmp/site timeout 520 python3 -m experiments.bench --output-dir "/tmp/falloff-$falloff" \
         --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
         --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
-        --set pipeline.model.camera_falloff=$falloff > "$OUT/$scene-falloff-$falloff.log" 2>&1 &
+        --set $(camera_model $([ $falloff = True ] && echo radial || echo none)) > "$OUT/$scene-falloff-$falloff.log" 2>&1 &
     done
     wait
     for falloff in False True; do
@@ -118,7 +129,7 @@ case "$plan" in
     PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir /tmp/trial-vignetting \
       --scenes stress:vignetting --methods wild-thermal --seeds 3 --runs-per-gpu 3 --steps 5000 --num-downscales 1 \
       --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 \
-      --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True pipeline.model.camera_falloff=True \
+      --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True $(camera_model radial) \
       > "$OUT/trial-vignetting.log" 2>&1
     cp /tmp/trial-vignetting/bench.json "$OUT/trial-vignetting-bench.json"
     cp /tmp/trial-vignetting/bench.md "$OUT/trial-vignetting-bench.md"
@@ -143,7 +154,7 @@ case "$plan" in
     for falloff in False True; do
       PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/vignetting-$falloff" \
         --scenes stress:vignetting --methods wild-thermal --seeds 3 --runs-per-gpu 3 --steps 5000 --num-downscales 1 \
-        --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --set pipeline.model.camera_falloff=$falloff \
+        --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --set $(camera_model $([ $falloff = True ] && echo radial || echo none)) \
         > "$OUT/vignetting-falloff-$falloff.log" 2>&1 &
     done
     wait
@@ -153,11 +164,7 @@ case "$plan" in
     # map, 3 seeds each, all nine runs side by side (their timings are shared, their scores are not)
     scene=${plan#flat-field-}
     for variant in none radial map8; do
-      case $variant in
-        none) set_args="pipeline.model.camera_falloff=False" ;;
-        radial) set_args="pipeline.model.camera_falloff=True" ;;
-        map8) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8" ;;
-      esac
+      set_args=$(camera_model $variant)
       PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/ff-$variant" \
         --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
         --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
@@ -172,8 +179,7 @@ case "$plan" in
   flat-field-generated)  # issue 33: the generated scenes without a camera model and with the fall-off and an 8x8
     # flat-field map, 3 seeds each (the protocol of gpu_2026-11-24.sh generated), both benches side by side
     for variant in none map8; do
-      set_args="pipeline.model.camera_falloff=False"
-      [ $variant = map8 ] && set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8"
+      set_args=$(camera_model $variant)
       PYTHONPATH=$PWD:/tmp/site timeout 550 python3 -m experiments.bench --output-dir "/tmp/gen-$variant" \
         --scenes demo stress:clean stress:drift stress:ffc stress:outlier --methods wild-thermal --seeds 3 \
         --steps 5000 --num-downscales 1 --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --runs-per-gpu 5 \
@@ -186,7 +192,7 @@ case "$plan" in
     # decay, 0.1 and 1.0): flight2 and the two generated scenes where the plain map cost `aligned` most, 3 seeds each,
     # the four benches side by side (18 runs; timings shared)
     for decay in 0.1 1.0; do
-      map="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8 optimizers.camera_flat_field.optimizer.weight_decay=$decay"
+      map="$(camera_model map8) optimizers.camera_flat_field.optimizer.weight_decay=$decay"
       PYTHONPATH=$PWD:/tmp/site timeout 470 python3 -m experiments.bench --output-dir "/tmp/decay-flight2-$decay" \
         --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
         --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
@@ -231,7 +237,7 @@ case "$plan" in
     # Gaussians make the model worse as it grows? The full method (its default camera model on flight2) and the 3DGS
     # variant given the same camera model, at a 1M budget, the first 10k steps of the 30k schedule, no stop (the
     # growth-* plans of gpu_2026-11-26.sh, whose rows are without it), 3 seeds each, the two benches side by side
-    camera="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8 pipeline.model.camera_pattern_min_motion=0.22"
+    camera=$(camera_model map8)  # flight2's content motion turns it on under the default rule as well
     for method in wild-thermal wild-thermal-3dgs; do
       PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/growth-$method" \
         --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods $method --seeds 3 --runs-per-gpu 3 \
@@ -275,7 +281,7 @@ case "$plan" in
     # (CAMERAS=off: the runs without it alone)
     for seed in 0 1 2; do
       for camera in ${CAMERAS:-on off}; do
-        set_args=(); [ $camera = off ] && set_args=(--set pipeline.model.camera_falloff=False pipeline.model.camera_flat_field=0)
+        set_args=(); [ $camera = off ] && set_args=(--set $(camera_model none))
         PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.schedule_profile --scene "$PWD/.data/dunr" \
           --cache-dir "$PWD/.data/cache" --seed $seed --steps 3000 "${set_args[@]}" --output-dir "/tmp/camera/$camera-seed$seed" \
           > "/tmp/camera-$camera-seed$seed.log" 2>&1
@@ -290,11 +296,7 @@ case "$plan" in
     # map (the default there), 3 seeds each, the three benches side by side (9 runs; timings shared; VARIANTS=none:
     # that one alone)
     for variant in ${VARIANTS:-none radial map8}; do
-      case $variant in
-        none) set_args="pipeline.model.camera_falloff=False pipeline.model.camera_flat_field=0" ;;
-        radial) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=0" ;;
-        map8) set_args="pipeline.model.camera_falloff=True pipeline.model.camera_flat_field=8" ;;
-      esac
+      set_args=$(camera_model $variant)
       PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/survey-$variant" \
         --scenes survey:48 --methods wild-thermal --seeds 3 --runs-per-gpu 3 --steps 5000 \
         --eval-at 1000 2000 5000 --fps-frames 0 --fit-steps 20 --set $set_args > "$OUT/survey-$variant.log" 2>&1 &
