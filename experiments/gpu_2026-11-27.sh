@@ -28,6 +28,7 @@
 #     bash experiments/gpu_2026-11-27.sh ablations-dunr          # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh view-camera-flight2     # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh view-camera-dunr        # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh gpu-tests               # nothing carried: the tests that need CUDA
 #     bash experiments/gpu_2026-11-27.sh camera-cost-dunr        # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh survey-camera           # nothing carried (a generated scene)
 # `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
@@ -36,7 +37,7 @@
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, camera-cost-dunr, survey-camera}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -275,6 +276,12 @@ case "$plan" in
     # term mimicked the camera's fall-off.) The defaults (camera model on for both captures) and a degree-2 view
     # term, 3 seeds each, side by side
     one_at_a_time ${plan#view-camera-} view pipeline.model.view_sh_degree=2
+    ;;
+  gpu-tests)  # the tests that skip without CUDA: gsplat against the torch rasterizer, the CUDA graphs of the render,
+    # loss, background and emission, fused Adam's rejected step on the GPU (the divergence guard's device verdict)
+    PYTHONPATH=$PWD:/tmp/site timeout 300 python3 -m pytest -q -p no:cacheprovider -rs tests/test_gpu_parity.py \
+      "tests/test_upstream.py::test_fused_adam_step_is_adams_step" > "$OUT/gpu_tests.log" 2>&1
+    tail -3 "$OUT/gpu_tests.log"
     ;;
   camera-cost-dunr)  # issue 34: what the camera model (the fall-off and the 8x8 map DUNR's content motion turns on)
     # costs a step: the first 3,000 steps of a default DUNR run with it and without it, in turn, seeds 0-2

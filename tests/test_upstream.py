@@ -4,6 +4,7 @@ import re
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 # what reaching into nerfstudio / gsplat / torchmetrics / torch internals looks like in this code base
@@ -117,18 +118,21 @@ def test_step_timings_are_written_with_the_losses_every_other_event_at_once(monk
     assert len(writer.GLOBAL_BUFFER["events"]["Train Rays / Sec"]["buffer"]) == 20
 
 
-def test_fused_adam_step_is_adams_step():
+@pytest.mark.parametrize(
+    "device",
+    ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA"))],
+)
+def test_fused_adam_step_is_adams_step(device):
     """`fused_adam_step` over several optimizers (with and without weight decay, parameters without
     gradients, a state created mid-way as densification creates one) against each optimizer's own
     `step()`, bit for bit over a few steps; a step the divergence guard rejects on the device
-    (`accepted` False) is one torch never took, an accepted one is `step()`."""
-    import torch
-
+    (`accepted` False) is one torch never took, an accepted one is `step()`. On the CPU and, where
+    there is one, a GPU (the training step's device: its fused kernel is another)."""
     from thermal_wild_ns._upstream import fused_adam_ready, fused_adam_step
 
     def build():
         torch.manual_seed(0)
-        params = [torch.nn.Parameter(torch.randn(n, 3)) for n in (5, 7, 2)]
+        params = [torch.nn.Parameter(torch.randn(n, 3, device=device)) for n in (5, 7, 2)]
         return params, [
             torch.optim.Adam([params[0]], lr=1e-2, eps=1e-15, fused=True),
             torch.optim.Adam([params[1]], lr=3e-3, weight_decay=1e-2, fused=True),
@@ -139,6 +143,7 @@ def test_fused_adam_step_is_adams_step():
     assert all(fused_adam_ready(o) for o in mine[1][:2]) and not fused_adam_ready(mine[1][2])  # AdamW: no
     assert not fused_adam_ready(torch.optim.Adam([torch.nn.Parameter(torch.ones(1))]))  # not fused
     verdicts = [None, torch.tensor(True), torch.tensor(False), None, torch.tensor(True)]  # step 2 rejected
+    verdicts = [v if v is None else v.to(device) for v in verdicts]
     for step, accepted in enumerate(verdicts):
         for (params, optimizers), stepper in ((mine, "ours"), (theirs, "torch")):
             torch.manual_seed(step)
