@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The GPU runs of 2026-11-27 (issue 33: how a held-out frame's LUT is predicted), one plan per device call
-# on one warm machine, from the repository root:
+# The GPU runs of 2026-11-27 and the plans left for the next sessions (issues 33 and 34; each plan's comment says
+# what it asks), one plan per device call on one warm machine, from the repository root:
 #     bash experiments/gpu_2026-11-27.sh install                 # .devicebundle carried
 #     bash experiments/gpu_2026-11-27.sh lut-blend-flight2       # .data/flight2 .data/cache .baseline carried
 #     bash experiments/gpu_2026-11-27.sh lut-blend-dunr          # .data/dunr .data/cache .baseline carried
@@ -31,11 +31,11 @@
 #     bash experiments/gpu_2026-11-27.sh gpu-tests               # nothing carried: the tests that need CUDA
 #     bash experiments/gpu_2026-11-27.sh camera-cost-dunr        # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh survey-camera           # nothing carried (a generated scene)
-# `.baseline` holds the package of the commit before the change (git archive BASELINE thermal_wild_ns experiments
-# | tar -x -C .baseline). Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
+# `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
+# | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
-# Gaussians and embeddings, two ways of predicting a held-out frame's LUT. Results go to $OUT.
+# Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
 plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera}
 OUT=${OUT:-/tmp/out}
