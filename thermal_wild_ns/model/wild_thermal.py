@@ -98,10 +98,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     background_stride: int = 4
     """The background MLP is evaluated every this many pixels and upsampled bilinearly: its
     direction encoding (spherical harmonics up to degree 3) varies far more slowly than that."""
-    inference_embedding: str = "mean"
-    """Frame embedding used outside training (evaluation, viewer, renders): 'mean' (average of the
-    training frames' embeddings), 'typical' (the state whose emission is closest on average to every
-    training frame's: docs/design.md), 'zero', or a training-frame index such as '12'."""
+    inference_embedding: str = "typical"
+    """Frame embedding used outside training (evaluation, viewer, renders): 'typical' (the state whose
+    emission is closest on average to every training frame's: docs/design.md; chosen over 'mean' by
+    both real captures, docs/results/canonical_dunr_h200 and canonical_flight2_h200), 'mean' (average
+    of the training frames' embeddings), 'zero', or a training-frame index such as '12'."""
     colormap: Literal["iron", "inferno", "grey"] = "iron"
     """Thermal colormap of the `rgb` output outside training (ns-viewer, ns-render videos); the
     viewer has a control for it. `thermal` stays the scalar image."""
@@ -346,7 +347,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.frame_states.fill_from_neighbours(rows)
 
     def inference_embedding(self) -> Tensor:
-        """The canonical frame embedding [Df] (`inference_embedding`; the training frames' mean by
+        """The canonical frame embedding [Df] (`inference_embedding`; the typical state by
         default), the same tensor until the embeddings change, so the baked emission keyed on it holds."""
         return self.frame_states.named(self.config.inference_embedding, self.step, self.typical_state_emission)
 

@@ -8,7 +8,7 @@ between (the embedding linearly, the LUT through its inverse: `blend_luts`). No 
 enters a state: a held-out frame's state is predicted from its neighbours.
 
 States by name (`--photometric-state` of `wild-thermal-render`; `parse_state`):
-- `canonical`: the model's inference embedding (mean of the training frames' by default) and the
+- `canonical`: the model's inference embedding (the typical state by default) and the
   level-wise median of the training LUTs: what every novel view renders with;
 - `frame:N`: training frame N's own state (N in capture order);
 - `time:T`: the state at capture position T (a float; between frames, interpolated).
