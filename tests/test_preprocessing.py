@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from experiments.canonical_lut import mean_inverse_lut
 from thermal_wild_ns.analysis.diagnostics import relative_mean_change
 from thermal_wild_ns.preprocessing.photometric import (
     VARIANTS,
@@ -456,3 +457,19 @@ def test_a_blend_of_increasing_luts_is_increasing_and_exact_at_its_ends():
         assert blend_luts(a, b, 0.0) is a and blend_luts(a, b, 1.0) is b
     with pytest.raises(ValueError, match="blend weight"):
         blend_luts(a, b, 1.5)
+
+
+def test_the_mean_inverse_lut_of_drifted_frames_is_the_mean_drift_and_two_frames_blend_halfway():
+    """Three frames drifted by 0, 60 and 150 levels: the LUT whose inverse is their inverses' mean
+    (experiments.canonical_lut) is the frame drifted by their mean, 70; of two frames it is
+    `blend_luts` at w = 0.5; strictly increasing."""
+    levels = np.arange(1000, dtype=np.float64)
+
+    def frame_lut(x):
+        return x + 50.0 * np.sin(x / 100.0)
+
+    luts = [frame_lut(levels - d) for d in (0.0, 60.0, 150.0)]
+    inside = slice(200, 800)
+    assert np.allclose(mean_inverse_lut(luts)[inside], frame_lut(levels - 70.0)[inside], atol=1e-6)
+    assert np.allclose(mean_inverse_lut(luts[:2]), blend_luts(luts[0], luts[1], 0.5), atol=1e-9)
+    assert np.all(np.diff(mean_inverse_lut(luts)) > 0)

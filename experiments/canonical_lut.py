@@ -1,0 +1,98 @@
+"""Which single LUT a novel view should map back through, with no model: the `novel` protocol's LUT
+share of its error in the limit of a perfect render (issue 33, the canonical state).
+
+For each held-out frame of a scene's default split, the frame processed by its own LUT (what a perfect
+model renders in training space, the preprocessing's stabilization making that the same scene at every
+capture time) is mapped back to the sensor's levels through one fixed LUT and scored against the raw
+frame, PSNR as the evaluation's (dataset-normalised, range 1):
+
+- `median`: the level-wise median of the training frames' LUTs (`PreprocessedSequence.median_lut`,
+  what the `novel` protocol uses);
+- `mean_inverse`: the LUT whose inverse is the mean of the training frames' inverses
+  (`mean_inverse_lut`): per processed value, the mean of the original levels the training frames gave
+  it, the fixed map with the least expected squared error over their states.
+
+python -m experiments.canonical_lut --scenes ../shared/data/dunr ../shared/data/flight2 \
+    --output-dir docs/results/canonical_lut
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Sequence
+
+import numpy as np
+import torch
+import tyro
+
+from experiments import full_method_luts, read_capture
+from thermal_wild_ns.data.thermal_io import read_raw_frame
+from thermal_wild_ns.image_metrics import psnr
+from thermal_wild_ns.preprocessing.photometric import apply_lut, invert_lut
+
+
+def mean_inverse_lut(luts: Sequence[np.ndarray]) -> np.ndarray:
+    """The LUT [L] whose inverse is the mean of the inverses of `luts` (each [L], strictly increasing):
+    `photometric.blend_luts` for many frames at equal weights. Exact at every corner of any inverse
+    (the union of the LUTs' values), linear between them; strictly increasing."""
+    levels = np.arange(len(luts[0]), dtype=np.float64)  # [L]
+    outputs = np.unique(np.concatenate([np.asarray(lut, dtype=np.float64) for lut in luts]))  # [M]
+    inverse = np.zeros_like(outputs)  # [M]
+    for lut in luts:  # one at a time: memory stays flat in the frame count
+        inverse += np.interp(outputs, np.asarray(lut, dtype=np.float64), levels)
+    inverse /= len(luts)
+    return np.interp(levels, inverse, outputs)
+
+
+@dataclass
+class Args:
+    scenes: List[Path] = field(default_factory=list)
+    """Scene folders (any layout the data parser reads)."""
+    output_dir: Path = Path("canonical_lut")
+    cache_dir: Path = Path(".cache/canonical_lut")
+    """Where the preprocessing cache goes."""
+
+
+def scene_scores(scene: Path, cache_dir: Path) -> Dict:
+    parser, capture, rng = read_capture(scene, cache_dir)
+    train = set(parser.get_dataparser_outputs("train").metadata["frame_indices"])
+    sequence = full_method_luts(capture, rng, cache_dir, [t in train for t in range(len(capture.frames))])
+    candidates = {
+        "median": sequence.median_lut(),
+        "mean_inverse": mean_inverse_lut([np.asarray(sequence.luts[t]) for t in sorted(train)]),
+    }
+    held_out = [t for t in range(len(capture.frames)) if t not in train]
+    scores: Dict[str, List[float]] = {name: [] for name in candidates}
+    for t in held_out:
+        raw = read_raw_frame(capture.frames[t].image, rng.palette)  # [H, W] native
+        processed = apply_lut(sequence.oracle_lut(t), raw, sequence.grid)  # [H, W] native
+        truth = torch.from_numpy(np.asarray(rng.normalize(raw), dtype=np.float64))
+        for name, lut in candidates.items():
+            back = np.asarray(rng.normalize(invert_lut(lut, processed, sequence.grid)), dtype=np.float64)
+            scores[name].append(float(psnr(torch.from_numpy(back), truth)))
+    return {"scene": scene.name, "held_out": held_out, **{name: s for name, s in scores.items()}}
+
+
+def main(args: Args) -> None:
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    results = [scene_scores(scene, args.cache_dir) for scene in args.scenes]
+    (args.output_dir / "canonical_lut.json").write_text(json.dumps(results, indent=1))
+    lines = [
+        "| scene | held-out frames | `median` (the `novel` protocol's) | `mean_inverse` "
+        "| frames where `mean_inverse` is higher |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for r in results:
+        median, mean = np.array(r["median"]), np.array(r["mean_inverse"])
+        lines.append(
+            f"| {r['scene']} | {len(r['held_out'])} | {median.mean():.2f} | {mean.mean():.2f} | "
+            f"{int((mean > median).sum())} of {len(median)} |"
+        )
+    (args.output_dir / "canonical_lut.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
