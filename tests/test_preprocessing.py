@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from experiments.canonical_lut import mean_inverse_lut
+from experiments.sensor_drift import frame_offsets
 from thermal_wild_ns.analysis.diagnostics import relative_mean_change
 from thermal_wild_ns.preprocessing.photometric import (
     VARIANTS,
@@ -473,3 +474,26 @@ def test_the_mean_inverse_lut_of_drifted_frames_is_the_mean_drift_and_two_frames
     assert np.allclose(mean_inverse_lut(luts)[inside], frame_lut(levels - 70.0)[inside], atol=1e-6)
     assert np.allclose(mean_inverse_lut(luts[:2]), blend_luts(luts[0], luts[1], 0.5), atol=1e-9)
     assert np.all(np.diff(mean_inverse_lut(luts)) > 0)
+
+
+def test_frame_offsets_recover_a_drifting_level_and_hold_a_fixed_gradient_as_a_level_along_the_way():
+    """Survey-like observations: 300 scene points, 12 frames, each point crossing the frame from top to
+    bottom as the frames go by and back (a drone's lanes). A level drift alone comes back exactly. A
+    fixed gradient down the sensor alone (no drift) comes back as offsets proportional to each frame's
+    place along the lane: from the points alone the two are the same thing (`frame_offsets`)."""
+    rng = np.random.default_rng(0)
+    frames, points = 12, 300
+    scene = rng.uniform(0.2, 0.8, points)
+    track = np.concatenate([np.arange(6), np.arange(5, -1, -1)]).astype(float)  # down the lane and back
+    y = (track[:, None] - rng.uniform(0, 5, points)[None]) / 6.0  # [F, P] each point's height in the frame
+    inside = np.abs(y) <= 0.5
+
+    drift = rng.normal(0.0, 0.03, frames)
+    offsets, kept = frame_offsets(np.where(inside, scene[None] + drift[:, None], np.nan))
+    assert len(kept) == frames
+    np.testing.assert_allclose(offsets, drift - np.median(drift), atol=1e-6)
+
+    gradient = 0.1  # per frame height
+    offsets, _ = frame_offsets(np.where(inside, scene[None] + gradient * y, np.nan))
+    along = gradient * track / 6.0
+    np.testing.assert_allclose(offsets, along - np.median(along), atol=1e-6)
