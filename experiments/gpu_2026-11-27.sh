@@ -33,13 +33,14 @@
 #     bash experiments/gpu_2026-11-27.sh survey-camera           # nothing carried (a generated scene)
 #     bash experiments/gpu_2026-11-27.sh budget-camera-flight2   # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh budget-camera-dunr      # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh camera-graph-dunr       # .data/dunr .data/cache carried
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -321,6 +322,18 @@ case "$plan" in
     # held-back frames raise (auto_stop.grow_budget, up to 1M; before the camera model docs/results/grow_budget),
     # and a fixed 300k, 3 seeds each, side by side (9 runs; timings shared)
     one_at_a_time ${plan#budget-camera-} budget auto_stop.grow_budget=True pipeline.model.max_gaussians=300000
+    ;;
+  camera-graph-dunr)  # issue 34: the camera model's response replayed as CUDA graphs (graphed_camera, the default)
+    # against kernel by kernel: the first 3,000 steps of a default DUNR run each way, in turn, seeds ${SEEDS:-0 1 2}
+    for seed in ${SEEDS:-0 1 2}; do
+      for graphed in True False; do
+        PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.schedule_profile --scene "$PWD/.data/dunr" \
+          --cache-dir "$PWD/.data/cache" --seed $seed --steps 3000 --set pipeline.model.graphed_camera=$graphed \
+          --output-dir "/tmp/camgraph/$graphed-seed$seed" > "/tmp/camgraph-$graphed-seed$seed.log" 2>&1
+        python3 -c "import json, sys; d = json.load(open(sys.argv[1])); d.pop('windows'); d['graphed_camera'] = sys.argv[2]; print(json.dumps(d))" \
+          "/tmp/camgraph/$graphed-seed$seed/schedule.json" $graphed | tee -a "$OUT/$plan.jsonl" | cut -c1-200
+      done
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -101,6 +101,26 @@ def test_training_renders_through_the_fitted_falloff_and_the_scenes_renders_do_n
     assert torch.equal(as_recorded(object(), scene, camera), scene)  # a model without one (splatfacto)
 
 
+def test_the_graphed_camera_response_is_the_same_function_on_any_device():
+    """`graphed_camera` (on by default) sends training renders through `GraphedCalls`, which records CUDA
+    graphs on a GPU (tests/test_gpu_parity.py) and runs the response itself elsewhere: the same images
+    with it off; without a camera model there is nothing to graph."""
+    camera = make_camera(1)
+    torch.manual_seed(0)
+    graphed = make_model(camera_falloff=True, camera_flat_field=4)
+    torch.manual_seed(0)
+    eager = make_model(camera_falloff=True, camera_flat_field=4, graphed_camera=False)
+    assert graphed.graphed_camera is not None and eager.graphed_camera is None
+    assert make_model(camera_falloff=False).graphed_camera is None
+    with torch.no_grad():
+        for model in (graphed, eager):
+            model.camera_falloff.copy_(torch.tensor([[-0.4, 0.1], [0.05, 0.0]]))
+            model.camera_flat_field.normal_(0.0, 0.1, generator=torch.Generator().manual_seed(1))
+    graphed.train()
+    eager.train()
+    assert torch.equal(graphed.get_outputs(camera)["thermal"], eager.get_outputs(camera)["thermal"])
+
+
 def test_the_run_reports_the_fitted_falloff():
     model = make_model(camera_falloff=True)
     with torch.no_grad():

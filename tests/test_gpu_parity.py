@@ -5,6 +5,7 @@ of means2d (grad and absgrad, which densification reads) must agree. The measure
 written to $PARITY_OUT (JSON) when set; docs/results/gpu_parity.json holds the committed device run.
 """
 
+import functools
 import json
 import os
 
@@ -255,3 +256,45 @@ def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel
                 mine.add_(change)
                 theirs.add_(change)
     assert len(graphed.graphs) == 1 and all(g is not None for g in graphed.graphs.values())
+
+
+def test_the_camera_response_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel():
+    """The camera model's response through `GraphedCalls` (`graphed_camera`): the same image and the
+    same gradients of the render, the fall-off's coefficients and the flat-field cells as kernel by
+    kernel, for frames of two sizes in turn, with and without the map, the parameters changed in place
+    between steps (as Adam does)."""
+    from thermal_wild_ns.model.background import CameraFrameDirections
+    from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, falloff_basis, respond
+    from thermal_wild_ns.model.graphed import GraphedCalls
+
+    torch.manual_seed(0)
+    graphed = GraphedCalls("camera model")
+    coefficients = torch.nn.Parameter(0.1 * torch.randn(2, FALLOFF_ORDER, device="cuda"))
+    cells = torch.nn.Parameter(0.1 * torch.randn(2, 8, 8, device="cuda"))
+    bases = CameraFrameDirections(derive=falloff_basis)
+    for step in range(8):
+        width, height = (80, 64) if step % 2 else (160, 128)
+        with_map = step < 4
+        K = torch.tensor([[100.0, 0, width / 2], [0, 100.0, height / 2], [0, 0, 1]], device="cuda")
+        basis = bases(K, (100.0, 100.0, width / 2, height / 2), width, height, 1)
+        thermal = torch.rand(height, width, 1, device="cuda", requires_grad=True)
+        weights = torch.rand(height, width, 1, device="cuda")
+        inputs = (thermal, coefficients, basis, cells) if with_map else (thermal, coefficients, basis)
+        results = []
+        for run in (functools.partial(graphed, with_map, respond), respond):
+            for leaf in (thermal, coefficients, cells):
+                leaf.grad = None
+            out = run(*inputs)
+            (out * weights).sum().backward()
+            grads = [thermal.grad.clone(), coefficients.grad.clone()] + ([cells.grad.clone()] if with_map else [])
+            results.append((out.detach().clone(), grads))
+        (ours, ours_grads), (reference, reference_grads) = results
+        assert torch.allclose(ours, reference, rtol=1e-6, atol=1e-7), step
+        for mine, theirs in zip(ours_grads, reference_grads):
+            # the parameters' gradients sum over every pixel: relative to the largest element
+            worst = (mine - theirs).abs().max().item()
+            assert worst <= 1e-5 * theirs.abs().max().item(), (step, tuple(mine.shape), worst)
+        with torch.no_grad():  # an optimizer step, in place
+            coefficients.add_(0.01 * torch.randn_like(coefficients))
+            cells.add_(0.01 * torch.randn_like(cells))
+    assert len(graphed.graphs) == 4 and all(g is not None for g in graphed.graphs.values())

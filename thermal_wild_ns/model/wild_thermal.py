@@ -151,6 +151,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """On a GPU, replay the background MLP's forward and backward in training as CUDA graphs (one per
     frame size), as `graphed_loss` does for the loss: the same kernels, less host time per step, a
     little more GPU memory for the graphs (docs/results/background_graphs_h100); off: kernel by kernel."""
+    graphed_camera: bool = True
+    """On a GPU, replay the camera model's response (`camera_falloff`, `camera_flat_field`) in training,
+    forward and backward, as CUDA graphs (one per frame size), as `graphed_loss` does for the loss: the
+    same kernels, one launch each way instead of a score of small ones. Off: kernel by kernel."""
     graphed_emission: bool = False
     """On a GPU, replay the emission MLP's forward and backward in training as CUDA graphs, as
     `graphed_background` does: recorded again whenever densification changes the Gaussian count (only
@@ -254,6 +258,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         # [2, n, n]: row 0 the gain's cells, row 1 the offset's (`camera_falloff.flat_field_maps`); zero: flat
         self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n and fits_pattern else None
         self.camera_falloff_basis = CameraFrameDirections(derive=falloff_basis)  # per camera and size
+        graphs = cfg.graphed_camera and self.camera_falloff is not None
+        self.graphed_camera = GraphedCalls("camera model") if graphs else None
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
         )
@@ -527,6 +533,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if detach:
             coefficients = coefficients.detach()
             flat_field = None if flat_field is None else flat_field.detach()
+        if self.graphed_camera is not None and not detach and self.training and torch.is_grad_enabled():
+            # the training step's: the same kernels, replayed (the key: what besides the inputs' shapes
+            # picks the function, whether there is a map)
+            if flat_field is None:
+                return self.graphed_camera(False, respond, thermal, coefficients, basis)
+            return self.graphed_camera(True, respond, thermal, coefficients, basis, flat_field)
         return respond(thermal, coefficients, basis, flat_field)
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
