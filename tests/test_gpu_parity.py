@@ -290,10 +290,13 @@ def test_the_camera_response_replayed_as_cuda_graphs_equals_it_run_kernel_by_ker
             results.append((out.detach().clone(), grads))
         (ours, ours_grads), (reference, reference_grads) = results
         assert torch.allclose(ours, reference, rtol=1e-6, atol=1e-7), step
-        for mine, theirs in zip(ours_grads, reference_grads):
-            # the parameters' gradients sum over every pixel: relative to the largest element
+        for mine, theirs, tolerance in zip(ours_grads, reference_grads, (1e-5, 1e-5, 1e-4)):
+            # the parameters' gradients sum over every pixel: relative to the largest element; the map's
+            # cells are summed by the bilinear upsampling's backward with atomic adds on the GPU, whose
+            # order (hence the last bits of a float32 sum over hundreds of pixels) differs between any two
+            # runs, graphed or not (docs/results/camera_graph_h200)
             worst = (mine - theirs).abs().max().item()
-            assert worst <= 1e-5 * theirs.abs().max().item(), (step, tuple(mine.shape), worst)
+            assert worst <= tolerance * theirs.abs().max().item(), (step, tuple(mine.shape), worst)
         with torch.no_grad():  # an optimizer step, in place
             coefficients.add_(0.01 * torch.randn_like(coefficients))
             cells.add_(0.01 * torch.randn_like(cells))
