@@ -3,7 +3,9 @@ render speed, Gaussian budget, preprocessing sweeps. Run from a checkout: `pytho
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, List, Optional
 
 
 def device_name() -> str:
@@ -85,6 +87,29 @@ def read_capture(scene, cache_dir):
 
     parser = ThermalDataParserConfig(data=Path(scene).resolve(), cache_dir=Path(cache_dir).resolve()).setup()
     return parser, parser.capture(), parser.radiometric_range()
+
+
+@dataclass
+class SceneStudyArgs:
+    """The arguments of a study of dataset folders without a model (`experiments.lut_prediction`,
+    `experiments.canonical_lut`)."""
+
+    scenes: List[Path] = field(default_factory=list)
+    """Scene folders (any layout the data parser reads)."""
+    output_dir: Path = Path("outputs/study")
+    """Where the study's JSON and Markdown go."""
+    cache_dir: Path = Path(".cache/study")
+    """Where the triangulation and preprocessing caches go."""
+
+
+def split_luts(scene, cache_dir):
+    """A dataset folder's capture, radiometric range, training frames of its default split (sorted)
+    and the full method's LUTs of every frame (`full_method_luts`)."""
+    parser, capture, rng = read_capture(scene, cache_dir)
+    train = sorted(parser.get_dataparser_outputs("train").metadata["frame_indices"])
+    chosen = set(train)
+    sequence = full_method_luts(capture, rng, cache_dir, [t in chosen for t in range(len(capture.frames))])
+    return capture, rng, train, sequence
 
 
 def full_method_luts(capture, rng, cache_dir, train):

@@ -19,7 +19,6 @@ python -m experiments.canonical_lut --scenes ../shared/data/dunr ../shared/data/
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Sequence
 
@@ -27,7 +26,7 @@ import numpy as np
 import torch
 import tyro
 
-from experiments import full_method_luts, read_capture
+from experiments import SceneStudyArgs, split_luts
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.image_metrics import psnr
 from thermal_wild_ns.preprocessing.photometric import apply_lut, invert_lut
@@ -46,22 +45,11 @@ def mean_inverse_lut(luts: Sequence[np.ndarray]) -> np.ndarray:
     return np.interp(levels, inverse, outputs)
 
 
-@dataclass
-class Args:
-    scenes: List[Path] = field(default_factory=list)
-    """Scene folders (any layout the data parser reads)."""
-    output_dir: Path = Path("canonical_lut")
-    cache_dir: Path = Path(".cache/canonical_lut")
-    """Where the preprocessing cache goes."""
-
-
 def scene_scores(scene: Path, cache_dir: Path) -> Dict:
-    parser, capture, rng = read_capture(scene, cache_dir)
-    train = set(parser.get_dataparser_outputs("train").metadata["frame_indices"])
-    sequence = full_method_luts(capture, rng, cache_dir, [t in train for t in range(len(capture.frames))])
+    capture, rng, train, sequence = split_luts(scene, cache_dir)
     candidates = {
         "median": sequence.median_lut(),
-        "mean_inverse": mean_inverse_lut([np.asarray(sequence.luts[t]) for t in sorted(train)]),
+        "mean_inverse": mean_inverse_lut([np.asarray(sequence.luts[t]) for t in train]),
     }
     held_out = [t for t in range(len(capture.frames)) if t not in train]
     scores: Dict[str, List[float]] = {name: [] for name in candidates}
@@ -75,7 +63,7 @@ def scene_scores(scene: Path, cache_dir: Path) -> Dict:
     return {"scene": scene.name, "held_out": held_out, **{name: s for name, s in scores.items()}}
 
 
-def main(args: Args) -> None:
+def main(args: SceneStudyArgs) -> None:
     args.output_dir.mkdir(parents=True, exist_ok=True)
     results = [scene_scores(scene, args.cache_dir) for scene in args.scenes]
     (args.output_dir / "canonical_lut.json").write_text(json.dumps(results, indent=1))
@@ -95,4 +83,4 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(tyro.cli(SceneStudyArgs))

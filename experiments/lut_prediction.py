@@ -16,7 +16,6 @@ python -m experiments.lut_prediction --scenes ../shared/data/dunr ../shared/data
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Tuple
 
@@ -24,7 +23,7 @@ import numpy as np
 import torch
 import tyro
 
-from experiments import full_method_luts, read_capture
+from experiments import SceneStudyArgs, split_luts
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.image_metrics import psnr
 from thermal_wild_ns.preprocessing.photometric import apply_lut, blend_luts, invert_lut, time_weights
@@ -35,20 +34,9 @@ def blend_levelwise(lut_a: np.ndarray, lut_b: np.ndarray, weight: float) -> np.n
     return (1.0 - weight) * lut_a + weight * lut_b
 
 
-@dataclass
-class Args:
-    scenes: List[Path] = field(default_factory=list)
-    """Scene folders (any layout the data parser reads)."""
-    output_dir: Path = Path("lut_prediction")
-    cache_dir: Path = Path(".cache/lut_prediction")
-    """Where the preprocessing cache goes."""
-
-
 def scene_scores(scene: Path, cache_dir: Path) -> Dict:
-    parser, capture, rng = read_capture(scene, cache_dir)
-    train = set(parser.get_dataparser_outputs("train").metadata["frame_indices"])
-    sequence = full_method_luts(capture, rng, cache_dir, [t in train for t in range(len(capture.frames))])
-    frames = sorted(train)
+    capture, rng, train, sequence = split_luts(scene, cache_dir)
+    frames = train
     rows: List[Tuple[int, float, float]] = []
     for t in range(len(capture.frames)):
         if t in train:
@@ -76,7 +64,7 @@ def scene_scores(scene: Path, cache_dir: Path) -> Dict:
     }
 
 
-def main(args: Args) -> None:
+def main(args: SceneStudyArgs) -> None:
     args.output_dir.mkdir(parents=True, exist_ok=True)
     results = [scene_scores(scene, args.cache_dir) for scene in args.scenes]
     (args.output_dir / "lut_prediction.json").write_text(json.dumps(results, indent=1))
@@ -93,4 +81,4 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(tyro.cli(SceneStudyArgs))
