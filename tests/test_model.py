@@ -119,6 +119,11 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
         assert model.inference_embedding() is typical  # kept until the model changes
     no_mlp = make_model(use_emission_mlp=False, inference_embedding="typical")
     torch.testing.assert_close(no_mlp.inference_embedding(), no_mlp.frame_embed.weight.mean(0))
+    # split across GPUs each rank holds a share of the Gaussians: one state on every rank, the mean
+    model.ranks = RankGroup(0, 2)
+    model.step += 1  # a new key: the kept state is not reused
+    with torch.no_grad():
+        torch.testing.assert_close(model.inference_embedding(), mean)
 
 
 def test_densification_keeps_embeddings_aligned():

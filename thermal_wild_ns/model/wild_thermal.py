@@ -360,8 +360,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def typical_state_emission(self) -> Optional[Emission]:
         """What the 'typical' canonical state matches (`frame_states.typical_state`): the emission of
         up to `TYPICAL_STATE_GAUSSIANS` Gaussians (a fixed draw) under a state, each weighted by its
-        opacity (a faint Gaussian barely shows in a render). None without the emission MLP."""
-        if self.emission_mlp is None or self.num_points == 0:
+        opacity (a faint Gaussian barely shows in a render). None without the emission MLP, and while
+        the Gaussians are split across GPUs: each rank holds a share, and the photometric state must be
+        one on every rank, so there the canonical state is the mean until one GPU loads the run."""
+        if self.emission_mlp is None or self.num_points == 0 or self.ranks.split:
             return None
         g = torch.Generator(device="cpu").manual_seed(0)
         n = min(self.num_points, TYPICAL_STATE_GAUSSIANS)
