@@ -126,6 +126,33 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
         torch.testing.assert_close(model.inference_embedding(), mean)
 
 
+def test_state_smoothness_penalises_a_frame_state_its_neighbours_do_not_predict():
+    """`state_smoothness`: zero while each training frame's embedding lies on the line its neighbours
+    in capture time draw (the `time` protocol's prediction), also when frames are listed out of order
+    and unevenly spaced; a kinked state pays, its gradient pulls it back towards the line, and the
+    term is in the training loss only when asked for."""
+    metadata = {"frame_indices": [0, 3, 1, 7, 4]}  # rows in this order at these capture positions
+    model = make_model(frames=5, metadata=metadata, state_smoothness=2.0)
+    times = torch.tensor([0.0, 3.0, 1.0, 7.0, 4.0])[:, None]
+    with torch.no_grad():
+        model.frame_embed.weight.copy_(0.1 + 0.05 * times * torch.ones(1, model.frame_embed.weight.shape[1]))
+    assert model.frame_states.neighbour_residual().item() == pytest.approx(0.0, abs=1e-10)
+    with torch.no_grad():
+        model.frame_embed.weight[4] += 0.3  # the frame at position 4 off the line
+    residual = model.frame_states.neighbour_residual()
+    assert residual.item() > 0
+    residual.backward()
+    assert float(model.frame_embed.weight.grad[4].sum()) > 0  # descending moves it back down
+    perturb_output_layers(model)
+    model.train()
+    batch = {"image": torch.rand(32, 48, 1), "image_idx": 1}
+    losses = model.get_loss_dict(model.get_outputs(make_camera(1)), batch)
+    assert losses["state_smoothness"].item() == pytest.approx(2.0 * residual.item(), rel=1e-5)
+    plain = make_model(frames=5, metadata=metadata)
+    plain.train()
+    assert "state_smoothness" not in plain.get_loss_dict(plain.get_outputs(make_camera(1)), batch)
+
+
 def test_densification_keeps_embeddings_aligned():
     model = make_model(n=200)
     params, optimizers = model.gauss_params, {}

@@ -25,6 +25,17 @@ class FrameStates:
         self.embedding = embedding
         self.frame_times: List[float] = [float(t) for t in frame_times]
         self._cache: Optional[tuple] = None  # ((choice, step, version), weight, embedding)
+        # each row with a training frame on either side in capture time: (row, left, right, weight of right)
+        order = sorted(range(len(self.frame_times)), key=self.frame_times.__getitem__)
+        triples = [
+            (row, left, right, (self.frame_times[row] - self.frame_times[left]) / span)
+            for left, row, right in zip(order, order[1:], order[2:])
+            if (span := self.frame_times[right] - self.frame_times[left]) > 0
+        ]
+        self._neighbours = (
+            torch.tensor([t[:3] for t in triples], dtype=torch.long).reshape(-1, 3),  # [M, 3]
+            torch.tensor([t[3] for t in triples], dtype=torch.float32).reshape(-1, 1),  # [M, 1]
+        )
 
     def at(self, t: float, without: Sequence[int] = ()) -> Tensor:
         """The frame embedding [Df] at capture position `t`: linear between the neighbouring
@@ -35,6 +46,18 @@ class FrameStates:
         i, j, w = time_weights([self.frame_times[k] for k in rows], t)
         weight = self.embedding.weight  # [F, Df]
         return weight[rows[i]] if w == 0.0 else (1.0 - w) * weight[rows[i]] + w * weight[rows[j]]
+
+    def neighbour_residual(self) -> Tensor:
+        """[] the mean, over the training frames with a training frame on either side in capture time, of
+        the squared distance (per dimension) between a frame's embedding and the state its two neighbours
+        predict for it, linear in time: what the `time` protocol does for a held-out frame. Zero with
+        fewer than three frames. A penalty on it (`state_smoothness`) keeps the states predictable."""
+        weight = self.embedding.weight  # [F, Df]
+        rows, towards_right = (t.to(weight.device) for t in self._neighbours)  # [M, 3], [M, 1]
+        if rows.shape[0] == 0:
+            return weight.sum() * 0.0
+        predicted = (1.0 - towards_right) * weight[rows[:, 1]] + towards_right * weight[rows[:, 2]]  # [M, Df]
+        return (weight[rows[:, 0]] - predicted).square().mean()
 
     def fill_from_neighbours(self, rows: Sequence[int]) -> None:
         """Set the embeddings of `rows` (training images that take no gradient) to the state

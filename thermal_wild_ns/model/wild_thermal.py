@@ -170,6 +170,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     alpha_reg_tolerance: float = 0.02
     """Intensity difference (normalised units) under which a target pixel counts as 'explained by
     the background' for the alpha regulariser."""
+    state_smoothness: float = 0.0
+    """Weight of a penalty on each training frame's embedding's distance from the state its neighbours
+    in capture time predict for it (`FrameStates.neighbour_residual`): the prediction the `time`
+    protocol makes for a held-out frame, so the states stay predictable from their neighbours. 0: off."""
     # splatfacto's and nerfstudio's options this model does not use: hidden from `--help`, and a
     # config that changes one is refused by name (`refuse_unused_options`)
     background_color: tyro.conf.Suppress[str] = "black"  # type: ignore[assignment]
@@ -669,6 +673,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             gt, contrast = self._ground_truth(outputs, batch)
             image = self._training_image(batch)
             losses = self.thermal_loss(outputs, gt, contrast, image)
+        if self.training and self.config.state_smoothness > 0:
+            # the embeddings are one copy per GPU whose gradients are summed: each rank adds its share
+            share = self.config.state_smoothness / self.ranks.world
+            losses["state_smoothness"] = share * self.frame_states.neighbour_residual()
         if self.training:
             self.camera_optimizer.get_loss_dict(losses)
             self._last_training_loss = (sum(losses.values()).detach(), image)
