@@ -34,13 +34,15 @@
 #     bash experiments/gpu_2026-11-27.sh budget-camera-flight2   # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh budget-camera-dunr      # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh camera-graph-dunr       # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh smoothness-flight2      # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh smoothness-dunr         # .data/dunr .data/cache carried
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -334,6 +336,19 @@ case "$plan" in
           "/tmp/camgraph/$graphed-seed$seed/schedule.json" $graphed | tee -a "$OUT/$plan.jsonl" | cut -c1-200
       done
     done
+    ;;
+  smoothness-flight2|smoothness-dunr)  # issue 33's moonshot (`time` within 1 dB of `oracle`): the frame states kept
+    # predictable from their neighbours (state_smoothness 0, the default, 0.1 and 1.0), 3 seeds each, side by side
+    # (9 runs; timings shared), one_at_a_time's protocol; results to $OUT/smoothness-WEIGHT.json
+    scene=${plan#smoothness-}
+    for weight in 0 0.1 1.0; do
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/smoothness-$weight" \
+        --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
+        --set pipeline.model.state_smoothness=$weight > "$OUT/smoothness-$weight.log" 2>&1 &
+    done
+    wait
+    for weight in 0 0.1 1.0; do cp "/tmp/smoothness-$weight/bench.json" "$OUT/smoothness-$weight.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
