@@ -9,8 +9,9 @@ frame, PSNR as the evaluation's (dataset-normalised, range 1):
 - `median`: the level-wise median of the training frames' LUTs (`PreprocessedSequence.median_lut`,
   what the `novel` protocol uses);
 - `mean_inverse`: the LUT whose inverse is the mean of the training frames' inverses
-  (`mean_inverse_lut`): per processed value, the mean of the original levels the training frames gave
-  it, the fixed map with the least expected squared error over their states.
+  (`photometric.blend_inverses` at equal weights): per processed value, the mean of the original
+  levels the training frames gave it, the fixed map with the least expected squared error over their
+  states.
 
 python -m experiments.canonical_lut --scenes ../shared/data/dunr ../shared/data/flight2 \
     --output-dir docs/results/canonical_lut
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Dict, List, Sequence
+from typing import Dict, List
 
 import numpy as np
 import torch
@@ -29,27 +30,14 @@ import tyro
 from experiments import SceneStudyArgs, split_luts
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.image_metrics import psnr
-from thermal_wild_ns.preprocessing.photometric import apply_lut, invert_lut
-
-
-def mean_inverse_lut(luts: Sequence[np.ndarray]) -> np.ndarray:
-    """The LUT [L] whose inverse is the mean of the inverses of `luts` (each [L], strictly increasing):
-    `photometric.blend_luts` for many frames at equal weights. Exact at every corner of any inverse
-    (the union of the LUTs' values), linear between them; strictly increasing."""
-    levels = np.arange(len(luts[0]), dtype=np.float64)  # [L]
-    outputs = np.unique(np.concatenate([np.asarray(lut, dtype=np.float64) for lut in luts]))  # [M]
-    inverse = np.zeros_like(outputs)  # [M]
-    for lut in luts:  # one at a time: memory stays flat in the frame count
-        inverse += np.interp(outputs, np.asarray(lut, dtype=np.float64), levels)
-    inverse /= len(luts)
-    return np.interp(levels, inverse, outputs)
+from thermal_wild_ns.preprocessing.photometric import apply_lut, blend_inverses, invert_lut
 
 
 def scene_scores(scene: Path, cache_dir: Path) -> Dict:
     capture, rng, train, sequence = split_luts(scene, cache_dir)
     candidates = {
         "median": sequence.median_lut(),
-        "mean_inverse": mean_inverse_lut([np.asarray(sequence.luts[t]) for t in train]),
+        "mean_inverse": blend_inverses([np.asarray(sequence.luts[t]) for t in train], [1.0 / len(train)] * len(train)),
     }
     held_out = [t for t in range(len(capture.frames)) if t not in train]
     scores: Dict[str, List[float]] = {name: [] for name in candidates}

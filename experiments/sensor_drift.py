@@ -30,28 +30,20 @@ import numpy as np
 import torch
 
 from experiments.bench import scene_dataparser
+from thermal_wild_ns.data.content_motion import pixel_positions
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.preprocessing.stage import frame_contrast_spread, frame_mean_spread, frame_quantiles
 
 MAX_POINTS = 4096
 
 
-def robust_spread(values: np.ndarray) -> float:
-    """Median absolute deviation scaled to a standard deviation (`frame_mean_spread`'s)."""
-    return float(1.4826 * np.median(np.abs(values - np.median(values))))
-
-
 def projected_samples(cameras, points: torch.Tensor, frames: list) -> np.ndarray:
     """[F, P] each point's raw value in each frame that sees it (NaN where it does not)."""
-    c2w = cameras.camera_to_worlds.float()  # [F, 3, 4]
-    local = torch.einsum("fji,fpj->fpi", c2w[:, :, :3], points[None] - c2w[:, None, :, 3])  # [F, P, 3]
-    depth = -local[..., 2]  # [F, P]
-    u = (cameras.fx.float() * local[..., 0] / depth + cameras.cx.float()).numpy()  # [F, P] pixels
-    v = (cameras.fy.float() * -local[..., 1] / depth + cameras.cy.float()).numpy()
+    u, v, depth = (t.numpy() for t in pixel_positions(cameras, points))  # [F, P], pixels
     samples = np.full(u.shape, np.nan)
     for f, frame in enumerate(frames):
         height, width = frame.shape
-        seen = (depth[f].numpy() > 0) & (u[f] >= 1) & (u[f] < width - 1) & (v[f] >= 1) & (v[f] < height - 1)
+        seen = (depth[f] > 0) & (u[f] >= 1) & (u[f] < width - 1) & (v[f] >= 1) & (v[f] < height - 1)
         cols, rows = u[f][seen].astype(int), v[f][seen].astype(int)
         patches = np.stack([frame[rows + dy, cols + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)])  # [9, S]
         samples[f, seen] = np.median(patches, axis=0)
@@ -80,9 +72,9 @@ def frame_offsets(samples: np.ndarray, iterations: int = 200) -> Tuple[np.ndarra
 
 
 def along_image_axes(offsets: np.ndarray, camera_to_worlds: np.ndarray) -> float:
-    """The spread (`robust_spread`) of `offsets` [F'] left once a linear function of each camera's
-    position along the mean image-right and image-down directions is taken out (`camera_to_worlds`
-    [F', 3, 4], OpenGL axes): what a fixed gradient across the sensor (or, at a fixed heading, a
+    """The spread (`frame_mean_spread`: a robust standard deviation) of `offsets` [F'] left once a linear
+    function of each camera's position along the mean image-right and image-down directions is taken
+    out (`camera_to_worlds` [F', 3, 4], OpenGL axes): what a fixed gradient across the sensor (or, at a fixed heading, a
     radiance that changes with the view direction) cannot explain. On a survey flown at one heading,
     a sensor drift stays; on an orbit the image axes turn and the fit means little."""
     centres = camera_to_worlds[:, :, 3]  # [F', 3]
@@ -92,7 +84,7 @@ def along_image_axes(offsets: np.ndarray, camera_to_worlds: np.ndarray) -> float
     design = np.stack([travel @ right / np.linalg.norm(right), travel @ down / np.linalg.norm(down)], axis=1)
     design = np.concatenate([design, np.ones((len(offsets), 1))], axis=1)  # [F', 3]
     residual = offsets - design @ np.linalg.lstsq(design, offsets, rcond=None)[0]
-    return robust_spread(residual)
+    return frame_mean_spread(residual)
 
 
 def main() -> None:
@@ -125,7 +117,7 @@ def main() -> None:
                 frame_contrast_spread([frame_quantiles(frame) for frame in frames]),
             )
             cells = (
-                f"{len(tied)} | {robust_spread(offsets):.4f} | {offsets.max() - offsets.min():.4f} | "
+                f"{len(tied)} | {frame_mean_spread(offsets):.4f} | {offsets.max() - offsets.min():.4f} | "
                 f"{np.median(steps):.4f} ({steps.max():.4f}) | {left:.4f}"
             )
             print(f"| {scene} | {cells} | {whole[0]:.4f} | {whole[1]:.3f} |", flush=True)

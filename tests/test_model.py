@@ -128,21 +128,24 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
 
 def test_state_smoothness_penalises_a_frame_state_its_neighbours_do_not_predict():
     """`state_smoothness`: zero while each training frame's embedding lies on the line its neighbours
-    in capture time draw (the `time` protocol's prediction), also when frames are listed out of order
-    and unevenly spaced; a kinked state pays, its gradient pulls it back towards the line, and the
-    term is in the training loss only when asked for."""
-    metadata = {"frame_indices": [0, 3, 1, 7, 4]}  # rows in this order at these capture positions
+    in capture time draw (the `time` protocol's prediction, `at`), also with unevenly spaced frames; a
+    kinked state pays exactly what `at` misses it by, its gradient pulls it back towards the line, and
+    the term is in the training loss only when asked for."""
+    metadata = {"frame_indices": [0, 1, 3, 4, 7]}  # the rows' capture positions
     model = make_model(frames=5, metadata=metadata, state_smoothness=2.0)
-    times = torch.tensor([0.0, 3.0, 1.0, 7.0, 4.0])[:, None]
+    times = torch.tensor([0.0, 1.0, 3.0, 4.0, 7.0])[:, None]
     with torch.no_grad():
         model.frame_embed.weight.copy_(0.1 + 0.05 * times * torch.ones(1, model.frame_embed.weight.shape[1]))
     assert model.frame_states.neighbour_residual().item() == pytest.approx(0.0, abs=1e-10)
     with torch.no_grad():
-        model.frame_embed.weight[4] += 0.3  # the frame at position 4 off the line
+        model.frame_embed.weight[3] += 0.3  # the frame at position 4 off the line
     residual = model.frame_states.neighbour_residual()
     assert residual.item() > 0
+    states = model.frame_states  # `at` predicting each middle frame from the others
+    missed = [model.frame_embed.weight[r] - states.at(states.frame_times[r], without=[r]) for r in (1, 2, 3)]
+    assert residual.item() == pytest.approx(torch.stack(missed).square().mean().item(), rel=1e-6)
     residual.backward()
-    assert float(model.frame_embed.weight.grad[4].sum()) > 0  # descending moves it back down
+    assert float(model.frame_embed.weight.grad[3].sum()) > 0  # descending moves it back down
     perturb_output_layers(model)
     model.train()
     batch = {"image": torch.rand(32, 48, 1), "image_idx": 1}

@@ -6,7 +6,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.canonical_lut import mean_inverse_lut
 from experiments.sensor_drift import frame_offsets
 from thermal_wild_ns.analysis.diagnostics import relative_mean_change
 from thermal_wild_ns.preprocessing.photometric import (
@@ -14,6 +13,7 @@ from thermal_wild_ns.preprocessing.photometric import (
     LevelGrid,
     PhotometricConfig,
     apply_lut,
+    blend_inverses,
     blend_luts,
     frame_luts,
     invert_lut,
@@ -460,9 +460,9 @@ def test_a_blend_of_increasing_luts_is_increasing_and_exact_at_its_ends():
         blend_luts(a, b, 1.5)
 
 
-def test_the_mean_inverse_lut_of_drifted_frames_is_the_mean_drift_and_two_frames_blend_halfway():
+def test_the_mean_of_drifted_frames_inverses_is_the_mean_drift_and_of_two_frames_their_blend():
     """Three frames drifted by 0, 60 and 150 levels: the LUT whose inverse is their inverses' mean
-    (experiments.canonical_lut) is the frame drifted by their mean, 70; of two frames it is
+    (`blend_inverses` at equal weights) is the frame drifted by their mean, 70; of two frames it is
     `blend_luts` at w = 0.5; strictly increasing."""
     levels = np.arange(1000, dtype=np.float64)
 
@@ -470,10 +470,11 @@ def test_the_mean_inverse_lut_of_drifted_frames_is_the_mean_drift_and_two_frames
         return x + 50.0 * np.sin(x / 100.0)
 
     luts = [frame_lut(levels - d) for d in (0.0, 60.0, 150.0)]
+    mean = blend_inverses(luts, [1.0 / 3] * 3)
     inside = slice(200, 800)
-    assert np.allclose(mean_inverse_lut(luts)[inside], frame_lut(levels - 70.0)[inside], atol=1e-6)
-    assert np.allclose(mean_inverse_lut(luts[:2]), blend_luts(luts[0], luts[1], 0.5), atol=1e-9)
-    assert np.all(np.diff(mean_inverse_lut(luts)) > 0)
+    assert np.allclose(mean[inside], frame_lut(levels - 70.0)[inside], atol=1e-6)
+    assert np.allclose(blend_inverses(luts[:2], [0.5, 0.5]), blend_luts(luts[0], luts[1], 0.5), atol=1e-9)
+    assert np.all(np.diff(mean) > 0)
 
 
 def test_frame_offsets_recover_a_drifting_level_and_hold_a_fixed_gradient_as_a_level_along_the_way():

@@ -14,7 +14,7 @@ points seen at least twice."""
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Optional, Tuple
 
 import torch
 from nerfstudio.cameras.cameras import Cameras
@@ -23,6 +23,17 @@ from torch import Tensor
 MAX_POINTS = 4096
 """Seed points the measure looks at (evenly strided): enough for a stable mean, bounded memory."""
 FRAMES_PER_CHUNK = 256
+
+
+def pixel_positions(cameras: Cameras, points: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
+    """Where `points` [P, 3] fall in each of `cameras` [F] (nerfstudio's: OpenGL axes, looking down -z):
+    u and v in pixels [F, P] and the depth in front of the camera [F, P] (negative behind it)."""
+    c2w = cameras.camera_to_worlds.float()  # [F, 3, 4]
+    local = torch.einsum("fji,fpj->fpi", c2w[:, :, :3], points[None] - c2w[:, None, :, 3])  # [F, P, 3]
+    depth = -local[..., 2]  # [F, P], positive in front of the camera
+    u = cameras.fx.float() * local[..., 0] / depth + cameras.cx.float()  # [F, P]
+    v = cameras.fy.float() * -local[..., 1] / depth + cameras.cy.float()
+    return u, v, depth
 
 
 def content_motion(cameras: Cameras, points: Optional[Tensor]) -> Optional[float]:
@@ -38,11 +49,8 @@ def content_motion(cameras: Cameras, points: Optional[Tensor]) -> Optional[float
     squares = torch.zeros(len(points), dtype=torch.float64)
     for start in range(0, len(cameras), FRAMES_PER_CHUNK):
         part = cameras[start : start + FRAMES_PER_CHUNK]
-        c2w = part.camera_to_worlds.float()  # [F, 3, 4]
-        local = torch.einsum("fji,fpj->fpi", c2w[:, :, :3], points[None] - c2w[:, None, :, 3])  # [F, P, 3]
-        depth = -local[..., 2]  # [F, P], positive in front of the camera
-        u = (part.fx.float() * local[..., 0] / depth + part.cx.float()) / part.width.float()  # [F, P], 0..1 in frame
-        v = (part.fy.float() * -local[..., 1] / depth + part.cy.float()) / part.height.float()
+        u, v, depth = pixel_positions(part, points)  # [F, P]
+        u, v = u / part.width.float(), v / part.height.float()  # 0..1 in frame
         seen = (depth > 0) & (u >= 0) & (u < 1) & (v >= 0) & (v < 1)  # [F, P]
         u, v = torch.where(seen, u, 0.0).double(), torch.where(seen, v, 0.0).double()
         sums += torch.stack([seen.sum(0).double(), u.sum(0), v.sum(0)])

@@ -25,12 +25,13 @@ class FrameStates:
         self.embedding = embedding
         self.frame_times: List[float] = [float(t) for t in frame_times]
         self._cache: Optional[tuple] = None  # ((choice, step, version), weight, embedding)
-        # each row with a training frame on either side in capture time: (row, left, right, weight of right)
-        order = sorted(range(len(self.frame_times)), key=self.frame_times.__getitem__)
+        # each row with a training frame on either side (rows in capture order, as `at` reads them):
+        # (row, left, right, weight of right)
+        rows = range(len(self.frame_times))
         triples = [
-            (row, left, right, (self.frame_times[row] - self.frame_times[left]) / span)
-            for left, row, right in zip(order, order[1:], order[2:])
-            if (span := self.frame_times[right] - self.frame_times[left]) > 0
+            (row, row - 1, row + 1, (self.frame_times[row] - self.frame_times[row - 1]) / span)
+            for row in rows[1:-1]
+            if (span := self.frame_times[row + 1] - self.frame_times[row - 1]) > 0
         ]
         self._neighbours = (
             torch.tensor([t[:3] for t in triples], dtype=torch.long).reshape(-1, 3),  # [M, 3]
@@ -50,10 +51,13 @@ class FrameStates:
     def neighbour_residual(self) -> Tensor:
         """[] the mean, over the training frames with a training frame on either side in capture time, of
         the squared distance (per dimension) between a frame's embedding and the state its two neighbours
-        predict for it, linear in time: what the `time` protocol does for a held-out frame. Zero with
-        fewer than three frames. A penalty on it (`state_smoothness`) keeps the states predictable."""
+        predict for it, linear in time (`at(t, without=[row])`, for every such row at once): what the
+        `time` protocol does for a held-out frame. Zero with fewer than three frames. A penalty on it
+        (`state_smoothness`) keeps the states predictable."""
         weight = self.embedding.weight  # [F, Df]
-        rows, towards_right = (t.to(weight.device) for t in self._neighbours)  # [M, 3], [M, 1]
+        rows, towards_right = self._neighbours  # [M, 3], [M, 1]
+        if rows.device != weight.device:  # moved once, not copied from the host at every step
+            self._neighbours = rows, towards_right = rows.to(weight.device), towards_right.to(weight.device)
         if rows.shape[0] == 0:
             return weight.sum() * 0.0
         predicted = (1.0 - towards_right) * weight[rows[:, 1]] + towards_right * weight[rows[:, 2]]  # [M, Df]

@@ -257,7 +257,18 @@ def blend_luts(lut_a: np.ndarray, lut_b: np.ndarray, weight: float) -> np.ndarra
         return lut_a
     if weight == 1.0:
         return lut_b
-    levels = np.arange(len(lut_a), dtype=np.float64)  # [L]
-    outputs = np.union1d(lut_a, lut_b)  # [<= 2L] every corner of either inverse
-    inverse = (1.0 - weight) * np.interp(outputs, lut_a, levels) + weight * np.interp(outputs, lut_b, levels)
+    return blend_inverses([lut_a, lut_b], [1.0 - weight, weight])
+
+
+def blend_inverses(luts: Sequence[np.ndarray], weights: Sequence[float]) -> np.ndarray:
+    """The LUT [L] whose inverse is sum_i weights[i] * luts[i]^-1 (each LUT [L] strictly increasing,
+    the weights non-negative and summing to 1): per processed value, the weighted mean of the original
+    levels the frames gave it. Exact at every corner of any inverse (the union of the LUTs' values),
+    linear between them; strictly increasing. `blend_luts` for two frames; the equal-weight mean of
+    many is the fixed map with the least expected squared error over their states."""
+    levels = np.arange(len(luts[0]), dtype=np.float64)  # [L]
+    outputs = np.unique(np.concatenate(luts))  # [<= n L] every corner of any inverse
+    inverse = np.zeros_like(outputs)  # [M], one LUT at a time: memory stays flat in the frame count
+    for lut, weight in zip(luts, weights):
+        inverse += weight * np.interp(outputs, lut, levels)
     return np.interp(levels, inverse, outputs)
