@@ -37,13 +37,14 @@
 #     bash experiments/gpu_2026-11-27.sh smoothness-flight2      # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh smoothness-dunr         # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh preprocessing-dunr      # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh budget-raw-flight2      # .data/flight2 .data/cache carried
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -287,6 +288,19 @@ case "$plan" in
     # where the rule turns it on; DUNR, the other capture the rule turns it on for, with today's defaults (the camera
     # model on), without preprocessing, and with state_smoothness 0.1, 3 seeds each, side by side (9 runs)
     one_at_a_time dunr preprocessing pipeline.datamanager.preprocessing.variant=none pipeline.model.state_smoothness=0.1
+    ;;
+  budget-raw-flight2)  # issue 33: the Gaussian budget on flight2 without preprocessing (what preprocessing-dunr and
+    # defaults-flight2 point to): grow_budget and a 300k cap, 3 seeds each, side by side (6 runs; the 100k defaults
+    # without preprocessing are defaults-flight2's `variant` runs); results to $OUT/budget-raw-NAME.json
+    for setting in auto_stop.grow_budget=True pipeline.model.max_gaussians=300000; do
+      name=${setting%%=*}; name=${name##*.}
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/budget-raw-$name" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
+        --set pipeline.datamanager.preprocessing.variant=none "$setting" > "$OUT/budget-raw-$name.log" 2>&1 &
+    done
+    wait
+    for name in grow_budget max_gaussians; do cp "/tmp/budget-raw-$name/bench.json" "$OUT/budget-raw-$name.json"; done
     ;;
   gpu-tests)  # the tests that skip without CUDA: gsplat against the torch rasterizer, the CUDA graphs of the render,
     # loss, background and emission, fused Adam's rejected step on the GPU (the divergence guard's device verdict)
