@@ -396,12 +396,12 @@ def test_settings_reach_nested_and_frozen_config_fields(tmp_path):
     from thermal_wild_ns.method_configs import method_trainer
 
     config = method_trainer("wild-thermal")
-    apply_setting(config, "pipeline.datamanager.preprocessing.variant=none")  # a frozen dataclass
+    apply_setting(config, "pipeline.datamanager.preprocessing.variant=stab+bbhe")  # a frozen dataclass
     apply_setting(config, "pipeline.model.heat_aware_ssim=False")
     apply_setting(config, "pipeline.model.loss_space=original")
-    assert config.pipeline.datamanager.preprocessing.variant == "none"
+    assert config.pipeline.datamanager.preprocessing.variant == "stab+bbhe"
     assert config.pipeline.model.heat_aware_ssim is False and config.pipeline.model.loss_space == "original"
-    assert method_trainer("wild-thermal").pipeline.datamanager.preprocessing.variant == "stab+bbhe"  # a copy
+    assert method_trainer("wild-thermal").pipeline.datamanager.preprocessing.variant == "none"  # a copy
     with pytest.raises(ValueError, match="has no field 'nope'"):
         apply_setting(config, "pipeline.model.nope=1")
     with pytest.raises(ValueError, match="expected path.to.field=value"):

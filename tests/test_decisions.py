@@ -4,8 +4,6 @@ starts, completed when it ends, each choice said to come from the capture's data
 import dataclasses
 import json
 
-from demo_trainers import demo_trainer
-
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER
 from thermal_wild_ns.training.decisions import DECISIONS_FILE
@@ -18,11 +16,17 @@ def _decisions(trainer):
 
 
 def test_a_run_records_what_it_chose_and_why(tmp_path, demo_scene_dir):
-    trainer = demo_trainer(tmp_path, demo_scene_dir, 12, "auto_stop", enabled=True)
+    config = demo_trainer_config(tmp_path, steps=12, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    preprocessing = config.pipeline.datamanager.preprocessing
+    config.pipeline.datamanager.preprocessing = dataclasses.replace(preprocessing, variant="stab+bbhe")
+    config.auto_stop.enabled = True
+    trainer = seeded_trainer(config)
     decisions, path = _decisions(trainer)
     datamanager = trainer.pipeline.datamanager
-    # the full method lets its stability rule measure the capture: the data decides preprocessing
+    # asked to preprocess, the full method lets its stability rule measure the capture: the data decides
     variant, _, reason = datamanager.preprocessing_used.partition(": ")
+    assert variant == "none" and reason.startswith("the frames differ by level offsets")  # the demo's
     assert decisions["preprocessing"] == {
         "part": "preprocessing",
         "choice": variant,
@@ -41,16 +45,16 @@ def test_a_run_records_what_it_chose_and_why(tmp_path, demo_scene_dir):
 
 
 def test_the_config_decides_what_no_rule_measures(tmp_path, demo_scene_dir):
-    """A method that never preprocesses, a part switched off: both said to be the config's choice;
-    the automatic stop, on, is the data's."""
+    """The full method's raw frames (its default: no preprocessing asked), a part switched off: both
+    said to be the config's choice; the automatic stop, on, is the data's."""
     config = demo_trainer_config(tmp_path, steps=12, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    preprocessing = config.pipeline.datamanager.preprocessing
-    config.pipeline.datamanager.preprocessing = dataclasses.replace(preprocessing, variant="none")  # as 3dgs
+    assert config.pipeline.datamanager.preprocessing.variant == "none"
     config.pipeline.model.use_background_mlp = False
     trainer = seeded_trainer(config)
     decisions = {d.part: d for d in trainer.decisions.collect(trainer)}
     assert decisions["preprocessing"].decided_by == "config" and decisions["preprocessing"].choice == "none (variant)"
+    assert "--pipeline.datamanager.preprocessing.variant stab+bbhe" in decisions["preprocessing"].why
     assert decisions["background MLP"].choice == "off"
     assert decisions["training length"].decided_by == "data"  # the demo's automatic stop is on
     assert "held back" in decisions["training length"].why

@@ -38,7 +38,7 @@ from thermal_wild_ns.analysis.diagnostics import (
 from thermal_wild_ns.data.dataparsers import LayoutName, ThermalDataParserConfig
 from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.errors import report_input_errors_briefly
-from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
+from thermal_wild_ns.preprocessing.photometric import PREPROCESSING_FLAG, PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 from thermal_wild_ns.progress import track
 
@@ -90,11 +90,11 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
 
 
 def preprocessing_advice(sequence: PreprocessedSequence) -> str:
-    """Which method the measurements point to, by the rule the full method trains with
-    (`PreprocessedSequence.decision`, `PhotometricConfig.skip_when_stable`)."""
+    """What the contrast rule (`PreprocessedSequence.decision`, `PhotometricConfig.skip_when_stable`) decides
+    for this capture where preprocessing is asked for; `wild-thermal` itself trains on the raw frames."""
     decision = sequence.decision()
-    what = "preprocesses this capture" if decision.pays else "trains on its raw frames"
-    return f"{decision.reason}: `wild-thermal` {what}"
+    what = "preprocesses this capture" if decision.pays else "still trains on its raw frames"
+    return f"{decision.reason}: `wild-thermal` with {PREPROCESSING_FLAG} stab+bbhe {what}"
 
 
 def _plot(result: Dict, path: Path, title: str) -> None:

@@ -26,7 +26,7 @@ from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.preprocessing.photometric import PhotometricConfig
+from thermal_wild_ns.preprocessing.photometric import PREPROCESSING_FLAG, PhotometricConfig
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence, preprocess
 
 NOT_PREPROCESSED = "none (variant)"
@@ -195,7 +195,10 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
         by_rule = config.variant != "none" and config.skip_when_stable
         return [
             Decision(
-                "preprocessing", variant, reason or "the method preprocesses nothing", "data" if by_rule else "config"
+                "preprocessing",
+                variant,
+                reason or f"training on the raw frames ({PREPROCESSING_FLAG} stab+bbhe preprocesses them)",
+                "data" if by_rule else "config",
             )
         ]
 

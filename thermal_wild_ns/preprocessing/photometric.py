@@ -130,6 +130,10 @@ def strictly_increasing(lut: np.ndarray, hist: np.ndarray) -> np.ndarray:
     return np.maximum.accumulate(lut - ramp) + ramp
 
 
+PREPROCESSING_FLAG = "--pipeline.datamanager.preprocessing.variant"
+"""The `ns-train` option that asks for preprocessing (said where a run trains on the raw frames)."""
+
+
 @dataclass(frozen=True)
 class PhotometricConfig:
     variant: Variant = "stab+bbhe"
