@@ -113,12 +113,14 @@ def split_luts(scene, cache_dir):
 
 
 def full_method_luts(capture, rng, cache_dir, train):
-    """The `PreprocessedSequence` (each frame's LUT) of the full method's preprocessing of `capture`,
-    forced on (its rule may skip it in training); `train` [frames]: which are training frames."""
+    """The `PreprocessedSequence` (each frame's LUT) of the paper's preprocessing (stab+bbhe) with the full
+    method's settings, forced on (the full method trains on the raw frames unless asked, and its rule may
+    skip it then); `train` [frames]: which are training frames."""
+    import dataclasses
     from pathlib import Path
 
     from thermal_wild_ns.method_configs import method_trainer
     from thermal_wild_ns.preprocessing.stage import preprocess
 
-    config = method_trainer("wild-thermal").pipeline.datamanager.preprocessing
+    config = dataclasses.replace(method_trainer("wild-thermal").pipeline.datamanager.preprocessing, variant="stab+bbhe")
     return preprocess(capture.frames, rng, config, Path(cache_dir).resolve(), train=list(train))
