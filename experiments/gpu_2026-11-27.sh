@@ -38,13 +38,14 @@
 #     bash experiments/gpu_2026-11-27.sh smoothness-dunr         # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh preprocessing-dunr      # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh budget-raw-flight2      # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh radial-generated        # .devicebundle carried (it installs)
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2, radial-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -301,6 +302,18 @@ case "$plan" in
     done
     wait
     for name in grow_budget max_gaussians; do cp "/tmp/budget-raw-$name/bench.json" "$OUT/budget-raw-$name.json"; done
+    ;;
+  radial-generated)  # issue 33: the generated scenes with the radial fall-off forced on and no map (the motion rule
+    # turns the whole camera model off on them; docs/results/camera_radial_cpu), 3 seeds, the protocol of
+    # gpu_2026-11-24.sh generated (beside docs/results/generated_h200's defaults); needs .devicebundle
+    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+    PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir /tmp/radial-generated \
+      --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal \
+      --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 9 \
+      --set pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=0 \
+      > "$OUT/radial-generated.log" 2>&1
+    cp /tmp/radial-generated/bench.json "$OUT/radial-generated-bench.json"
+    cp /tmp/radial-generated/bench.md "$OUT/radial-generated-bench.md"
     ;;
   gpu-tests)  # the tests that skip without CUDA: gsplat against the torch rasterizer, the CUDA graphs of the render,
     # loss, background and emission, fused Adam's rejected step on the GPU (the divergence guard's device verdict)
