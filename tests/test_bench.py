@@ -13,7 +13,7 @@ pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
 
 def test_bench_runs_end_to_end_on_cpu(tmp_path):
-    from experiments.bench import BenchArgs, main
+    from experiments.bench import BenchArgs, main, markdown
     from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 
     out = tmp_path / "bench"
@@ -62,9 +62,12 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     lut_table = table.split("`oracle_lut` —")[1].split("PSNR / SSIM")[0]  # the gap's split, labelled
     assert "not a result" in lut_table.splitlines()[0] and "| wild-thermal | " in lut_table
     # what the training frames went through: both methods train on the raw frames by their configs, so the
-    # table lists no decision of the rule (the rule's record: test_decisions, test_preprocessing)
+    # table lists no decision of the rule; a run whose rule decided (asked to preprocess) is listed
     assert runs[0]["preprocessing"] == runs[2]["preprocessing"] == NOT_PREPROCESSED
     assert "Preprocessing of the training frames" not in table
+    decided = "none: the frames differ by level offsets, which the frame embeddings follow (...)"
+    listed = markdown([dict(r, preprocessing=decided) if r["seed"] == 0 else r for r in runs], ["demo"])
+    assert f"- wild-thermal on demo: {decided}" in listed and f"- wild-thermal-3dgs on demo: {decided}" in listed
     chart = cv2.imread(str(out / "speed_accuracy.png"))
     assert chart is not None and chart.shape[1] > 400
     assert len(list((out / "renders" / "demo" / "wild-thermal_seed1").glob("test_*.png"))) == 5

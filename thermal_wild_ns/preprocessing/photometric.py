@@ -154,8 +154,9 @@ class PhotometricConfig:
     it must make the training frames' mean levels steadier, and their contrast must vary (as a
     sensor's automatic gain control makes it); level offsets alone the frame embeddings follow,
     and there equalization only costs accuracy. Decided from the training frames at setup and
-    logged; the full method turns it on (the runs that chose it: docs/results/preprocessing_rule),
-    the ablations keep their fixed preprocessing."""
+    logged; the full method turns it on for when its preprocessing is asked for (the runs that chose the
+    rule: docs/results/preprocessing_rule; by default it trains on the raw frames:
+    docs/results/preprocessing_camera_h200), the ablations keep their fixed preprocessing."""
 
     @property
     def equalizes(self) -> bool:
