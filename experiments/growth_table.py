@@ -61,7 +61,7 @@ def chart(found: Dict[str, dict], path: Path) -> None:
             if panel(bench) != title:
                 continue
             runs = bench["runs"]
-            steps = len(runs[0]["curve"])
+            steps = min(len(r["curve"]) for r in runs)  # the checkpoints every seed reached (the stop ends some)
             gaussians = [np.mean([r["curve"][i]["gaussians"] for r in runs]) for i in range(steps)]
             novel = np.array([[r["curve"][i]["psnr_novel"] for r in runs] for i in range(steps)])
             line = ax.plot(gaussians, novel.mean(1), marker="o", label=name)[0]
