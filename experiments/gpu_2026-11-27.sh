@@ -39,13 +39,14 @@
 #     bash experiments/gpu_2026-11-27.sh preprocessing-dunr      # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh budget-raw-flight2      # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh radial-generated        # .devicebundle carried (it installs)
+#     bash experiments/gpu_2026-11-27.sh growth-raw-flight2      # .data/flight2 .data/cache carried
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2, radial-generated}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2, radial-generated, growth-raw-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -302,6 +303,20 @@ case "$plan" in
     done
     wait
     for name in grow_budget max_gaussians; do cp "/tmp/budget-raw-$name/bench.json" "$OUT/budget-raw-$name.json"; done
+    ;;
+  growth-raw-flight2)  # issue 33's growth item with today's defaults (raw frames, the camera model by the motion
+    # rule): the full method and the 3DGS variant (given the full method's camera model, as growth-camera-flight2)
+    # with a 1M budget and the automatic stop on, so each run records its held-back score at every check along its
+    # growth; 3 seeds each, side by side (6 runs); a run still training at 470 s is recorded as failed
+    for method in wild-thermal wild-thermal-3dgs; do
+      extra=(); [ $method = wild-thermal-3dgs ] && extra=(--set $(camera_model map8))
+      PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/growth-raw-$method" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods $method --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000 \
+        --max-gaussians 1000000 --time-limit 470 "${extra[@]}" > "$OUT/growth-raw-$method.log" 2>&1 &
+    done
+    wait
+    for method in wild-thermal wild-thermal-3dgs; do cp "/tmp/growth-raw-$method/bench.json" "$OUT/growth-raw-$method.json"; done
     ;;
   radial-generated)  # issue 33: the generated scenes with the radial fall-off forced on and no map (the motion rule
     # turns the whole camera model off on them; docs/results/camera_radial_cpu), 3 seeds, the protocol of
