@@ -236,10 +236,9 @@ def test_the_flat_field_map_is_rendered_into_training_and_found_from_frames_that
     model.eval()
     scene = model.get_outputs(camera)["thermal"]
     assert torch.allclose(recorded - scene, flat_field_maps(truth, 32, 48)[1][..., None], atol=1e-5)
-    assert (
-        "flat field 4x4: gain +-0.000, offset +-0.050"
-        in {d.part: d.choice for d in model.decisions()}["camera fall-off"]
-    )
+    decisions = {d.part: d for d in model.decisions()}
+    assert decisions["camera flat-field map"].choice == "on: 4x4: gain +-0.000, offset +-0.050"
+    assert decisions["camera flat-field map"].decided_by == "config"
     model.train()
     losses = model.get_loss_dict(model.get_outputs(camera), {"image": torch.rand(32, 48, 1), "image_idx": 1})
     sum(losses.values()).backward()
@@ -289,12 +288,13 @@ def test_content_motion_is_how_far_the_scene_points_move_across_the_frames_that_
     assert content_motion(cameras([0.0, 2.0]), None) is None
 
 
-def test_the_camera_pattern_is_fitted_where_the_content_crosses_the_sensor_and_not_on_an_orbit(
+def test_the_flat_field_map_is_fitted_where_the_content_crosses_the_sensor_and_the_falloff_everywhere(
     tmp_path, demo_scene_dir
 ):
     """The full method's rule (`camera_pattern_min_motion`): a synthetic drone survey, whose ground crosses
-    the frames, gets the fall-off and the map; the demo's orbit, which keeps its target in the middle, does
-    not; the run's decisions say which and why."""
+    the frames, gets the radial fall-off and the map; the demo's orbit, which keeps its target in the middle,
+    gets the fall-off alone (a fixed radial shape cannot take the scene in); the run's decisions say which and
+    why."""
     from thermal_wild_ns.data.content_motion import content_motion
     from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
     from thermal_wild_ns.method_configs import method_trainer
@@ -313,19 +313,22 @@ def test_the_camera_pattern_is_fitted_where_the_content_crosses_the_sensor_and_n
             f: getattr(config, f) for f in ("camera_falloff", "camera_flat_field", "camera_pattern_min_motion")
         }
         model = make_model(**overrides, metadata={"content_motion": motion})
-        decision = {d.part: d for d in model.decisions()}["camera fall-off"]
-        verdicts[name] = (motion, model.camera_falloff is not None, model.camera_flat_field is not None, decision)
-    motion, falloff, flat_field, decision = verdicts["survey"]
+        decisions = {d.part: d for d in model.decisions()}
+        verdicts[name] = (motion, model.camera_falloff is not None, model.camera_flat_field is not None, decisions)
+    motion, falloff, flat_field, decisions = verdicts["survey"]
     assert motion >= config.camera_pattern_min_motion and falloff and flat_field
-    assert decision.choice.startswith("on: gain 1") and decision.decided_by == "data"
-    assert f"moves {motion:.2f} of the frame" in decision.why
-    motion, falloff, flat_field, decision = verdicts["demo"]
-    assert motion < config.camera_pattern_min_motion and not falloff and not flat_field
-    assert decision.choice == "off" and decision.decided_by == "data" and "not told apart" in decision.why
-    unknown = make_model(**overrides)  # no seed points seen twice: nothing says the pattern can be told apart
-    assert (
-        unknown.camera_falloff is None and "unknown" in {d.part: d for d in unknown.decisions()}["camera fall-off"].why
-    )
+    assert decisions["camera fall-off"].choice.startswith("on: gain 1")
+    assert decisions["camera flat-field map"].choice.startswith("on: 8x8")
+    assert decisions["camera flat-field map"].decided_by == "data"
+    assert f"moves {motion:.2f} of the frame" in decisions["camera flat-field map"].why
+    motion, falloff, flat_field, decisions = verdicts["demo"]
+    assert motion < config.camera_pattern_min_motion and falloff and not flat_field
+    assert decisions["camera fall-off"].choice.startswith("on: gain 1")
+    no_map = decisions["camera flat-field map"]
+    assert no_map.choice == "off" and no_map.decided_by == "data" and "not told apart" in no_map.why
+    unknown = make_model(**overrides)  # no seed points seen twice: nothing says the map can be told apart
+    unknown_map = {d.part: d for d in unknown.decisions()}["camera flat-field map"]
+    assert unknown.camera_falloff is not None and unknown.camera_flat_field is None and "unknown" in unknown_map.why
 
 
 def test_a_run_fitting_the_camera_pattern_trains_through_ns_train_and_loads_with_it(tmp_path):

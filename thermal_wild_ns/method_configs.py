@@ -72,9 +72,11 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
             datamanager=ThermalDatamanagerConfig(
                 preprocessing=PhotometricConfig(variant="none", skip_when_stable=True)
             ),
-            # the camera's fall-off and an 8x8 flat-field map, fitted where the content crosses the sensor enough to
-            # tell a fixed pattern from the scene: the threshold sits between the real captures, which gain, and the
-            # generated orbits, whose scene the map takes in (docs/results/camera_flat_field)
+            # the camera's radial fall-off on every capture (both real captures and the vignetting scene gain, the
+            # scenes without vignetting fit it flat: docs/results/camera_falloff, radial_generated_h200) and an 8x8
+            # flat-field map where the content crosses the sensor enough to tell a fixed pattern from the scene: the
+            # threshold sits between the real captures, which gain, and the generated orbits, whose scene the map
+            # takes in (docs/results/camera_flat_field)
             model=WildThermalModelConfig(camera_falloff=True, camera_flat_field=8, camera_pattern_min_motion=0.22),
         ),
         optimizers=wild_thermal_optimizers(),

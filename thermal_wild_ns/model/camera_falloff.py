@@ -74,19 +74,19 @@ def respond(image: Tensor, coefficients: Tensor, basis: Tensor, flat_field: Opti
     return torch.addcmul(terms[..., 1:], image, terms[..., :1] + 1.0)
 
 
-def describe_falloff(coefficients: Tensor, flat_field: Optional[Tensor] = None) -> str:
-    """The fitted response as a person reads it (the run's decisions), e.g. 'gain 1 -0.120 rho
-    +0.010 rho^2, offset -0.050 rho +0.000 rho^2' (rho: the squared off-axis tangent), and the
-    flat-field map's spread, e.g. '; flat field 8x8: gain +-0.031, offset +-0.012' (the largest
-    deviation of a cell from the map's mean)."""
+def describe_falloff(coefficients: Tensor) -> str:
+    """The fitted radial response as a person reads it (the run's decisions), e.g. 'gain 1 -0.120 rho
+    +0.010 rho^2, offset -0.050 rho +0.000 rho^2' (rho: the squared off-axis tangent)."""
 
     def polynomial(row: list) -> str:
         return " ".join(f"{c:+.3f} rho" + (f"^{k}" if k > 1 else "") for k, c in enumerate(row, start=1))
 
     gain, offset = coefficients.detach().cpu().tolist()
-    text = f"gain 1 {polynomial(gain)}, offset {polynomial(offset)}"
-    if flat_field is not None:
-        spread = centred_cells(flat_field.detach()).abs().amax(dim=(1, 2)).tolist()
-        size = "x".join(map(str, flat_field.shape[1:]))
-        text += f"; flat field {size}: gain +-{spread[0]:.3f}, offset +-{spread[1]:.3f}"
-    return text
+    return f"gain 1 {polynomial(gain)}, offset {polynomial(offset)}"
+
+
+def describe_flat_field(flat_field: Tensor) -> str:
+    """The fitted flat-field map [2, n, n] as a person reads it, e.g. '8x8: gain +-0.031, offset +-0.012'
+    (the largest deviation of a cell from the map's mean)."""
+    spread = centred_cells(flat_field.detach()).abs().amax(dim=(1, 2)).tolist()
+    return f"{'x'.join(map(str, flat_field.shape[1:]))}: gain +-{spread[0]:.3f}, offset +-{spread[1]:.3f}"

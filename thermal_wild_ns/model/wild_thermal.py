@@ -29,7 +29,13 @@ from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
 from thermal_wild_ns.model.background import CameraFrameDirections, ThermalBackground
 from thermal_wild_ns.model.bake import BakedValues
-from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, describe_falloff, falloff_basis, respond
+from thermal_wild_ns.model.camera_falloff import (
+    FALLOFF_ORDER,
+    describe_falloff,
+    describe_flat_field,
+    falloff_basis,
+    respond,
+)
 from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews, host_sizes, intrinsics
 from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
@@ -122,20 +128,22 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image
     compared with a recorded frame (training, the held-back scores, the evaluation protocols) and left
     out of the scene's renders (viewer, `ns-render`, exports), so vignetting is neither baked into the
-    Gaussians nor shown to the user. `wild-thermal` fits it, with an 8x8 flat-field map, on captures
-    whose content crosses the sensor (`camera_pattern_min_motion`; docs/results/camera_flat_field); its
-    ablations do not."""
+    Gaussians nor shown to the user. `wild-thermal` fits it on every capture (four coefficients of a fixed
+    radial shape: it fits itself flat where nothing vignettes; docs/results/radial_generated_h200) and
+    adds an 8x8 flat-field map where the content crosses the sensor (`camera_pattern_min_motion`;
+    docs/results/camera_flat_field); its ablations fit neither."""
     camera_flat_field: int = 0
     """With `camera_falloff`: cells per image side of a flat-field map fitted on top of the radial
     fall-off (a gain and an offset per cell, bilinear between cells, zero-mean: the camera's fixed
     pattern that is not radial; `camera_falloff.py`). 0: the radial fall-off alone. Without
     `camera_falloff` there is no camera model, and no map."""
     camera_pattern_min_motion: float = 0.0
-    """Fit the camera's fall-off and flat-field map (as set above) only where the capture's content
-    moves across the sensor by at least this much: the seed points' mean spread of image position over
-    the frames that see them, in frame sizes (`data/content_motion.py`). Below it a pattern fixed to the
-    sensor cannot be told from the content that sits at the same pixels in every frame, and a map takes
-    scene content into it (docs/results/camera_flat_field). 0: fit them as set, on any capture."""
+    """Fit the flat-field map (as set above) only where the capture's content moves across the sensor by
+    at least this much: the seed points' mean spread of image position over the frames that see them, in
+    frame sizes (`data/content_motion.py`). Below it a pattern fixed to the sensor cannot be told from the
+    content that sits at the same pixels in every frame, and a map takes scene content into it
+    (docs/results/camera_flat_field); the radial fall-off, whose shape is fixed, does not and is fitted
+    wherever `camera_falloff` asks. 0: the map as set, on any capture."""
     nonnegative_emission: bool = False
     """Render each Gaussian's emission (view term included) clamped at zero, as gsplat clamps a
     spherical-harmonic colour: radiance is never negative, so no Gaussian can subtract from what the
@@ -254,13 +262,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         self.background_field = ThermalBackground(self.background_mlp, cfg)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.respond`); zero: no fall-off
-        fits_pattern, self.camera_pattern_why, self.camera_pattern_decided_by = self._camera_pattern_fitted()
-        self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if fits_pattern else None
+        self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
         if cfg.camera_flat_field < 0:
             raise InputError(f"camera_flat_field {cfg.camera_flat_field}: cells per image side, 0 (no map) or more")
         n = cfg.camera_flat_field
+        fits_map, self.flat_field_why, self.flat_field_decided_by = self._flat_field_fitted()
         # [2, n, n]: row 0 the gain's cells, row 1 the offset's (`camera_falloff.flat_field_maps`); zero: flat
-        self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if n and fits_pattern else None
+        self.camera_flat_field = Parameter(torch.zeros(2, n, n)) if fits_map else None
         self.camera_falloff_basis = CameraFrameDirections(derive=falloff_basis)  # per camera and size
         graphs = cfg.graphed_camera and self.camera_falloff is not None
         self.graphed_camera = GraphedCalls("camera model") if graphs else None
@@ -284,13 +292,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
 
-    def _camera_pattern_fitted(self) -> Tuple[bool, str, str]:
-        """Whether the camera's fall-off (and flat-field map) is fitted, why, and what decided it
-        ('config', or 'data': the capture's content motion against `camera_pattern_min_motion`)."""
+    def _flat_field_fitted(self) -> Tuple[bool, str, str]:
+        """Whether the camera's flat-field map is fitted, why, and what decided it ('config', or 'data':
+        the capture's content motion against `camera_pattern_min_motion`)."""
         cfg = self.config
         threshold = cfg.camera_pattern_min_motion
-        if not cfg.camera_falloff or threshold <= 0:
-            return cfg.camera_falloff, "camera_falloff", "config"
+        if not cfg.camera_falloff or cfg.camera_flat_field == 0:
+            return False, "camera_flat_field 0" if cfg.camera_falloff else "no camera model (camera_falloff)", "config"
+        if threshold <= 0:
+            return True, f"camera_flat_field {cfg.camera_flat_field}", "config"
         motion = (self.kwargs.get("metadata") or {}).get("content_motion")
         if motion is None:
             return False, "no seed point is seen in two frames: how far the content moves is unknown", "data"
@@ -706,10 +716,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("view-dependent emission", cfg.view_sh_degree > 0, f"view_sh_degree {cfg.view_sh_degree}"),
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
-        falloff = "off"
-        if self.camera_falloff is not None:
-            falloff = f"on: {describe_falloff(self.camera_falloff, self.camera_flat_field)}"
-        entries.append(Decision("camera fall-off", falloff, self.camera_pattern_why, self.camera_pattern_decided_by))
+        falloff, flat_field = self.camera_falloff, self.camera_flat_field
+        falloff = f"on: {describe_falloff(falloff)}" if falloff is not None else "off"
+        entries.append(Decision("camera fall-off", falloff, "camera_falloff", "config"))
+        flat_field = f"on: {describe_flat_field(flat_field)}" if flat_field is not None else "off"
+        entries.append(Decision("camera flat-field map", flat_field, self.flat_field_why, self.flat_field_decided_by))
         return entries
 
     def has_view_term(self) -> bool:
