@@ -167,6 +167,26 @@ def test_a_checkpoint_with_or_without_the_falloff_is_refused_by_a_model_of_the_o
     make_model(camera_falloff=True).load_state_dict(dict(with_falloff))
 
 
+def test_a_run_of_the_rule_that_decided_the_whole_camera_model_still_loads_and_renders_as_it_trained():
+    """Before the fall-off was split from the map, a capture whose content moves too little for the map got no
+    camera model at all. Its checkpoint loads with its own config.yml (today's rule would fit the fall-off there)
+    and renders without one; where the map's rule would fit the map, or the config asks for the fall-off alone,
+    a checkpoint without it is still refused."""
+    rule = dict(camera_falloff=True, camera_flat_field=8, camera_pattern_min_motion=0.22)
+    earlier = make_model(camera_falloff=False).state_dict()  # what the earlier rule trained at motion 0.15
+    model = make_model(**rule, metadata={"content_motion": 0.15})
+    assert model.camera_falloff is not None and model.camera_flat_field is None
+    model.load_state_dict(dict(earlier))
+    assert model.camera_falloff is None and model.graphed_camera is None
+    assert "checkpoint" in {d.part: d for d in model.decisions()}["camera fall-off"].why
+    thermal = torch.rand(32, 48, 1)
+    assert model.as_recorded(thermal, make_camera(1)) is thermal  # rendered as it trained: no camera model
+    with pytest.raises(ValueError, match=r"checkpoint lacks the camera fall-off"):
+        make_model(**rule, metadata={"content_motion": 0.3}).load_state_dict(dict(earlier))
+    with pytest.raises(ValueError, match=r"checkpoint lacks the camera fall-off"):
+        make_model(camera_falloff=True).load_state_dict(dict(earlier))
+
+
 def test_a_clean_truth_is_scored_against_the_scene_and_a_recorded_frame_through_the_camera(tmp_path, demo_scene_dir):
     """The demo's held-out views are its clean truth (no camera recorded them): `novel` compares the scene
     with them, whatever the fitted fall-off; `time` compares with the frame as recorded, through it."""

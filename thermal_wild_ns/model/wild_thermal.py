@@ -263,6 +263,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_field = ThermalBackground(self.background_mlp, cfg)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.respond`); zero: no fall-off
         self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
+        self.falloff_why = "camera_falloff"
         if cfg.camera_flat_field < 0:
             raise InputError(f"camera_flat_field {cfg.camera_flat_field}: cells per image side, 0 (no map) or more")
         n = cfg.camera_flat_field
@@ -291,6 +292,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self._growth_ceiling: Optional[int] = None  # where a step ran out of GPU memory (`limit_growth`)
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
+
+    def _map_left_by_motion(self) -> bool:
+        """Whether the content-motion rule (not the config) left the flat-field map out."""
+        return self.camera_flat_field is None and self.flat_field_decided_by == "data"
 
     def _flat_field_fitted(self) -> Tuple[bool, str, str]:
         """Whether the camera's flat-field map is fitted, why, and what decided it ('config', or 'data':
@@ -718,7 +723,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
         falloff, flat_field = self.camera_falloff, self.camera_flat_field
         falloff = f"on: {describe_falloff(falloff)}" if falloff is not None else "off"
-        entries.append(Decision("camera fall-off", falloff, "camera_falloff", "config"))
+        entries.append(Decision("camera fall-off", falloff, self.falloff_why, "config"))
         flat_field = f"on: {describe_flat_field(flat_field)}" if flat_field is not None else "off"
         entries.append(Decision("camera flat-field map", flat_field, self.flat_field_why, self.flat_field_decided_by))
         return entries
@@ -780,6 +785,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""
+        if self.camera_falloff is not None and "camera_falloff" not in state_dict and self._map_left_by_motion():
+            # a run of the rule before the fall-off was split from the map (the motion rule then decided the
+            # camera model as a whole, and fitted nothing where it leaves the map out): it renders as it trained
+            self.camera_falloff, self.graphed_camera = None, None
+            self.falloff_why = "the checkpoint's: trained when the content-motion rule decided the whole camera model"
+            CONSOLE.log(f"camera fall-off off: {self.falloff_why}")
         has_parts = (self.emission_mlp is not None, self.background_mlp is not None, self.camera_falloff is not None)
         has_parts += (self.camera_flat_field is not None,)
         refuse_mismatched_checkpoint(state_dict, *has_parts, tuple(self.frame_embed.weight.shape))
