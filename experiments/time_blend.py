@@ -1,0 +1,92 @@
+"""Is a held-out frame's state better predicted by blending its neighbours' renders than by rendering
+at the blend of their embeddings? Scores one trained run's `time` protocol both ways, per view.
+
+    python -m experiments.time_blend RUN/config.yml [RUN2/config.yml ...] [--output F.json]
+
+`time` (`pipeline/evaluation.py`) renders a held-out frame at the frame embedding interpolated linearly
+between the two training frames around it (`FrameStates.at`). The emission MLP is not linear in the
+embedding, so the render at the middle embedding need not be the middle of the two renders, even
+where the sensor's state is linear in time (the flat-field scene's ramp). The blend here renders each
+neighbour at its own state (its embedding and LUT), takes each back to the original space, and mixes
+the two images with the same weights: a render is linear in the Gaussians' emission and the
+background, so that is the blend of the emissions, not of the embeddings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Dict, List
+
+import numpy as np
+from nerfstudio.utils.eval_utils import eval_setup
+
+from thermal_wild_ns._upstream import prepare_checkpoint_commands
+from thermal_wild_ns.pipeline.evaluation import scores
+from thermal_wild_ns.pipeline.photometric_state import PhotometricState, preprocessed_sequence, render, state_at
+from thermal_wild_ns.preprocessing.photometric import time_weights
+
+
+def neighbour_blend(pipeline, camera, t: float) -> np.ndarray:
+    """[H, W] original space: the renders at the two training frames around `t`, each at its own
+    state, mixed with the weights `time` interpolates their embeddings with."""
+    model = pipeline.model
+    times = model.frame_times
+    i, j, w = time_weights(times, t)
+    sequence = preprocessed_sequence(pipeline)
+    images = []
+    for row in {i, j}:
+        lut = None if sequence is None else sequence.lut_at(times[row])
+        state = PhotometricState(f"frame:{times[row]:g}", model.frame_embed.weight[row].detach(), lut)
+        images.append((row, render(pipeline, camera, state)[1]))
+    if len(images) == 1:
+        return images[0][1]
+    by_row = dict(images)
+    return (1.0 - w) * by_row[i] + w * by_row[j]
+
+
+def score_run(config: Path) -> Dict:
+    _, pipeline, _, _ = eval_setup(config, test_mode="test")
+    dataset = pipeline.datamanager.eval_dataset
+    rows: List[Dict] = []
+    for camera, batch in pipeline.datamanager.fixed_indices_eval_dataloader:
+        index = int(batch["image_idx"])
+        frame = int(dataset.metadata["frame_indices"][index])
+        recorded = dataset.recorded_image(index)
+        embedded = render(pipeline, camera, state_at(pipeline, frame))[1]
+        blended = neighbour_blend(pipeline, camera, frame)
+        rows.append(
+            {
+                "frame": frame,
+                "psnr_time": scores(embedded, recorded)["psnr"],
+                "psnr_time_blend": scores(blended, recorded)["psnr"],
+            }
+        )
+    return {
+        "config": str(config),
+        "psnr_time": float(np.mean([r["psnr_time"] for r in rows])),
+        "psnr_time_blend": float(np.mean([r["psnr_time_blend"] for r in rows])),
+        "per_view": rows,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="Score `time` with blended embeddings and blended renders.")
+    parser.add_argument("configs", type=Path, nargs="+", help="runs' config.yml")
+    parser.add_argument("--output", type=Path, help="write every run's scores here (JSON)")
+    args = parser.parse_args()
+    prepare_checkpoint_commands()
+    results = []
+    for config in args.configs:
+        result = score_run(config)
+        results.append(result)
+        views = " ".join(f"{r['frame']}:{r['psnr_time']:.2f}/{r['psnr_time_blend']:.2f}" for r in result["per_view"])
+        print(f"{config}: time {result['psnr_time']:.2f}, blended renders {result['psnr_time_blend']:.2f} ({views})")
+    if args.output:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()
