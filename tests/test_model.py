@@ -126,6 +126,46 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
         torch.testing.assert_close(model.inference_embedding(), mean)
 
 
+def test_the_viewer_refits_the_typical_state_at_most_every_few_hundred_steps_while_a_run_trains(monkeypatch):
+    """A viewer open during training renders whenever its user moves: the typical state (a fit of its own) is
+    refitted for it only once the run has moved `VIEWER_REFIT_STEPS` steps on, or once the step has stood still
+    (training paused or done), when it is the exact state of that step again. Renders that name a state
+    (evaluation, ns-render) are not throttled."""
+    from thermal_wild_ns.model import frame_states
+
+    clock = [100.0]
+    monkeypatch.setattr(frame_states.time, "monotonic", lambda: clock[0])
+    model = make_frame_dependent_model()
+    model.config.inference_embedding = "typical"
+    fits = []
+    original = model.typical_state_emission
+    monkeypatch.setattr(model, "typical_state_emission", lambda: fits.append(model.step) or original())
+
+    def train_step():  # the embeddings change, as an optimizer step changes them
+        model.step += 1
+        with torch.no_grad():
+            model.frame_embed.weight.add_(0.01)
+
+    with torch.no_grad():
+        shown = model.viewer_embedding()
+        for _ in range(frame_states.VIEWER_REFIT_STEPS - 1):
+            train_step()
+            clock[0] += 0.01
+            assert model.viewer_embedding() is shown  # lags, no refit
+        assert fits == [0]
+        assert model.inference_embedding() is not shown  # what evaluation reads is the exact state
+        train_step()
+        refreshed = model.viewer_embedding()
+        assert refreshed is not shown and fits[-1] == frame_states.VIEWER_REFIT_STEPS
+        train_step()  # the last step of the run
+        clock[0] += 0.01
+        assert model.viewer_embedding() is refreshed  # still training, as far as the viewer can tell
+        clock[0] += frame_states.VIEWER_PAUSE_SECONDS
+        exact = model.viewer_embedding()  # the step stood still: the run's own state
+        torch.testing.assert_close(exact, model.inference_embedding())
+        assert fits[-1] == model.step
+
+
 def test_state_smoothness_penalises_a_frame_state_its_neighbours_do_not_predict():
     """`state_smoothness`: zero while each training frame's embedding lies on the line its neighbours
     in capture time draw (the `time` protocol's prediction, `at`), also with unevenly spaced frames; a

@@ -5,6 +5,7 @@ this owns what is computed from them, and the one cache of it."""
 
 from __future__ import annotations
 
+import time
 from typing import Callable, List, Optional, Sequence
 
 import torch
@@ -25,6 +26,8 @@ class FrameStates:
         self.embedding = embedding
         self.frame_times: List[float] = [float(t) for t in frame_times]
         self._cache: Optional[tuple] = None  # ((choice, step, version), weight, embedding)
+        self._viewer: Optional[tuple] = None  # (choice, step it was computed at, embedding): `for_viewer`
+        self._viewer_step = (-1, 0.0)  # the step of the viewer's last render, and when a render first saw it
         # each row with a training frame on either side (rows in capture order, as `at` reads them):
         # (row, left, right, weight of right)
         rows = range(len(self.frame_times))
@@ -100,6 +103,31 @@ class FrameStates:
         if not torch.is_grad_enabled():
             self._cache = (key, weight, value)
         return value
+
+    def for_viewer(
+        self, choice: str, step: int, emission_of: Optional[Callable[[], Optional[Emission]]] = None
+    ) -> Tensor:
+        """`named(choice, ...)` for the viewer's renders, which come whenever its user moves while a run
+        trains: the 'typical' state is a fit of its own (`typical_state`), and refitting it at every
+        render of a training run would take that time from the training steps. So while the step moves
+        the viewer keeps its state for up to `VIEWER_REFIT_STEPS` steps; once the step has stood still for
+        `VIEWER_PAUSE_SECONDS` (training paused or done) it is the exact state of that step again."""
+        cached = self._viewer
+        now = time.monotonic()
+        if step != self._viewer_step[0]:
+            self._viewer_step = (step, now)
+        paused = now - self._viewer_step[1] >= VIEWER_PAUSE_SECONDS
+        if cached is not None and cached[0] == choice and not paused and 0 < step - cached[1] < VIEWER_REFIT_STEPS:
+            return cached[2]
+        value = self.named(choice, step, emission_of)  # at the same step, `named`'s own cache answers
+        self._viewer = (choice, step, value)
+        return value
+
+
+VIEWER_REFIT_STEPS = 500
+"""Training steps the viewer's canonical state may lag behind a run that is training (`for_viewer`)."""
+VIEWER_PAUSE_SECONDS = 1.0
+"""How long the step must stand still before the viewer takes it for a run that no longer trains."""
 
 
 def typical_state(states: Tensor, emission: Emission, steps: int = 100) -> Tensor:

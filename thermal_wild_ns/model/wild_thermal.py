@@ -353,9 +353,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
 
     def viewer_embedding(self) -> Tensor:
         """The frame embedding [Df] of a render that names no state (ns-viewer): the state at the
-        viewer's capture time where its user chose one, else the canonical `inference_embedding`."""
+        viewer's capture time where its user chose one, else the canonical `inference_embedding`, which
+        lags a training run by up to `frame_states.VIEWER_REFIT_STEPS` steps (`FrameStates.for_viewer`)."""
         t = self.viewer_controls.capture_time
-        return self.inference_embedding() if t is None else self.frame_states.named(f"time:{t}", self.step)
+        if t is not None:
+            return self.frame_states.named(f"time:{t}", self.step)
+        return self.frame_states.for_viewer(self.config.inference_embedding, self.step, self.typical_state_emission)
 
     @property
     def uses_frame_embedding(self) -> bool:
