@@ -38,6 +38,43 @@ def write_report(path, text: str) -> None:
     print(text)
 
 
+def held_out_views(config: Path):
+    """A trained run's held-out views, loaded from its config.yml: (pipeline, camera, index in the eval
+    dataset, capture frame) per view, in the evaluation's order."""
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    _, pipeline, _, _ = eval_setup(config, test_mode="test")
+    frames = pipeline.datamanager.eval_dataset.metadata["frame_indices"]
+    for camera, batch in pipeline.datamanager.fixed_indices_eval_dataloader:
+        index = int(batch["image_idx"])
+        yield pipeline, camera, batch, index, int(frames[index])
+
+
+def score_checkpoints(
+    description: str, score_run: Callable[[Path], dict], line: Callable[[dict], str], argv: Optional[list] = None
+) -> List[dict]:
+    """The command line of a script that scores trained runs one by one: `score_run(config.yml)` per run
+    given, `line(result)` printed for each, every result written to `--output` (JSON) if asked."""
+    import argparse
+    import json
+
+    from thermal_wild_ns._upstream import prepare_checkpoint_commands
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("configs", type=Path, nargs="+", help="runs' config.yml")
+    parser.add_argument("--output", type=Path, help="write every run's scores here (JSON)")
+    args = parser.parse_args(argv)
+    prepare_checkpoint_commands()
+    results = []
+    for config in args.configs:
+        results.append(score_run(config))
+        print(f"{config}: {line(results[-1])}")
+    if args.output:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_text(json.dumps(results, indent=1))
+    return results
+
+
 def python_profile_markdown(profiler, per: int, rows: int = 30) -> str:
     """Markdown table of a `cProfile.Profile`'s functions by cumulative time, per step or frame
     (`per`: how many the profile covered): where the host's time goes, by Python function. Times

@@ -14,15 +14,12 @@ background, so that is the blend of the emissions, not of the embeddings.
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 from typing import Dict, List
 
 import numpy as np
-from nerfstudio.utils.eval_utils import eval_setup
 
-from thermal_wild_ns._upstream import prepare_checkpoint_commands
+from experiments import held_out_views, score_checkpoints
 from thermal_wild_ns.pipeline.evaluation import scores
 from thermal_wild_ns.pipeline.photometric_state import PhotometricState, preprocessed_sequence, render, state_at
 from thermal_wild_ns.preprocessing.photometric import time_weights
@@ -47,13 +44,9 @@ def neighbour_blend(pipeline, camera, t: float) -> np.ndarray:
 
 
 def score_run(config: Path) -> Dict:
-    _, pipeline, _, _ = eval_setup(config, test_mode="test")
-    dataset = pipeline.datamanager.eval_dataset
     rows: List[Dict] = []
-    for camera, batch in pipeline.datamanager.fixed_indices_eval_dataloader:
-        index = int(batch["image_idx"])
-        frame = int(dataset.metadata["frame_indices"][index])
-        recorded = dataset.recorded_image(index)
+    for pipeline, camera, _, index, frame in held_out_views(config):
+        recorded = pipeline.datamanager.eval_dataset.recorded_image(index)
         embedded = render(pipeline, camera, state_at(pipeline, frame))[1]
         blended = neighbour_blend(pipeline, camera, frame)
         rows.append(
@@ -72,20 +65,11 @@ def score_run(config: Path) -> Dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description="Score `time` with blended embeddings and blended renders.")
-    parser.add_argument("configs", type=Path, nargs="+", help="runs' config.yml")
-    parser.add_argument("--output", type=Path, help="write every run's scores here (JSON)")
-    args = parser.parse_args()
-    prepare_checkpoint_commands()
-    results = []
-    for config in args.configs:
-        result = score_run(config)
-        results.append(result)
+    def line(result: Dict) -> str:
         views = " ".join(f"{r['frame']}:{r['psnr_time']:.2f}/{r['psnr_time_blend']:.2f}" for r in result["per_view"])
-        print(f"{config}: time {result['psnr_time']:.2f}, blended renders {result['psnr_time_blend']:.2f} ({views})")
-    if args.output:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(json.dumps(results, indent=1))
+        return f"time {result['psnr_time']:.2f}, blended renders {result['psnr_time_blend']:.2f} ({views})"
+
+    score_checkpoints("Score `time` with blended embeddings and blended renders.", score_run, line)
 
 
 if __name__ == "__main__":
