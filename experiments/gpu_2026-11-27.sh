@@ -44,13 +44,15 @@
 #     bash experiments/gpu_2026-11-27.sh time-blend-generated    # .devicebundle carried (it installs)
 #     bash experiments/gpu_2026-11-27.sh emission-rate-flight2   # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh emission-rate-dunr      # .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-27.sh ttq-dunr                # two GPUs (nvidia-h100-x2); .data/dunr .data/cache
+#     bash experiments/gpu_2026-11-27.sh ttq-flight2             # the same with .data/flight2
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
 # `time` protocol by this tree's package and by the baseline's (experiments.score_checkpoint): the same
 # Gaussians and embeddings, two ways of predicting a held-out frame's LUT.
 set -uo pipefail
-plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2, radial-generated, growth-raw-flight2, growth-view-flight2, time-blend-generated, emission-rate-flight2, emission-rate-dunr}
+plan=${1:?plan: install, lut-blend-flight2, lut-blend-dunr, schedule-dunr, step-guard-dunr, falloff-flight2, falloff-dunr, trial-vignetting, log-writes-dunr, falloff-vignetting, flat-field-flight2, flat-field-dunr, flat-field-generated, flat-field-decay, guard-device-dunr, canonical-flight2, canonical-dunr, parts-flight2, parts-dunr, defaults-flight2, growth-camera-flight2, splatfacto-30k-flight2, splatfacto-30k-dunr, ablations-flight2, ablations-dunr, view-camera-flight2, view-camera-dunr, gpu-tests, camera-cost-dunr, survey-camera, budget-camera-flight2, budget-camera-dunr, camera-graph-dunr, smoothness-flight2, smoothness-dunr, preprocessing-dunr, budget-raw-flight2, radial-generated, growth-raw-flight2, growth-view-flight2, time-blend-generated, emission-rate-flight2, emission-rate-dunr, ttq-dunr, ttq-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -352,6 +354,17 @@ case "$plan" in
     # term's 0.2821, chosen on the generated scenes: docs/results/full_settings_gpu) is the one accuracy default cited
     # on no real capture; the defaults and 3DGS's own rate (2.5e-3), 3 seeds each, side by side (6 runs)
     one_at_a_time ${plan#emission-rate-} emission-rate optimizers.emission.optimizer.lr=0.0025
+    ;;
+  ttq-dunr|ttq-flight2)  # issue 34's time to quality: the full method (its default schedule, the stop on) and stock
+    # splatfacto (its whole 30k schedule) in one bench run, one run at a time on each of two GPUs (clean timings:
+    # nvidia-h100-x2), seeds SEED and SEED+1 (default 0; a second call with SEED=2 on one GPU: GPUS=1 SEEDS=1);
+    # the bench's chart marks where each method first reaches splatfacto's final score
+    scene=${plan#ttq-}
+    PYTHONPATH=$PWD:/tmp/site timeout 585 python3 -m experiments.bench --output-dir "/tmp/ttq-$scene" \
+      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal splatfacto \
+      --seeds ${SEEDS:-2} --seed ${SEED:-0} --gpus ${GPUS:-2} --runs-per-gpu 1 --fit-steps 20 --fps-frames 0 \
+      --steps 30000 --eval-at 1000 2000 5000 10000 20000 30000 --time-limit 500 > "$OUT/ttq-$scene.log" 2>&1
+    for f in bench.json bench.md speed_accuracy.png; do cp "/tmp/ttq-$scene/$f" "$OUT/ttq-$scene-seed${SEED:-0}-$f"; done
     ;;
   radial-generated)  # issue 33: the generated scenes with the radial fall-off forced on and no map (the motion rule
     # turns the whole camera model off on them; docs/results/camera_radial_cpu), 3 seeds, the protocol of
