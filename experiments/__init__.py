@@ -50,9 +50,7 @@ def held_out_views(config: Path):
         yield pipeline, camera, batch, index, int(frames[index])
 
 
-def score_checkpoints(
-    description: str, score_run: Callable[[Path], dict], line: Callable[[dict], str], argv: Optional[list] = None
-) -> List[dict]:
+def score_checkpoints(description: str, score_run: Callable[[Path], dict], line: Callable[[dict], str]) -> List[dict]:
     """The command line of a script that scores trained runs one by one: `score_run(config.yml)` per run
     given, `line(result)` printed for each, every result written to `--output` (JSON) if asked."""
     import argparse
@@ -63,7 +61,7 @@ def score_checkpoints(
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("configs", type=Path, nargs="+", help="runs' config.yml")
     parser.add_argument("--output", type=Path, help="write every run's scores here (JSON)")
-    args = parser.parse_args(argv)
+    args = parser.parse_args()
     prepare_checkpoint_commands()
     results = []
     for config in args.configs:

@@ -21,26 +21,20 @@ import numpy as np
 
 from experiments import held_out_views, score_checkpoints
 from thermal_wild_ns.pipeline.evaluation import scores
-from thermal_wild_ns.pipeline.photometric_state import PhotometricState, preprocessed_sequence, render, state_at
+from thermal_wild_ns.pipeline.photometric_state import render, state_at
 from thermal_wild_ns.preprocessing.photometric import time_weights
 
 
 def neighbour_blend(pipeline, camera, t: float) -> np.ndarray:
     """[H, W] original space: the renders at the two training frames around `t`, each at its own
-    state, mixed with the weights `time` interpolates their embeddings with."""
-    model = pipeline.model
-    times = model.frame_times
+    state (`state_at` a training frame's position is exactly its embedding and LUT), mixed with the
+    weights `time` interpolates their embeddings with."""
+    times = pipeline.model.frame_times
     i, j, w = time_weights(times, t)
-    sequence = preprocessed_sequence(pipeline)
-    images = []
-    for row in {i, j}:
-        lut = None if sequence is None else sequence.lut_at(times[row])
-        state = PhotometricState(f"frame:{times[row]:g}", model.frame_embed.weight[row].detach(), lut)
-        images.append((row, render(pipeline, camera, state)[1]))
-    if len(images) == 1:
-        return images[0][1]
-    by_row = dict(images)
-    return (1.0 - w) * by_row[i] + w * by_row[j]
+    left = render(pipeline, camera, state_at(pipeline, times[i]))[1]
+    if w == 0.0:
+        return left
+    return (1.0 - w) * left + w * render(pipeline, camera, state_at(pipeline, times[j]))[1]
 
 
 def score_run(config: Path) -> Dict:

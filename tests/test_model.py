@@ -164,6 +164,10 @@ def test_the_viewer_refits_the_typical_state_at_most_every_few_hundred_steps_whi
         exact = model.viewer_embedding()  # the step stood still: the run's own state
         torch.testing.assert_close(exact, model.inference_embedding())
         assert fits[-1] == model.step
+        model.config.inference_embedding = "mean"  # no fit to save: the viewer follows every step
+        model.viewer_embedding()
+        train_step()
+        torch.testing.assert_close(model.viewer_embedding(), model.frame_embed.weight.mean(0))
 
 
 def test_state_smoothness_penalises_a_frame_state_its_neighbours_do_not_predict():

@@ -110,14 +110,16 @@ class FrameStates:
         """`named(choice, ...)` for the viewer's renders, which come whenever its user moves while a run
         trains: the 'typical' state is a fit of its own (`typical_state`), and refitting it at every
         render of a training run would take that time from the training steps. So while the step moves
-        the viewer keeps its state for up to `VIEWER_REFIT_STEPS` steps; once the step has stood still for
-        `VIEWER_PAUSE_SECONDS` (training paused or done) it is the exact state of that step again."""
+        the viewer keeps its typical state for up to `VIEWER_REFIT_STEPS` steps; once the step has stood still
+        for `VIEWER_PAUSE_SECONDS` (training paused or done) it is the exact state of that step again. Other
+        choices cost no fit and are always exact."""
         cached = self._viewer
         now = time.monotonic()
         if step != self._viewer_step[0]:
             self._viewer_step = (step, now)
         paused = now - self._viewer_step[1] >= VIEWER_PAUSE_SECONDS
-        if cached is not None and cached[0] == choice and not paused and 0 < step - cached[1] < VIEWER_REFIT_STEPS:
+        lagging = cached is not None and cached[0] == choice == "typical"  # the one state that costs a fit
+        if lagging and not paused and 0 < step - cached[1] < VIEWER_REFIT_STEPS:
             return cached[2]
         value = self.named(choice, step, emission_of)  # at the same step, `named`'s own cache answers
         self._viewer = (choice, step, value)

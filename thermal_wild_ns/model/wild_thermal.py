@@ -724,10 +724,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("view-dependent emission", cfg.view_sh_degree > 0, f"view_sh_degree {cfg.view_sh_degree}"),
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
-        falloff, flat_field = self.camera_falloff, self.camera_flat_field
-        falloff = f"on: {describe_falloff(falloff)}" if falloff is not None else "off"
+        falloff = "off" if self.camera_falloff is None else f"on: {describe_falloff(self.camera_falloff)}"
         entries.append(Decision("camera fall-off", falloff, self.falloff_why, "config"))
-        flat_field = f"on: {describe_flat_field(flat_field)}" if flat_field is not None else "off"
+        flat_field = "off" if self.camera_flat_field is None else f"on: {describe_flat_field(self.camera_flat_field)}"
         entries.append(Decision("camera flat-field map", flat_field, self.flat_field_why, self.flat_field_decided_by))
         return entries
 
