@@ -1,6 +1,7 @@
 """How much of a run's `novel` error is the canonical state's level? Per held-out view, the `novel` render
 against the view's truth: its PSNR, its mean error (render minus truth, dataset-normalised units), and its
-PSNR once that mean is taken out (an offset fit: one number per view, where `aligned` fits two).
+PSNR once that mean is taken out (an offset fitted on the held-out view, where `aligned` fits a gain and an
+offset: a fit, not a result).
 
     python -m experiments.novel_level RUN/config.yml [RUN2/config.yml ...] [--output F.json]
 
