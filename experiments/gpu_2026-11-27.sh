@@ -357,7 +357,8 @@ case "$plan" in
     ;;
   ttq-dunr|ttq-flight2)  # issue 34's time to quality: the full method (its default schedule, the stop on) and stock
     # splatfacto (its whole 30k schedule) in one bench run, one run at a time on each of two GPUs (clean timings:
-    # nvidia-h100-x2), seeds SEED and SEED+1 (default 0; a second call with SEED=2 on one GPU: GPUS=1 SEEDS=1);
+    # nvidia-h100-x2), seeds SEED and SEED+1 (default 0; a second call for seed 2: SEED=2 SEEDS=1 GPUS=2, each method
+    # alone on one GPU);
     # the bench's chart marks where each method first reaches splatfacto's final score
     scene=${plan#ttq-}
     PYTHONPATH=$PWD:/tmp/site timeout 585 python3 -m experiments.bench --output-dir "/tmp/ttq-$scene" \
