@@ -490,3 +490,25 @@ def test_the_schedule_profile_times_a_runs_events_apart_from_its_steps_and_leave
     assert [w["last_step"] for w in result["windows"]] == [19, 39]
     assert (writer.write_out_storage, trainer_module.snapshot) == originals
     assert "ms/step" in (tmp_path / "profile" / "schedule.md").read_text()
+
+
+def test_state_bound_finds_the_unpredictable_frames_of_a_generated_scene(tmp_path):
+    """A perfect model with the frame's own state reproduces the recorded frame to its rounding; the
+    flat-field scene's offset is a ramp between frames 15 and 17 (frame 16 predicted exactly by its
+    neighbours) but frame 0 has only frame 1 after it (15 counts off); a measured run is split into
+    the data's share and the model's."""
+    from experiments import state_bound
+
+    bench = tmp_path / "bench.json"
+    views = [{"frame": f, "psnr_time": 35.0, "psnr_oracle": 40.0} for f in (0, 8, 16, 24, 32)]
+    bench.write_text(json.dumps({"runs": [{"scene": "stress-ffc", "method": "wild-thermal", "per_view": views}]}))
+    args = state_bound.Args(scenes=("stress:ffc",), output=tmp_path / "bound.md", work_dir=tmp_path, bench=(bench,))
+    rows = {r["frame"]: r for r in state_bound.main(args)["stress:ffc"]}
+    assert all(r["own"] > 65 for r in rows.values())  # only the uint16 rounding is left
+    assert rows[16]["neighbours"] == pytest.approx(rows[16]["own"], abs=0.5)
+    assert rows[0]["neighbours"] < 40  # frame 1's offset, 15 counts above frame 0's
+    table = (tmp_path / "bound.md").read_text()
+    row = next(line for line in table.splitlines() if line.startswith("| stress:ffc | wild-thermal"))
+    data_share, model_share = (float(cell.split(" (")[0]) for cell in row.split("|")[7:9])
+    assert data_share > 0.3 and model_share > 3.0  # 5 dB of gap, one view of five losing to the data
+    assert data_share + model_share == pytest.approx(5.0, abs=0.02)
