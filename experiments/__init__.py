@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, List, Optional
+from typing import Callable, List, Optional, Tuple
 
 
 def device_name() -> str:
@@ -36,6 +36,17 @@ def write_report(path, text: str) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(text)
     print(text)
+
+
+def offset_fitted(render, target) -> Tuple[float, float]:
+    """(mean error of `render` against `target` [H, W], the render's PSNR with that mean taken out): an
+    offset fitted on the scored view itself, so the second number is a fit, not a result."""
+    import numpy as np
+
+    from thermal_wild_ns.pipeline.evaluation import scores
+
+    bias = float(np.mean(render - target))
+    return bias, scores(render - bias, target)["psnr"]
 
 
 def held_out_views(config: Path):

@@ -17,7 +17,7 @@ from typing import Dict, List
 
 import numpy as np
 
-from experiments import held_out_views, score_checkpoints
+from experiments import held_out_views, offset_fitted, score_checkpoints
 from thermal_wild_ns.pipeline.evaluation import scores
 from thermal_wild_ns.pipeline.photometric_state import canonical_state, render
 
@@ -28,13 +28,13 @@ def score_run(config: Path) -> Dict:
         truth = batch["image"].float().mean(dim=-1).cpu().numpy()  # [H, W], as `evaluate` reads it
         recorded = not pipeline.datamanager.eval_dataset.is_clean_truth(index)
         novel = render(pipeline, camera, canonical_state(pipeline), recorded=recorded)[1]
-        bias = float(np.mean(novel - truth))
+        bias, fitted = offset_fitted(novel, truth)
         rows.append(
             {
                 "frame": frame,
                 "psnr_novel": scores(novel, truth)["psnr"],
                 "mean_error": bias,
-                "psnr_novel_offset_fitted": scores(novel - bias, truth)["psnr"],
+                "psnr_novel_offset_fitted": fitted,
             }
         )
     keys = ("psnr_novel", "mean_error", "psnr_novel_offset_fitted")
