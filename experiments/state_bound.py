@@ -42,11 +42,10 @@ import tyro
 from experiments import mean_range, write_report
 from experiments.bench import scene_dataparser, scene_name
 from thermal_wild_ns.data.demo_scene import (
-    COUNTS_AT_0C,
-    COUNTS_RANGE,
     DemoSceneConfig,
-    _clean_counts,
     camera_to_world,
+    clean_counts,
+    sensor_counts,
     sensor_faults,
     stress_scene_config,
 )
@@ -101,14 +100,6 @@ def predicted_states(
     return states
 
 
-def sensor_frame(clean: np.ndarray, faults: Dict[str, np.ndarray], state: Tuple[float, float, float]) -> np.ndarray:
-    """The counts the generator records for `clean` counts under (gain, offset, outlier factor), noise-free."""
-    gain, offset, outlier = state
-    signal = (clean - COUNTS_AT_0C) * faults["vignetting"]
-    observed = COUNTS_AT_0C + offset + gain * signal + faults["columns"]
-    return COUNTS_RANGE[0] + outlier * (observed - COUNTS_RANGE[0])
-
-
 def scene_bound(scene: str, work_dir: Path) -> List[dict]:
     """One row per held-out frame: its index and each predictor's PSNR against the recorded frame."""
     parser_config = scene_dataparser(scene, work_dir, work_dir / "cache")
@@ -126,10 +117,10 @@ def scene_bound(scene: str, work_dir: Path) -> List[dict]:
     for frame in held_out:
         # the frame as the sensor recorded it, which `time` and `oracle` score against
         recorded = read_raw_frame(Path(parser_config.data) / "images" / f"frame_{frame:05d}.png").astype(np.float64)
-        clean, _ = _clean_counts(camera_to_world(int(frame), cfg), cfg)
+        clean, _ = clean_counts(camera_to_world(int(frame), cfg), cfg)
         row = {"frame": int(frame)}
         for name, state in predicted_states(faults, train, int(frame)).items():
-            error = (sensor_frame(clean, faults, state) - recorded) / span
+            error = (sensor_counts(clean, faults, *state) - recorded) / span
             row[name] = float(10 * np.log10(1.0 / max(np.mean(error**2), 1e-12)))
         rows.append(row)
     return rows

@@ -213,6 +213,21 @@ def sensor_faults(cfg: DemoSceneConfig) -> Dict[str, np.ndarray]:
     }
 
 
+def sensor_counts(
+    clean: np.ndarray, faults: Dict[str, np.ndarray], gain: float, offset: float, outlier: float, noise=0.0
+) -> np.ndarray:
+    """The counts [H, W] the sensor records for the scene's `clean` counts under one frame's state (`gain`,
+    `offset`, `outlier` factor) and `faults`' fixed patterns, `noise` (counts) added before the outlier gain."""
+    signal = (clean - COUNTS_AT_0C) * faults["vignetting"]
+    observed = COUNTS_AT_0C + offset + gain * signal + faults["columns"]
+    observed = observed + noise
+    # the outlier gain acts on the normalised scale, not on raw counts: x1.3 on counts of ~3,250
+    # would put the whole frame ~90 degC above the range, a saturated frame rather than a bright one
+    if outlier != 1.0:  # every other frame stays bit for bit as before
+        observed = COUNTS_RANGE[0] + outlier * (observed - COUNTS_RANGE[0])
+    return observed
+
+
 STRESS_FAULTS: Dict[str, Dict] = {
     "clean": {},
     "outlier": {"outlier_frame": 13},
@@ -276,14 +291,9 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
     frames, point_sets = [], []
     for i in range(cfg.num_frames):
         c2w = camera_to_world(i, cfg)
-        clean, depth = _clean_counts(c2w, cfg)
-        signal = (clean - COUNTS_AT_0C) * faults["vignetting"]
-        observed = COUNTS_AT_0C + faults["offset"][i] + faults["gain"][i] * signal + faults["columns"]
-        observed = observed + cfg.noise_counts * rng.standard_normal(observed.shape)
-        # the outlier gain acts on the normalised scale, not on raw counts: x1.3 on counts of ~3,250
-        # would put the whole frame ~90 degC above the range, a saturated frame rather than a bright one
-        if faults["outlier"][i] != 1.0:  # every other frame stays bit for bit as before
-            observed = COUNTS_RANGE[0] + faults["outlier"][i] * (observed - COUNTS_RANGE[0])
+        clean, depth = clean_counts(c2w, cfg)
+        noise = cfg.noise_counts * rng.standard_normal(clean.shape)
+        observed = sensor_counts(clean, faults, faults["gain"][i], faults["offset"][i], faults["outlier"][i], noise)
         name = f"frame_{i:05d}.png"
         cv2.imwrite(str(tmp / "images" / name), np.clip(np.round(observed), 0, 65535).astype(np.uint16))
         cv2.imwrite(str(tmp / "ground_truth" / name), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
@@ -303,7 +313,7 @@ def generate_demo_scene(out_dir: Path, cfg: DemoSceneConfig = DemoSceneConfig())
         (tmp / "path").mkdir()
         for k, index in enumerate(np.linspace(0, cfg.num_frames - 1, cfg.path_views)):
             c2w = camera_to_world(index, cfg)
-            clean, depth = _clean_counts(c2w, cfg)
+            clean, depth = clean_counts(c2w, cfg)
             cv2.imwrite(str(tmp / "path" / f"path_{k:05d}.png"), np.clip(np.round(clean), 0, 65535).astype(np.uint16))
             np.save(tmp / "path" / f"path_{k:05d}_depth.npy", depth.astype(np.float32))
             path.append(
@@ -360,7 +370,7 @@ def write_transforms(folder: Path, cfg, frames: List[Dict], path: List[Dict], ge
         json.dump(meta, f, indent=1)
 
 
-def _clean_counts(c2w: np.ndarray, cfg: DemoSceneConfig) -> Tuple[np.ndarray, np.ndarray]:
+def clean_counts(c2w: np.ndarray, cfg: DemoSceneConfig) -> Tuple[np.ndarray, np.ndarray]:
     """Fault-free counts [H, W] (contrast applied) and depth [H, W] of a view."""
     temp, depth = render_view(c2w, cfg)
     temp = 12.0 + cfg.contrast * (temp - 12.0)
