@@ -21,10 +21,10 @@ two training frames). The per-view rows show which frames carry it.
 
 With `--bench FILE...` (bench.json files of runs on these scenes) each run's held-out views are split
 the same way: the state error a perfect model makes (`neighbours`' mean squared error less `own`'s,
-the sensor's noise) added to the run's own `oracle` error gives the `time` PSNR the run would reach if
-its only loss under `time` were the data's unpredictability; `oracle` - that is the data's share of
-the run's gap, that - `time` the model's (how its states interpolate, and what the `oracle`'s fit on
-the held-out frame absorbs).
+the sensor's noise) added to the run's own `oracle` error (independent errors: their mean squares add)
+gives the `time` PSNR the run would reach if its only loss under `time` were the data's
+unpredictability; `oracle` - that is the data's share of the run's gap, that - `time` the model's (how
+its states interpolate, and what the `oracle`'s fit on the held-out frame absorbs).
 """
 
 from __future__ import annotations
