@@ -37,19 +37,14 @@ from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
+import torch
 import tyro
 
 from experiments import mean_range, write_report
 from experiments.bench import scene_dataparser, scene_name
-from thermal_wild_ns.data.demo_scene import (
-    DemoSceneConfig,
-    camera_to_world,
-    clean_counts,
-    sensor_counts,
-    sensor_faults,
-    stress_scene_config,
-)
-from thermal_wild_ns.data.thermal_io import read_raw_frame
+from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
+from thermal_wild_ns.data.demo_scene import DemoSceneConfig, camera_to_world, clean_counts, sensor_counts, sensor_faults
+from thermal_wild_ns.image_metrics import psnr
 from thermal_wild_ns.preprocessing.photometric import time_weights
 
 PREDICTORS = ("own", "neighbours", "line")
@@ -69,15 +64,6 @@ class Args:
     share and the model's."""
 
 
-def scene_config(scene: str) -> DemoSceneConfig:
-    """The generator's config of a bench scene name, as the demo dataparser builds it."""
-    if scene == "demo":
-        return DemoSceneConfig()
-    if scene.startswith("stress:"):
-        return stress_scene_config(scene.split(":", 1)[1])
-    raise ValueError(f"{scene!r}: only generated scenes ('demo', 'stress:FAULT') have known sensor states")
-
-
 def line_fit(times: np.ndarray, values: np.ndarray) -> Tuple[float, float]:
     """(slope, intercept) of the least-squares line through (times, values)."""
     slope, intercept = np.polyfit(times, values, 1)
@@ -85,43 +71,43 @@ def line_fit(times: np.ndarray, values: np.ndarray) -> Tuple[float, float]:
 
 
 def predicted_states(
-    faults: Dict[str, np.ndarray], train: np.ndarray, frame: int
-) -> Dict[str, Tuple[float, float, float]]:
-    """(gain, offset, outlier factor) of held-out `frame` by each predictor, from the training frames `train`."""
+    faults: Dict[str, np.ndarray], train: np.ndarray, lines: Dict[str, Tuple[float, float]], frame: int
+) -> Dict[str, Tuple[float, ...]]:
+    """(gain, offset, outlier factor) of held-out `frame` by each predictor, from the training frames `train`
+    and the lines (slope, intercept) fitted through their states."""
     i, j, w = time_weights(train.tolist(), float(frame))
     a, b = train[i], train[j]
-    states = {"own": tuple(float(faults[k][frame]) for k in STATE)}
-    states["neighbours"] = tuple(float((1 - w) * faults[k][a] + w * faults[k][b]) for k in STATE)
-    line = []
-    for k in STATE:
-        slope, intercept = line_fit(train.astype(np.float64), faults[k][train])
-        line.append(slope * frame + intercept)
-    states["line"] = tuple(line)
-    return states
+    return {
+        "own": tuple(float(faults[k][frame]) for k in STATE),
+        "neighbours": tuple(float((1 - w) * faults[k][a] + w * faults[k][b]) for k in STATE),
+        "line": tuple(lines[k][0] * frame + lines[k][1] for k in STATE),
+    }
 
 
 def scene_bound(scene: str, work_dir: Path) -> List[dict]:
     """One row per held-out frame: its index and each predictor's PSNR against the recorded frame."""
     parser_config = scene_dataparser(scene, work_dir, work_dir / "cache")
+    if not isinstance(parser_config, ThermalDemoDataParserConfig) or parser_config.scene == "survey":
+        raise ValueError(f"{scene!r}: only 'demo' and 'stress:FAULT' scenes have known sensor states")
     parser = parser_config.setup()
     outputs = parser.get_dataparser_outputs("test")  # generates the scene; its images are the fault-free truth
-    span = parser.radiometric_range().high - parser.radiometric_range().low  # counts per normalised unit
-    cfg = scene_config(scene)
+    folder = Path(parser_config.data)
+    generator = json.loads((folder / "transforms.json").read_text())["thermal_demo"]["config"]
+    cfg = DemoSceneConfig(**generator)  # the config the scene was generated with
     faults = sensor_faults(cfg)
-    held_out = np.array([i for i in range(cfg.num_frames) if i % cfg.eval_every == 0])
-    train = np.array([i for i in range(cfg.num_frames) if i % cfg.eval_every != 0])
-    names = sorted(Path(p).name for p in outputs.image_filenames)
-    if names != [f"frame_{i:05d}.png" for i in held_out]:
-        raise RuntimeError(f"{scene}: the dataparser's held-out frames are not every {cfg.eval_every}th: {names}")
+    held_out = sorted(int(Path(p).stem.split("_")[-1]) for p in outputs.image_filenames)  # frame_00008.png -> 8
+    train = np.array([i for i in range(cfg.num_frames) if i not in held_out])
+    lines = {k: line_fit(train.astype(np.float64), faults[k][train]) for k in STATE}
+    rng = parser.radiometric_range()
     rows = []
     for frame in held_out:
-        # the frame as the sensor recorded it, which `time` and `oracle` score against
-        recorded = read_raw_frame(Path(parser_config.data) / "images" / f"frame_{frame:05d}.png").astype(np.float64)
-        clean, _ = clean_counts(camera_to_world(int(frame), cfg), cfg)
-        row = {"frame": int(frame)}
-        for name, state in predicted_states(faults, train, int(frame)).items():
-            error = (sensor_counts(clean, faults, *state) - recorded) / span
-            row[name] = float(10 * np.log10(1.0 / max(np.mean(error**2), 1e-12)))
+        # the frame as the sensor recorded it, which `time` and `oracle` score against, dataset-normalised
+        recorded = torch.from_numpy(rng.read(folder / "images" / f"frame_{frame:05d}.png"))
+        clean, _ = clean_counts(camera_to_world(frame, cfg), cfg)
+        row = {"frame": frame}
+        for name, state in predicted_states(faults, train, lines, frame).items():
+            rebuilt = torch.from_numpy(rng.normalize(sensor_counts(clean, faults, *state)))
+            row[name] = float(psnr(rebuilt, recorded))
         rows.append(row)
     return rows
 
