@@ -46,8 +46,8 @@
 #     bash experiments/gpu_2026-11-27.sh emission-rate-dunr      # .data/dunr .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh ttq-dunr                # two GPUs (nvidia-h100-x2); .data/dunr .data/cache
 #     bash experiments/gpu_2026-11-27.sh ttq-flight2             # the same with .data/flight2
-#     VARIANT=smoothness bash experiments/gpu_2026-11-27.sh state-generated   # .devicebundle carried (it installs)
-#     VARIANT=cap bash experiments/gpu_2026-11-27.sh state-generated          # the same
+#     VARIANT=smoothness GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated  # .devicebundle carried (it installs)
+#     VARIANT=cap GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated         # the same
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
@@ -454,7 +454,8 @@ case "$plan" in
   state-generated)  # issue 33's moonshot: the flat-field scene's `time`-`oracle` gap is the predicted state's level
     # (docs/results/state_bound, docs/results/ffc_state_cpu: its neighbours' states are off at the held-out view,
     # differently per seed); on the CPU state_smoothness 0.1 and a 10k Gaussian cap each narrowed it. Every generated
-    # scene with each (VARIANT=smoothness or cap), 3 seeds, the protocol of radial-generated; needs .devicebundle
+    # scene with each (VARIANT=smoothness or cap), 3 seeds, the protocol of radial-generated (GPUS=2: nine runs at a
+    # time on each of two GPUs); needs .devicebundle
     source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
     variant=${VARIANT:?VARIANT=smoothness or cap}
     case $variant in
@@ -464,7 +465,7 @@ case "$plan" in
     PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/state-$variant" \
       --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal \
       --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 9 \
-      "${set_args[@]}" > "$OUT/state-$variant.log" 2>&1
+      --gpus ${GPUS:-1} "${set_args[@]}" > "$OUT/state-$variant.log" 2>&1
     cp "/tmp/state-$variant/bench.json" "$OUT/state-$variant-bench.json"
     cp "/tmp/state-$variant/bench.md" "$OUT/state-$variant-bench.md"
     ;;
