@@ -48,6 +48,7 @@
 #     bash experiments/gpu_2026-11-27.sh ttq-flight2             # the same with .data/flight2
 #     VARIANT=smoothness GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated  # .devicebundle carried (it installs)
 #     VARIANT=cap GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated         # the same
+#     VARIANT=default GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated     # the same
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
 # | tar -x -C .baseline). Results go to $OUT. Each lut-blend plan trains the full method with its defaults (3 seeds side by side,
 # 15,000 of the 30k schedule, the automatic stop on), then scores every run's final checkpoint with the
@@ -454,10 +455,11 @@ case "$plan" in
   state-generated)  # issue 33's moonshot: the flat-field scene's `time`-`oracle` gap is the predicted state's level
     # (docs/results/state_bound, docs/results/ffc_state_cpu: its neighbours' states are off at the held-out view,
     # differently per seed); on the CPU state_smoothness 0.1 and a 10k Gaussian cap each narrowed it. Every generated
-    # scene with each (VARIANT=smoothness or cap), 3 seeds, the protocol of radial-generated (GPUS=2: nine runs at a
+    # scene with each (VARIANT=smoothness or cap; VARIANT=default: neither), 3 seeds, the protocol of radial-generated (GPUS=2: nine runs at a
     # time on each of two GPUs); needs .devicebundle
     source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
-    variant=${VARIANT:?VARIANT=smoothness or cap}
+    variant=${VARIANT:?VARIANT=default, smoothness or cap}
+    set_args=()  # default: the same code's defaults, the baseline of the other two on the same card
     case $variant in
       smoothness) set_args=(--set pipeline.model.state_smoothness=0.1) ;;
       cap) set_args=(--max-gaussians 10000) ;;
