@@ -475,6 +475,25 @@ def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scen
     assert "**no**, 1.00 dB short" in text and "| b | 1 | 200 | 500 | 300 | 3.00 |" in text
 
 
+def test_variant_table_marks_a_change_bold_only_where_the_seeds_ranges_are_apart(tmp_path):
+    from experiments.variant_table import table
+
+    def bench(name, runs):
+        path = tmp_path / name
+        path.write_text(json.dumps({"runs": [dict(scene=s, psnr_time=t, psnr_oracle=o) for s, t, o in runs]}))
+        return path
+
+    base = bench("base.json", [("a", 30.0, 31.0), ("a", 31.0, 33.0), ("b", 20.0, 25.0), ("b", 22.0, 25.0)])
+    # a: 32/33 against 30/31, apart (its gaps 0-1 against 1-2 touch: not apart); b: inside 20-22, overlapping;
+    # c: no baseline, left out
+    variant_runs = [("a", 32.0, 33.0), ("a", 33.0, 33.0), ("b", 21.5, 25.0), ("b", 21.9, 25.0), ("c", 1.0, 2.0)]
+    variant = bench("variant.json", variant_runs)
+    rows = table(base, variant, ["time", "gap"]).splitlines()
+    assert rows[2] == "| a | 32.50 (32.00–33.00) | **+2.00** | 0.50 (0.00–1.00) | -1.00 |"
+    assert rows[3] == "| b | 21.70 (21.50–21.90) | +0.70 | 3.30 (3.10–3.50) | -0.70 |"
+    assert len(rows) == 4
+
+
 def test_the_schedule_profile_times_a_runs_events_apart_from_its_steps_and_leaves_nerfstudio_as_it_was(tmp_path):
     import importlib
 
