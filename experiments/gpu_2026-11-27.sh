@@ -332,8 +332,9 @@ case "$plan" in
     ;;
   grow-small-flight2|grow-small-dunr)  # issue 33's "budget the scene sets": on the generated scenes a 10k cap beat
     # what the 100k default lets them grow to (docs/results/state_generated_h100); grow_budget started at 100k only
-    # ever raised it (docs/results/grow_budget). The defaults and a start at 12,500 that doubles while the held-back
-    # frames still gain (up to 1M), 3 seeds each, side by side (6 runs), the stop on; results to $OUT/grow-small-NAME.json
+    # ever raised it (docs/results/grow_budget, the rule before 2026-11-28). The defaults and a start at 12,500 that
+    # doubles where the held-back frames plateau at it, while each raise still brings a new best (up to 1M), 3 seeds
+    # each, side by side (6 runs), the stop on; results to $OUT/grow-small-NAME.json
     scene=${plan#grow-small-}
     for name in default grow; do
       set_args=(); [ $name = grow ] && set_args=(--max-gaussians 12500 --set auto_stop.grow_budget=True)

@@ -32,37 +32,44 @@ def test_a_non_finite_score_is_never_a_best():
     assert rule.update(1, 10.0) and not rule.update(2, float("inf") * 0)
 
 
-def test_the_budget_grows_only_at_the_budget_while_the_held_back_frames_gain():
+def test_the_budget_grows_at_a_plateau_at_the_budget_only_while_each_raise_gains():
     rule = HeldBackBudget(limit=1000)
-    assert rule.update(0, improved=True, count=500, budget=1000) is None  # at the limit already
-    rule = HeldBackBudget(limit=1000)
-    assert rule.update(1, improved=True, count=100, budget=200) is None  # below its budget: room left
-    assert rule.update(2, improved=False, count=200, budget=200) is None  # at it, but no gain
-    assert rule.update(3, improved=True, count=190, budget=200) == 400  # at it (90 %) and gaining
-    assert rule.update(4, improved=True, count=400, budget=400) == 800
-    assert rule.update(5, improved=True, count=800, budget=800) == 1000  # never past the limit
-    assert rule.raises == [(3, 400), (4, 800), (5, 1000)]
+    assert rule.next_budget(best_step=0, count=500, budget=1000, densifies=True) is None  # at the limit already
+    assert rule.next_budget(best_step=0, count=100, budget=200, densifies=True) is None  # below its budget: room left
+    assert rule.next_budget(best_step=0, count=200, budget=200, densifies=False) is None  # densification is over
+    assert rule.next_budget(best_step=0, count=190, budget=200, densifies=True) == 400  # at it (90 %): a first raise
+    rule.raised(3, 400)
+    assert rule.next_budget(best_step=3, count=400, budget=400, densifies=True) is None  # no new best since the raise
+    assert rule.next_budget(best_step=4, count=400, budget=400, densifies=True) == 800  # a new best after it
+    rule.raised(5, 800)
+    assert rule.next_budget(best_step=7, count=800, budget=800, densifies=True) == 1000  # never past the limit
 
 
-def test_a_run_whose_held_back_frames_gain_at_its_budget_grows_it(tmp_path, demo_scene_dir, monkeypatch):
-    """Through a run: the budget doubles at a check that finds the model at it with a gain, it is
-    recorded (auto_stop.json, decisions.json) and said to be the data's choice."""
-    trainer = _trainer(tmp_path, demo_scene_dir, steps=12, check_every=4, patience=5, grow_budget=True)
+def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_when_growth_stops_paying(
+    tmp_path, demo_scene_dir, monkeypatch
+):
+    """Through a run: a plateau at the budget doubles it and training goes on; a raise followed by a new
+    best earns the next one at the next plateau; a raise with no new best ends the run. The raises are
+    recorded (auto_stop.json, decisions.json) and said to be the data's choice; a resumed run starts from
+    the budget reached."""
+    trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=2, grow_budget=True)
     model = trainer.pipeline.model
-    model.strategy.max_gaussians = model.num_points  # at its budget from the start
-    _scores(monkeypatch, [20.0, 20.01, 25.0, 25.0])  # no gain at the 2nd check, a gain at the 3rd
-    start = model.num_points
+    start = model.strategy.max_gaussians = model.num_points  # at its budget from the start
+    # the model fills each budget it is given (densification's growth has tests of its own)
+    monkeypatch.setattr(WildThermalModel, "gaussian_budget", lambda m: (m.strategy.max_gaussians,) * 2)
+    # checks at steps 3, 7, ...: a plateau at 11 (raise), a new best at 15, a plateau at 23 (raise), none after
+    _scores(monkeypatch, [20.0, 20.0, 20.0, 25.0, 24.9, 24.9, 24.9, 24.9, 24.9])
     trainer.train()
     record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
     raises = record["budget_raises"]
-    assert raises[0]["step"] == 3 and raises[0]["budget"] == 2 * start  # the first check is a gain (a first score)
-    assert all(r["step"] != 7 for r in raises)  # the second check gained nothing
+    assert [(r["step"], r["budget"]) for r in raises] == [(11, 2 * start), (23, 4 * start)]
+    assert record["last_step"] == 31 and record["kept_step"] == 15  # stopped: the second raise gained nothing
     decisions = json.loads((trainer.config.get_base_dir() / "decisions.json").read_text())
     budget = next(d for d in decisions if d["part"] == "Gaussian budget")
-    assert budget["decided_by"] == "data" and f"{2 * start:,} at step 3" in budget["why"]
+    assert budget["decided_by"] == "data" and f"{2 * start:,} at step 11" in budget["why"]
     # a resumed run starts from the budget the run had reached, not from its config's
     config = trainer.config
-    config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 16
+    config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 36
     config.pipeline.model.max_gaussians = start
     resumed = seeded_trainer(config)
     assert resumed.pipeline.model.gaussian_budget()[1] == raises[-1]["budget"]

@@ -771,6 +771,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.strategy.max_gaussians, count if ceiling is None else min(count, ceiling)
         )
 
+    def densifies(self, step: int) -> bool:
+        """Whether gsplat's strategy still grows the model after `step` (it refines until `stop_split_at`)."""
+        return step < self.strategy.refine_stop_iter
+
     def limit_growth(self, count: int) -> None:
         """Densification never grows past `count` Gaussians from now on (`max_gaussians` lowered)."""
         self.strategy.max_gaussians = min(self.strategy.max_gaussians, count)

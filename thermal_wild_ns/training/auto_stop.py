@@ -61,9 +61,11 @@ class AutoStopConfig:
     """At a stop, and at the end of a run, go back to the model of the best-scoring check when the
     last check scored lower."""
     grow_budget: bool = False
-    """Let the held-back frames set the Gaussian budget: a check that finds the model at its budget
-    (`max_gaussians`) while their score still rises doubles the budget, up to `budget_limit`; the model
-    grows past its start budget only while frames it never trained on still gain (`HeldBackBudget`)."""
+    """Let the held-back frames set the Gaussian budget: where their score has plateaued with the model
+    at its budget (`max_gaussians`, the start), the budget doubles and training goes on instead of
+    stopping; a later plateau doubles it again only if the last raise brought a new best, else the run
+    stops and keeps its best model. The model grows only while frames it never trained on gain from
+    it (`HeldBackBudget`); start small (e.g. `--pipeline.model.max-gaussians 12500`)."""
     budget_limit: int = 1_000_000
     """The most Gaussians `grow_budget` may reach (over every GPU)."""
     decide_view_term: bool = False
@@ -105,6 +107,10 @@ class PlateauRule:
     def plateaued(self) -> bool:
         return self.since_best >= self.patience
 
+    def restart(self) -> None:
+        """Count the checks without an improvement from zero again (the model changed: a raised budget)."""
+        self.since_best = 0
+
     def reason(self, check_every: int) -> str:
         return (
             f"the held-back frames' PSNR has not risen by {self.min_improvement:g} dB in {self.patience} checks "
@@ -115,22 +121,27 @@ class PlateauRule:
 @dataclass
 class HeldBackBudget:
     """The Gaussian budget the held-back frames set (`AutoStopConfig.grow_budget`). `update` takes one
-    check: where the model is at its budget (`at_budget` of it or more) and the check improved the
-    score, the budget doubles, up to `limit`. A model below its budget, or one whose held-back score
-    no longer rises, keeps the budget it has."""
+    check whose scores have plateaued (`next_budget`): the budget doubles, up to `limit`, where the model is at it
+    (`at_budget` of it or more), densification still runs, and the last raise (if any) was followed by a
+    new best score. A rising score is not asked about: in a growing model it rises with the steps alone,
+    so only a plateau at the budget says the budget, not the training time, holds the model back."""
 
     limit: int
     at_budget: float = 0.9
     raises: List[Tuple[int, int]] = field(default_factory=list)
     """(step, new budget) of every raise so far."""
 
-    def update(self, step: int, improved: bool, count: int, budget: int) -> Optional[int]:
-        """The budget after the check of `step` (`count` Gaussians, budget `budget`), where it changes; else None."""
-        if not improved or count < self.at_budget * budget or budget >= self.limit:
+    def next_budget(self, best_step: Optional[int], count: int, budget: int, densifies: bool) -> Optional[int]:
+        """The budget after a plateaued check (`count` Gaussians, budget `budget`, the best score so far
+        at `best_step`), where it grows; else None (the run stops). `raised` records a raise."""
+        last_raise_gained = not self.raises or (best_step is not None and best_step > self.raises[-1][0])
+        if not densifies or not last_raise_gained or count < self.at_budget * budget or budget >= self.limit:
             return None
-        raised = min(2 * budget, self.limit)
-        self.raises.append((step, raised))
-        return raised
+        return min(2 * budget, self.limit)
+
+    def raised(self, step: int, budget: int) -> None:
+        """Record that the check of `step` raised the budget to `budget`."""
+        self.raises.append((step, budget))
 
 
 def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
@@ -265,9 +276,12 @@ class AutoStopRun:
                 self.pipeline.model.step = start_step
             else:
                 CONSOLE.log(f"[yellow]automatic stop: {trained} is gone: training goes on from the kept model")
+        raised_at = {r["step"] for r in record.get("budget_raises", [])}
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
+                if check["step"] in raised_at:
+                    self.progress.restart()
         verdict = record.get("view_term")
         if self.decides_view_term and verdict is not None and verdict["step"] < start_step:  # decided before
             self.view_verdict = ViewTermVerdict(**verdict)
@@ -296,8 +310,8 @@ class AutoStopRun:
         else:
             score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
         improved = self.progress.update(step, score)
-        if self.budget is not None:
-            self._grow_budget(step, improved)
+        if self.budget is not None and self.progress.plateaued and self._grow_budget(step):
+            self.progress.restart()  # a larger model to score: the plateau rule starts over
         if improved and self.config.keep_best:
             self._best = None  # the older copy goes before the new one is made
             best = self._best = snapshot(self.pipeline, self.optimizers, step)
@@ -322,19 +336,25 @@ class AutoStopRun:
         CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")
         return held_back_score(pipeline, held_back)  # the plain score, as every check's
 
-    def _grow_budget(self, step: int, improved: bool) -> None:
-        """Apply `HeldBackBudget` to this check (each rank to its share of the Gaussians)."""
+    def _grow_budget(self, step: int) -> bool:
+        """Apply `HeldBackBudget` to this plateaued check (each rank to its share of the Gaussians);
+        True where the budget grew."""
         model = self.pipeline.model
         count, budget = model.gaussian_budget()
-        raised = self.budget.update(step, improved, count, budget)
-        if raised is not None:
-            model.raise_budget(raised)
-            if self.ranks.rank == 0:
-                share = f" per GPU ({self.ranks.world})" if self.ranks.split else ""
-                CONSOLE.log(
-                    f"step {step}: the held-back frames still gain at {count:,} Gaussians{share}: "
-                    f"the budget grows to {raised:,}"
-                )
+        raised = self.budget.next_budget(self.progress.best_step, count, budget, model.densifies(step))
+        # one decision for every rank (each counts its own share): rank 0's, as the score is
+        raised = int(self.ranks.from_rank_0(float(raised or 0)))
+        if raised == 0:
+            return False
+        self.budget.raised(step, raised)
+        model.raise_budget(raised)
+        if self.ranks.rank == 0:
+            share = f" per GPU ({self.ranks.world})" if self.ranks.split else ""
+            CONSOLE.log(
+                f"step {step}: the held-back frames plateaued at {count:,} Gaussians{share}, the budget: "
+                f"it grows to {raised:,}"
+            )
+        return True
 
     def forget_older_best(self) -> None:
         """After a checkpoint: a resume from it (or a later one) needs no best model older than the best so far."""

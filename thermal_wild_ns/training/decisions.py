@@ -48,10 +48,11 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
 def budget_decision(budget, now: int) -> Decision:
     """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's."""
     if not budget.raises:
-        why = "the held-back frames set it: not raised so far (never at the budget while still gaining)"
+        why = "the held-back frames set it: not raised so far (no plateau of their score at the budget)"
         return Decision("Gaussian budget", f"{now:,}", why, "data")
     steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
-    return Decision("Gaussian budget", f"{now:,}", f"raised while the held-back frames still gained: {steps}", "data")
+    why = f"raised where the held-back frames plateaued at the budget: {steps}"
+    return Decision("Gaussian budget", f"{now:,}", why, "data")
 
 
 def view_term_decision(auto_stop, last_step: Optional[int] = None) -> Decision:

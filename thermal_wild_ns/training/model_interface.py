@@ -50,7 +50,11 @@ class GuardedModel(Protocol):
 
     def raise_budget(self, count: int) -> None:
         """Densification may grow the model to `count` Gaussians (on this GPU) from now on (the
-        automatic stop's answer to held-back frames that still gain at the budget)."""
+        automatic stop's answer to held-back frames that plateau at the budget)."""
+        ...
+
+    def densifies(self, step: int) -> bool:
+        """Whether densification still grows the model after `step` (a raised budget can still be used)."""
         ...
 
     def limit_growth(self, count: int) -> None:
