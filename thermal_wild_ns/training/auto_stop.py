@@ -351,8 +351,8 @@ class AutoStopRun:
         if self.ranks.rank == 0:
             share = f" per GPU ({self.ranks.world})" if self.ranks.split else ""
             CONSOLE.log(
-                f"step {step}: the held-back frames plateaued at {count:,} Gaussians{share}, the budget: "
-                f"it grows to {raised:,}"
+                f"step {step}: the held-back score plateaued with the model at its budget ({count:,} "
+                f"Gaussians{share}): the budget grows to {raised:,}"
             )
         return True
 
