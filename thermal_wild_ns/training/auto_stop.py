@@ -120,11 +120,12 @@ class PlateauRule:
 
 @dataclass
 class HeldBackBudget:
-    """The Gaussian budget the held-back frames set (`AutoStopConfig.grow_budget`). `update` takes one
-    check whose scores have plateaued (`next_budget`): the budget doubles, up to `limit`, where the model is at it
-    (`at_budget` of it or more), densification still runs, and the last raise (if any) was followed by a
-    new best score. A rising score is not asked about: in a growing model it rises with the steps alone,
-    so only a plateau at the budget says the budget, not the training time, holds the model back."""
+    """The Gaussian budget the held-back frames set (`AutoStopConfig.grow_budget`). At a check whose
+    scores have plateaued, `next_budget` doubles it, up to `limit`, where the model is at it (`at_budget`
+    of it or more), densification still runs, and the last raise (if any) was followed by a new best
+    score; `raised` records the raise the run applied. A rising score is not asked about: in a growing
+    model it rises with the steps alone, so only a plateau at the budget says the budget, not the
+    training time, holds the model back."""
 
     limit: int
     at_budget: float = 0.9
