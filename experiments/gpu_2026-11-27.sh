@@ -50,6 +50,8 @@
 #     VARIANT=cap GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated         # the same
 #     VARIANT=default GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated     # the same
 #     VARIANT=grow GPUS=2 bash experiments/gpu_2026-11-27.sh state-generated        # the same
+#     VARIANT=grow12500 GPUS=1 bash experiments/gpu_2026-11-27.sh state-generated   # the same
+#     VARIANT=fixed GPUS=1 bash experiments/gpu_2026-11-27.sh state-generated       # the same
 #     bash experiments/gpu_2026-11-27.sh grow-small-flight2      # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-27.sh grow-small-dunr         # .data/dunr .data/cache carried
 # `.baseline` holds the package of the commit before a change (git archive BASELINE thermal_wild_ns experiments
@@ -337,7 +339,9 @@ case "$plan" in
     # each, side by side (6 runs), the stop on; results to $OUT/grow-small-NAME.json
     scene=${plan#grow-small-}
     for name in default grow; do
-      set_args=(); [ $name = grow ] && set_args=(--max-gaussians 12500 --set auto_stop.grow_budget=True)
+      # `default` is the fixed 100k, as the defaults were when this ran (the held-back frames set the budget since)
+      set_args=(--set auto_stop.grow_budget=False)
+      [ $name = grow ] && set_args=(--max-gaussians 12500 --set auto_stop.grow_budget=True)
       PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/grow-small-$name" \
         --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
         --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000 "${set_args[@]}" \
@@ -477,12 +481,14 @@ case "$plan" in
     # scene with each (VARIANT=smoothness or cap; VARIANT=default: neither), 3 seeds, the protocol of radial-generated (GPUS=2: nine runs at a
     # time on each of two GPUs); needs .devicebundle
     source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
-    variant=${VARIANT:?VARIANT=default, smoothness, cap or grow}
+    variant=${VARIANT:?VARIANT=default, smoothness, cap, grow, grow12500 or fixed}
     set_args=()  # default: the same code's defaults, the baseline of the other two on the same card
     case $variant in
       smoothness) set_args=(--set pipeline.model.state_smoothness=0.1) ;;
       cap) set_args=(--max-gaussians 10000) ;;
       grow) set_args=(--max-gaussians 5000 --set auto_stop.grow_budget=True) ;;  # the held-back frames set the budget
+      grow12500) set_args=(--max-gaussians 12500 --set auto_stop.grow_budget=True) ;;  # grow-small's start
+      fixed) set_args=(--set auto_stop.grow_budget=False) ;;  # the fixed 100k (`default` until 2026-11-28)
     esac
     PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/state-$variant" \
       --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal \
