@@ -81,7 +81,8 @@ class BenchArgs:
     """Length of run the densification schedule is laid out for (default: --steps, i.e. a short run
     compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first 3000 steps of a full run."""
     max_gaussians: Optional[int] = None
-    """Gaussian budget of the wild-thermal variants (default: their config's)."""
+    """Gaussian budget of the wild-thermal variants (default: their config's): the budget the held-back
+    frames start from where they set it (`auto_stop.grow_budget`, the default), else the fixed one."""
     equalization_strength: Optional[float] = None
     """Strength of the preprocessed variants' equalization step, 0-1 (default: their config's)."""
     num_downscales: Optional[int] = None
@@ -152,7 +153,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
         config = method_trainer(method)
         config.pipeline.datamanager.dataparser = dataparser
         if args.max_gaussians is not None:
-            config.pipeline.model.max_gaussians = args.max_gaussians
+            config.pipeline.model.max_gaussians = config.auto_stop.budget_start = args.max_gaussians
         if args.equalization_strength is not None:
             preprocessing = config.pipeline.datamanager.preprocessing
             config.pipeline.datamanager.preprocessing = dataclasses.replace(

@@ -142,6 +142,7 @@ def main(args: SweepArgs) -> Dict:
             methods=(args.method,),
             steps=args.steps,
             max_gaussians=budget or UNCAPPED,
+            set=("auto_stop.grow_budget=False",),  # each budget fixed, not a start the held-back frames raise
             cache_dir=args.cache_dir,
             fps_frames=0,
             fit_steps=0,

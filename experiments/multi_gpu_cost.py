@@ -64,6 +64,7 @@ def main(args: MultiGpuCostArgs) -> Dict:
     )
     config.pipeline.datamanager.preprocessing_cache = args.output_dir / "cache"
     config.pipeline.model.max_gaussians = max(args.gaussians)
+    config.auto_stop.grow_budget = False  # the sizes measured are fixed ones
     split = multi_gpu_config(config, ranks.world)
     split.timestamp = "cost"
     start = time.perf_counter()

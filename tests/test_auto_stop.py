@@ -8,9 +8,10 @@ import pytest
 import torch
 from demo_trainers import demo_trainer
 
+from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.training import auto_stop
-from thermal_wild_ns.training.auto_stop import HeldBackBudget, PlateauRule, held_back_images
+from thermal_wild_ns.training.auto_stop import AutoStopConfig, HeldBackBudget, PlateauRule, held_back_images
 from thermal_wild_ns.training.trainer import seeded_trainer
 
 
@@ -33,7 +34,7 @@ def test_a_non_finite_score_is_never_a_best():
 
 
 def test_the_budget_grows_at_a_plateau_at_the_budget_only_while_each_raise_gains():
-    rule = HeldBackBudget(limit=1000)
+    rule = HeldBackBudget(start=200, limit=1000)
     assert rule.next_budget(best_step=0, count=500, budget=1000, densifies=True) is None  # at the limit already
     assert rule.next_budget(best_step=0, count=100, budget=200, densifies=True) is None  # below its budget: room left
     assert rule.next_budget(best_step=0, count=200, budget=200, densifies=False) is None  # densification is over
@@ -70,9 +71,35 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     # a resumed run starts from the budget the run had reached, not from its config's
     config = trainer.config
     config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 36
-    config.pipeline.model.max_gaussians = start
+    config.auto_stop.budget_start = start
     resumed = seeded_trainer(config)
     assert resumed.pipeline.model.gaussian_budget()[1] == raises[-1]["budget"]
+
+
+def test_by_default_the_held_back_frames_set_the_budget_from_its_start_and_the_fixed_one_applies_without_them(
+    tmp_path, demo_scene_dir
+):
+    """The full method's defaults: the run starts at `budget_start`, not at the model's `max_gaussians`,
+    and its decisions say the data sets the budget (no config entry beside it); with `grow_budget` off,
+    or the stop off, the fixed `max_gaussians` holds."""
+    assert AutoStopConfig().grow_budget  # the default
+    config = demo_trainer_config(tmp_path / "grows", steps=12, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.auto_stop.budget_start = 1500
+    trainer = seeded_trainer(config)
+    assert trainer.pipeline.model.gaussian_budget()[1] == 1500 and trainer.auto_stop.budget.start == 1500
+    decisions = [d for d in trainer.decisions.collect(trainer) if d.part in ("Gaussians", "Gaussian budget")]
+    assert [(d.part, d.decided_by) for d in decisions] == [("Gaussian budget", "data")]
+    assert "not raised from its start (1,500)" in decisions[0].why
+    for setting in ("grow_budget", "enabled"):
+        fixed = demo_trainer_config(tmp_path / setting, steps=12, max_gaussians=3000)
+        fixed.pipeline.datamanager.dataparser.data = demo_scene_dir
+        fixed.auto_stop.budget_start = 1500
+        setattr(fixed.auto_stop, setting, False)
+        trainer = seeded_trainer(fixed)
+        assert trainer.pipeline.model.gaussian_budget()[1] == 3000
+        decisions = {d.part: d for d in trainer.decisions.collect(trainer)}
+        assert "Gaussian budget" not in decisions and decisions["Gaussians"].why == "max_gaussians 3,000"
 
 
 def test_held_back_images_are_interior_distinct_and_only_when_enough_remain():

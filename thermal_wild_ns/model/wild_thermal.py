@@ -203,8 +203,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     eval_num_rays_per_chunk: tyro.conf.Suppress[int] = 4096
     prompt: tyro.conf.Suppress[Optional[str]] = None
     max_gaussians: int = 100_000
-    """Densification never grows the model past this many Gaussians. The default is the knee of a
-    budget sweep on DUNR (docs/results.md); raise it for captures with much more to see."""
+    """Densification never grows the model past this many Gaussians where the automatic stop does not
+    set the budget from the held-back frames (`--auto-stop.grow-budget False`, or the stop off). The
+    default is the knee of a budget sweep on DUNR (docs/results.md)."""
     emission_in_view_above: int = 1_000_000
     """Above this many Gaussians, training evaluates the emission MLP (and the view term) only for the
     Gaussians the camera can see (`in_view.py`): the same render, with memory and time that follow the
@@ -762,6 +763,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def gaussian_budget(self) -> Tuple[int, int]:
         """(Gaussians now, `max_gaussians` as densification applies it) on this GPU."""
         return self.num_points, self.strategy.max_gaussians
+
+    def start_budget(self, count: int) -> None:
+        """Densification grows to `count` Gaussians at most from now on, in place of `max_gaussians`."""
+        self.strategy.max_gaussians = count
 
     def raise_budget(self, count: int) -> None:
         """Densification may grow to `count` Gaussians from now on, never past a count at which a step

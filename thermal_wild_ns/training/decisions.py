@@ -48,7 +48,10 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
 def budget_decision(budget, now: int) -> Decision:
     """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's."""
     if not budget.raises:
-        why = "the held-back frames set it: not raised so far (no plateau of their score at the budget)"
+        why = (
+            f"the held-back frames set it: not raised from its start ({budget.start:,}) so far "
+            "(no plateau of their score at the budget)"
+        )
         return Decision("Gaussian budget", f"{now:,}", why, "data")
     steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
     why = f"raised where the held-back frames plateaued at the budget: {steps}"
@@ -90,7 +93,8 @@ class RunDecisions:
             entries.append(view_term_decision(stop, last_step))
         entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
-        if budget is not None:
+        if budget is not None:  # the data's budget replaces the config's fixed one
+            entries = [d for d in entries if not (d.part == "Gaussians" and d.decided_by == "config")]
             entries.append(budget_decision(budget, model.gaussian_budget()[1]))
         return entries
 

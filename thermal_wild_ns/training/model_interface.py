@@ -48,6 +48,11 @@ class GuardedModel(Protocol):
         """(Gaussians now, the most densification may grow them to), on this GPU."""
         ...
 
+    def start_budget(self, count: int) -> None:
+        """Densification grows the model to `count` Gaussians (on this GPU) at most, in place of the
+        config's `max_gaussians` (the budget the automatic stop's held-back frames start from)."""
+        ...
+
     def raise_budget(self, count: int) -> None:
         """Densification may grow the model to `count` Gaussians (on this GPU) from now on (the
         automatic stop's answer to held-back frames that plateau at the budget)."""
