@@ -44,6 +44,9 @@ def test_the_budget_grows_at_a_plateau_at_the_budget_only_while_each_raise_gains
     assert rule.next_budget(best_step=4, count=400, budget=400, densifies=True) == 800  # a new best after it
     rule.raised(5, 800)
     assert rule.next_budget(best_step=7, count=800, budget=800, densifies=True) == 1000  # never past the limit
+    # the curve: a raising check's score is the budget's it raised, a NaN check counts for none
+    history = [(1, 20.0), (3, 21.0), (4, 23.0), (5, 22.0), (6, float("nan")), (7, 22.5)]
+    assert rule.best_per_budget(history) == [(200, 21.0), (400, 23.0), (800, 22.5)]
 
 
 def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_when_growth_stops_paying(
@@ -55,7 +58,8 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     the budget reached."""
     trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=2, grow_budget=True)
     model = trainer.pipeline.model
-    start = model.strategy.max_gaussians = model.num_points  # at its budget from the start
+    start = trainer.auto_stop.budget.start = model.num_points  # at its budget from the start
+    model.start_budget(start)
     # the model fills each budget it is given (densification's growth has tests of its own)
     monkeypatch.setattr(WildThermalModel, "gaussian_budget", lambda m: (m.strategy.max_gaussians,) * 2)
     # checks at steps 3, 7, ...: a plateau at 11 (raise), a new best at 15, a plateau at 23 (raise), none after
@@ -68,6 +72,11 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     decisions = json.loads((trainer.config.get_base_dir() / "decisions.json").read_text())
     budget = next(d for d in decisions if d["part"] == "Gaussian budget")
     assert budget["decided_by"] == "data" and f"{2 * start:,} at step 11" in budget["why"]
+    # the held-back score against the model's size: each check's count, each budget's best score
+    assert [c["step"] for c in record["checks"]] == [3, 7, 11, 15, 19, 23, 27, 31]
+    assert all(isinstance(c["gaussians"], int) and c["gaussians"] > 0 for c in record["checks"])
+    curve = f"{start:,}: 20.00 dB; {2 * start:,}: 25.00 dB; {4 * start:,}: 24.90 dB"
+    assert budget["why"].endswith(f"best held-back PSNR per budget: {curve}")
     # a resumed run starts from the budget the run had reached, not from its config's
     config = trainer.config
     config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 36

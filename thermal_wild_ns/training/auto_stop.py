@@ -23,7 +23,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -152,6 +152,16 @@ class HeldBackBudget:
         """Record that the check of `step` raised the budget to `budget`."""
         self.raises.append((step, budget))
 
+    def best_per_budget(self, history: List[Tuple[int, float]]) -> List[Tuple[int, float]]:
+        """(budget, the best held-back score of the checks made under it) for each budget the run has had,
+        from `history`'s (step, score) checks: a raising check's score belongs to the budget it raised."""
+        best: Dict[int, float] = {}
+        for step, score in history:
+            budget = next((b for s, b in reversed(self.raises) if s < step), self.start)
+            if math.isfinite(score):
+                best[budget] = max(best.get(budget, -math.inf), score)
+        return sorted(best.items())
+
 
 def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     """`count` image indices spread evenly over the interior of `num_images` training images in
@@ -210,6 +220,8 @@ class AutoStopRun:
         """The step whose model the run ended with (set by `finish`)."""
         self.last_step = 0
         self._best: Optional[dict] = None
+        self.check_counts: Dict[int, int] = {}
+        """step -> Gaussians (this GPU's) at each check: the held-back score against the model's size."""
         self._scores_settled_model = isinstance(pipeline.model, GuardedModel)  # it says when scores settle
         # across GPUs every rank scores (renders are collective) and keeps its own Gaussians' best state;
         # rank 0's score decides for all, and rank 0 writes the record
@@ -294,6 +306,8 @@ class AutoStopRun:
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
+                if "gaussians" in check:
+                    self.check_counts[check["step"]] = check["gaussians"]
                 if check["step"] in raised_at:
                     self.progress.restart()
         verdict = record.get("view_term")
@@ -324,6 +338,7 @@ class AutoStopRun:
         else:
             score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
         improved = self.progress.update(step, score)
+        self.check_counts[step] = self.pipeline.model.num_points  # the held-back score's model size (this GPU's)
         if self.budget is not None and self.progress.plateaued and self._grow_budget(step):
             self.progress.restart()  # a larger model to score: the plateau rule starts over
         if improved and self.config.keep_best:
@@ -417,7 +432,7 @@ class AutoStopRun:
             "reason": self.stop_reason,
             "kept_step": kept,
             "final_psnr": final,
-            "checks": [{"step": s, "psnr": v} for s, v in self.progress.history],
+            "checks": [dict(step=s, psnr=v, gaussians=self.check_counts.get(s)) for s, v in self.progress.history],
         }
         if self.view_verdict is not None:
             record["view_term"] = self.view_verdict.as_record()
