@@ -494,6 +494,26 @@ def test_variant_table_marks_a_change_bold_only_where_the_seeds_ranges_are_apart
     assert len(rows) == 4
 
 
+def test_budget_curve_gives_each_budgets_best_held_back_score_and_the_kept_models_budget(tmp_path):
+    from experiments.budget_curve import main, run_curves
+
+    checks = [(3, 30.0), (7, 30.5), (11, 30.4), (15, 31.2), (19, 31.0)]  # a raise at 7, another at 15
+    record = dict(
+        checks=[dict(step=s, psnr=p) for s, p in checks],
+        budget_raises=[dict(step=7, budget=2000), dict(step=15, budget=4000)],
+        last_step=19,
+        kept_step=15,
+    )
+    runs = [dict(scene="a", seed=0, gaussians=1900, auto_stop=record), dict(scene="a", seed=1, failed="Boom")]
+    path = tmp_path / "bench.json"
+    path.write_text(json.dumps(dict(args=dict(max_gaussians=1000), runs=runs)))
+    (found,) = run_curves(path, start=12_500)  # the bench's --max-gaussians is the start; a failed run is left out
+    assert found["curve"] == [(1000, 30.5), (2000, 31.2), (4000, 31.0)] and found["chosen"] == 2000
+    chart = tmp_path / "curve.png"
+    (again,) = main([str(path), "--chart", str(chart)])
+    assert again["curve"] == found["curve"] and chart.stat().st_size > 0
+
+
 def test_the_schedule_profile_times_a_runs_events_apart_from_its_steps_and_leaves_nerfstudio_as_it_was(tmp_path):
     import importlib
 
