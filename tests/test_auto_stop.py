@@ -100,6 +100,7 @@ def test_by_default_the_held_back_frames_set_the_budget_from_its_start_and_the_f
     decisions = [d for d in trainer.decisions.collect(trainer) if d.part in ("Gaussians", "Gaussian budget")]
     assert [(d.part, d.decided_by) for d in decisions] == [("Gaussian budget", "data")]
     assert "not raised from its start (1,500)" in decisions[0].why
+    assert decisions[0].choice == f"1,500 ({trainer.pipeline.model.num_points:,} Gaussians now)"
     for setting in ("grow_budget", "enabled"):
         fixed = demo_trainer_config(tmp_path / setting, steps=12, max_gaussians=3000)
         fixed.pipeline.datamanager.dataparser.data = demo_scene_dir

@@ -45,9 +45,10 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
     )
 
 
-def budget_decision(budget, now: int, history) -> Decision:
-    """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's, with
-    the best held-back score under each budget so far (`history`: the checks' (step, score))."""
+def budget_decision(budget, count: int, now: int, history) -> Decision:
+    """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's (`count`
+    Gaussians in it), with the best held-back score under each budget so far (`history`: the checks' (step,
+    score))."""
     curve = "; ".join(f"{b:,}: {psnr:.2f} dB" for b, psnr in budget.best_per_budget(history))
     scores = f"; best held-back PSNR per budget: {curve}" if curve else ""
     if not budget.raises:
@@ -55,10 +56,10 @@ def budget_decision(budget, now: int, history) -> Decision:
             f"the held-back frames set it: not raised from its start ({budget.start:,}) so far "
             "(no plateau of their score at the budget)"
         )
-        return Decision("Gaussian budget", f"{now:,}", why + scores, "data")
+        return Decision("Gaussian budget", f"{now:,} ({count:,} Gaussians now)", why + scores, "data")
     steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
     why = f"raised where the held-back frames plateaued at the budget: {steps}"
-    return Decision("Gaussian budget", f"{now:,}", why + scores, "data")
+    return Decision("Gaussian budget", f"{now:,} ({count:,} Gaussians now)", why + scores, "data")
 
 
 def view_term_decision(auto_stop, last_step: Optional[int] = None) -> Decision:
@@ -98,7 +99,7 @@ class RunDecisions:
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
         if budget is not None:  # the data's budget replaces the config's fixed one
             entries = [d for d in entries if not (d.part == "Gaussians" and d.decided_by == "config")]
-            entries.append(budget_decision(budget, model.gaussian_budget()[1], stop.progress.history))
+            entries.append(budget_decision(budget, *model.gaussian_budget(), stop.progress.history))
         return entries
 
     def start(self, trainer) -> None:
