@@ -3,7 +3,8 @@ the best held-back PSNR under each budget the run had, from the `auto_stop` reco
 
     python -m experiments.budget_curve A/bench.json B/bench.json ... [--start 12500] [--chart curve.png]
 
-Prints one row per run; `--chart` draws one panel per scene, the held-back PSNR against the budget, a line
+Prints one row per run (with the model's size at each budget's best check where the run recorded it);
+`--chart` draws one panel per scene, the held-back PSNR against the budget, a line
 per run. The held-back frames are training frames kept from the gradient (the automatic stop's), not the
 held-out views the protocols score.
 """
@@ -17,7 +18,15 @@ from typing import List, Optional
 
 from thermal_wild_ns.training.auto_stop import HeldBackBudget
 
-COLUMNS = ["scene", "file", "seed", "best held-back PSNR per budget", "budget chosen", "Gaussians at the end"]
+COLUMNS = [
+    "scene",
+    "file",
+    "seed",
+    "best held-back PSNR per budget",
+    "Gaussians at each best",
+    "budget chosen",
+    "Gaussians at the end",
+]
 
 
 def run_curves(path: Path, start: int) -> List[dict]:
@@ -34,15 +43,22 @@ def run_curves(path: Path, start: int) -> List[dict]:
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", [])]
         budget = HeldBackBudget(start=start, limit=max([start] + [b for _, b in raises]), raises=raises)
         curve = budget.best_per_budget([(c["step"], c["psnr"]) for c in record["checks"]])
+        # the model's size at each budget's best check, where the run recorded it (runs since 52a1f0b)
+        best_checks = {}
+        for check in record["checks"]:
+            at = budget.budget_at(check["step"])
+            if check["psnr"] == dict(curve).get(at) and at not in best_checks:
+                best_checks[at] = check
         kept = record.get("kept_step")
         kept = record["last_step"] if kept is None else kept
-        chosen = next((b for s, b in reversed(raises) if s < kept), start)
+        chosen = budget.budget_at(kept)
         found.append(
             dict(
                 scene=run["scene"],
                 file=Path(path).name,
                 seed=run.get("seed"),
                 curve=curve,
+                counts=[best_checks[b].get("gaussians") for b, _ in curve],
                 chosen=chosen,
                 gaussians=run.get("gaussians"),
             )
@@ -55,7 +71,8 @@ def table(runs: List[dict]) -> str:
     for run in runs:
         curve = ", ".join(f"{b:,}: {psnr:.2f}" for b, psnr in run["curve"])
         gaussians = "—" if run["gaussians"] is None else f"{run['gaussians']:,}"
-        cells = [run["scene"], run["file"], str(run["seed"]), curve, f"{run['chosen']:,}", gaussians]
+        counts = ", ".join("—" if c is None else f"{c:,}" for c in run["counts"])
+        cells = [run["scene"], run["file"], str(run["seed"]), curve, counts, f"{run['chosen']:,}", gaussians]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

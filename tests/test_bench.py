@@ -499,7 +499,7 @@ def test_budget_curve_gives_each_budgets_best_held_back_score_and_the_kept_model
 
     checks = [(3, 30.0), (7, 30.5), (11, 30.4), (15, 31.2), (19, 31.0)]  # a raise at 7, another at 15
     record = dict(
-        checks=[dict(step=s, psnr=p) for s, p in checks],
+        checks=[dict(step=s, psnr=p, gaussians=100 * s) for s, p in checks],
         budget_raises=[dict(step=7, budget=2000), dict(step=15, budget=4000)],
         last_step=19,
         kept_step=15,
@@ -509,6 +509,7 @@ def test_budget_curve_gives_each_budgets_best_held_back_score_and_the_kept_model
     path.write_text(json.dumps(dict(args=dict(max_gaussians=1000), runs=runs)))
     (found,) = run_curves(path, start=12_500)  # the bench's --max-gaussians is the start; a failed run is left out
     assert found["curve"] == [(1000, 30.5), (2000, 31.2), (4000, 31.0)] and found["chosen"] == 2000
+    assert found["counts"] == [700, 1500, 1900]  # the model's size at each budget's best check
     chart = tmp_path / "curve.png"
     (again,) = main([str(path), "--chart", str(chart)])
     assert again["curve"] == found["curve"] and chart.stat().st_size > 0

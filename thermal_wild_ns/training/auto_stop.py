@@ -157,10 +157,14 @@ class HeldBackBudget:
         from `history`'s (step, score) checks: a raising check's score belongs to the budget it raised."""
         best: Dict[int, float] = {}
         for step, score in history:
-            budget = next((b for s, b in reversed(self.raises) if s < step), self.start)
             if math.isfinite(score):
+                budget = self.budget_at(step)
                 best[budget] = max(best.get(budget, -math.inf), score)
         return sorted(best.items())
+
+    def budget_at(self, step: int) -> int:
+        """The budget the model trained under up to the check of `step` (a raise there counts after it)."""
+        return next((b for s, b in reversed(self.raises) if s < step), self.start)
 
 
 def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
