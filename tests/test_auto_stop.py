@@ -94,17 +94,27 @@ def test_by_default_the_held_back_frames_set_the_budget_from_its_start_and_the_f
     assert AutoStopConfig().grow_budget  # the default
     config = demo_trainer_config(tmp_path / "grows", steps=12, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    config.auto_stop.budget_start = 1500
+    config.auto_stop.budget_start = 2800
     trainer = seeded_trainer(config)
-    assert trainer.pipeline.model.gaussian_budget()[1] == 1500 and trainer.auto_stop.budget.start == 1500
+    assert trainer.pipeline.model.gaussian_budget()[1] == 2800 and trainer.auto_stop.budget.start == 2800
     decisions = [d for d in trainer.decisions.collect(trainer) if d.part in ("Gaussians", "Gaussian budget")]
     assert [(d.part, d.decided_by) for d in decisions] == [("Gaussian budget", "data")]
-    assert "not raised from its start (1,500)" in decisions[0].why
-    assert decisions[0].choice == f"1,500 ({trainer.pipeline.model.num_points:,} Gaussians now)"
+    assert "not raised from its start (2,800)" in decisions[0].why
+    assert decisions[0].choice == f"2,800 ({trainer.pipeline.model.num_points:,} Gaussians now)"
+    # a start below the seed points would leave densification no room: the budget starts at the model's size
+    small = demo_trainer_config(tmp_path / "small", steps=12, max_gaussians=3000)
+    small.pipeline.datamanager.dataparser.data = demo_scene_dir
+    small.auto_stop.budget_start = 100
+    trainer = seeded_trainer(small)
+    seeds = trainer.pipeline.model.num_points
+    assert seeds > 100 and trainer.auto_stop.budget.start == trainer.pipeline.model.gaussian_budget()[1] == seeds
+    trainer.train()
+    record = json.loads((trainer.config.get_base_dir() / "auto_stop.json").read_text())
+    assert record["budget_start"] == seeds  # what a resume restores
     for setting in ("grow_budget", "enabled"):
         fixed = demo_trainer_config(tmp_path / setting, steps=12, max_gaussians=3000)
         fixed.pipeline.datamanager.dataparser.data = demo_scene_dir
-        fixed.auto_stop.budget_start = 1500
+        fixed.auto_stop.budget_start = 2800
         setattr(fixed.auto_stop, setting, False)
         trainer = seeded_trainer(fixed)
         assert trainer.pipeline.model.gaussian_budget()[1] == 3000

@@ -71,7 +71,7 @@ class AutoStopConfig:
     the fixed `max_gaussians`."""
     budget_start: int = 12_500
     """The Gaussian budget (over every GPU) a run starts from where the held-back frames set it
-    (`grow_budget`); each raise doubles it."""
+    (`grow_budget`), or the seed points' count where that is larger; each raise doubles it."""
     budget_limit: int = 1_000_000
     """The most Gaussians `grow_budget` may reach (over every GPU)."""
     decide_view_term: bool = False
@@ -233,10 +233,13 @@ class AutoStopRun:
         grows = config.grow_budget and self._scores_settled_model  # the model says its count and budget
         self.budget = None
         if grows:  # the held-back frames' budget replaces the model's fixed one from the first step
-            self.budget = HeldBackBudget(
-                config.budget_start // self.ranks.world, config.budget_limit // self.ranks.world
-            )
-            pipeline.model.start_budget(self.budget.start)
+            # never below the seed points: a budget under the model's size would hold back every raise
+            # that does not pass it (growth needs room), whatever the held-back frames say
+            start = max(config.budget_start // self.ranks.world, pipeline.model.num_points)
+            self.budget = HeldBackBudget(start, max(start, config.budget_limit // self.ranks.world))
+            pipeline.model.start_budget(start)
+            if start > config.budget_start // self.ranks.world and self.ranks.rank == 0:
+                CONSOLE.log(f"Gaussian budget: starts at the model's {start:,} seed points (over budget_start)")
         # the held-back frames decide the view term (one GPU: the probe's training renders are not collective)
         self.decides_view_term = (
             config.decide_view_term
@@ -319,6 +322,9 @@ class AutoStopRun:
             self.view_verdict = ViewTermVerdict(**verdict)
             self.pipeline.model.use_view_term(self.view_verdict.kept)
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", []) if r["step"] < start_step]
+        if self.budget is not None and "budget_start" in record:  # the run's own start, not the checkpoint's size
+            self.budget.start = record["budget_start"]
+            self.pipeline.model.start_budget(self.budget.start)
         if self.budget is not None and raises:  # the budget the run had reached
             self.budget.raises = raises
             self.pipeline.model.raise_budget(raises[-1][1])
@@ -441,6 +447,7 @@ class AutoStopRun:
         if self.view_verdict is not None:
             record["view_term"] = self.view_verdict.as_record()
         if self.budget is not None:  # per GPU across GPUs
+            record["budget_start"] = self.budget.start
             record["budget_raises"] = [{"step": s, "budget": b} for s, b in self.budget.raises]
         if self.ranks.rank == 0:
             write_text_atomically(self.run_dir / "auto_stop.json", json.dumps(record, indent=1), self.partial_dir)
