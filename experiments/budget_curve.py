@@ -6,7 +6,7 @@ the best held-back PSNR under each budget the run had, from the `auto_stop` reco
 Prints one row per run (with the model's size at each budget's best check where the run recorded it);
 `--chart` draws one panel per scene, the held-back PSNR against the budget, a line
 per run. The held-back frames are training frames kept from the gradient (the automatic stop's), not the
-held-out views the protocols score.
+held-out views the protocols score; their PSNR is the stop's, after a gain + offset fit to each frame.
 """
 
 from __future__ import annotations
@@ -34,13 +34,14 @@ def run_curves(path: Path, start: int) -> List[dict]:
     seed, (budget, best held-back PSNR) per budget, the budget of its kept model and its final Gaussians.
     `start`: the budget the runs started from (the bench's `--max-gaussians`, else the default)."""
     data = json.loads(Path(path).read_text())
-    start = data.get("args", {}).get("max_gaussians") or start
+    asked = data.get("args", {}).get("max_gaussians") or start
     found = []
     for run in data["runs"]:
         record = run.get("auto_stop")
         if "failed" in run or not record:
             continue
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", [])]
+        start = record.get("budget_start", asked)  # recorded by runs since bef2635 (the seed points may raise it)
         budget = HeldBackBudget(start=start, limit=max([start] + [b for _, b in raises]), raises=raises)
         curve = budget.best_per_budget([(c["step"], c["psnr"]) for c in record["checks"]])
         # the model's size at each budget's best check, where the run recorded it (runs since 52a1f0b)
@@ -77,6 +78,19 @@ def table(runs: List[dict]) -> str:
     return "\n".join(lines)
 
 
+def doubling_summary(runs: List[dict], within: float = 0.2) -> str:
+    """How much each raise moved the best held-back score (the next budget's best less this one's), over
+    every raise of every run."""
+    steps = [b[1] - a[1] for run in runs for a, b in zip(run["curve"], run["curve"][1:])]
+    if not steps:
+        return "no run had a check under a raised budget"
+    small = sum(abs(d) <= within for d in steps)
+    return (
+        f"each raise moved the best held-back PSNR by {min(steps):+.2f} to {max(steps):+.2f} dB; "
+        f"within ±{within:g} dB on {small} of {len(steps)}"
+    )
+
+
 def chart(runs: List[dict], path: Path) -> None:
     import matplotlib
 
@@ -103,7 +117,7 @@ def chart(runs: List[dict], path: Path) -> None:
         ax.set_xlim(ticks[0] / 1.3, ticks[-1] * 1.3)
         ax.set_title(scene)
         ax.set_xlabel("Gaussian budget (★ the kept model's)")
-        ax.set_ylabel("best held-back PSNR (dB)")
+        ax.set_ylabel("best held-back PSNR, gain+offset fitted (dB)")
         ax.legend(fontsize=7)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -119,6 +133,8 @@ def main(argv: Optional[List[str]] = None) -> List[dict]:
     args = parser.parse_args(argv)
     runs = [r for f in args.files for r in run_curves(f, args.start)]
     print(table(runs))
+    print()
+    print(doubling_summary(runs))
     if args.chart is not None:
         chart(runs, args.chart)
     return runs

@@ -235,10 +235,11 @@ class AutoStopRun:
         if grows:  # the held-back frames' budget replaces the model's fixed one from the first step
             # never below the seed points: a budget under the model's size would hold back every raise
             # that does not pass it (growth needs room), whatever the held-back frames say
-            start = max(config.budget_start // self.ranks.world, pipeline.model.num_points)
+            asked = config.budget_start // self.ranks.world  # this GPU's share
+            start = max(asked, pipeline.model.num_points)
             self.budget = HeldBackBudget(start, max(start, config.budget_limit // self.ranks.world))
             pipeline.model.start_budget(start)
-            if start > config.budget_start // self.ranks.world and self.ranks.rank == 0:
+            if start > asked and self.ranks.rank == 0:
                 CONSOLE.log(f"Gaussian budget: starts at the model's {start:,} seed points (over budget_start)")
         # the held-back frames decide the view term (one GPU: the probe's training renders are not collective)
         self.decides_view_term = (

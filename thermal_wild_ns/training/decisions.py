@@ -51,14 +51,14 @@ def budget_decision(budget, count: int, now: int, history) -> Decision:
     score))."""
     curve = "; ".join(f"{b:,}: {psnr:.2f} dB" for b, psnr in budget.best_per_budget(history))
     scores = f"; best held-back PSNR per budget: {curve}" if curve else ""
-    if not budget.raises:
+    if budget.raises:
+        steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
+        why = f"raised where the held-back frames plateaued at the budget: {steps}"
+    else:
         why = (
             f"the held-back frames set it: not raised from its start ({budget.start:,}) so far "
             "(no plateau of their score at the budget)"
         )
-        return Decision("Gaussian budget", f"{now:,} ({count:,} Gaussians now)", why + scores, "data")
-    steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
-    why = f"raised where the held-back frames plateaued at the budget: {steps}"
     return Decision("Gaussian budget", f"{now:,} ({count:,} Gaussians now)", why + scores, "data")
 
 
