@@ -744,10 +744,21 @@ def _command_line(settings: BenchArgs) -> List[str]:
     return command
 
 
+def gpu_devices(gpus: int) -> List[str]:
+    """The `CUDA_VISIBLE_DEVICES` value of each of `gpus` GPUs: the first `gpus` the parent may see where it
+    is limited (so two benches can share one host, `CUDA_VISIBLE_DEVICES=2,3` for the second), else 0..gpus-1."""
+    visible = [d.strip() for d in os.environ.get("CUDA_VISIBLE_DEVICES", "").split(",") if d.strip()]
+    if not visible:
+        return [str(gpu) for gpu in range(gpus)]
+    if len(visible) < gpus:
+        raise ValueError(f"--gpus {gpus} asks more GPUs than CUDA_VISIBLE_DEVICES={','.join(visible)} lets it see")
+    return visible[:gpus]
+
+
 def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -> List[Path]:
     """Each job (a bench of one scene and method, in its own `output_dir`) as its own process, in
     `gpus * runs_per_gpu` queues run side by side; job k goes to queue k mod queues, on GPU k mod
-    `gpus` (`CUDA_VISIBLE_DEVICES`), one job at a time per queue. Each process gets an equal share of
+    `gpus` (`CUDA_VISIBLE_DEVICES`, `gpu_devices`), one job at a time per queue. Each process gets an equal share of
     the CPU cores as torch threads (`OMP_NUM_THREADS`, unless set): with torch's default, every
     process would start one thread per core. Each output folder gets the run's log.txt. Returns the
     bench.json files written, in job order (a killed or crashed run writes none)."""
@@ -755,6 +766,7 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
     import threading
 
     queues = gpus * runs_per_gpu
+    devices = gpu_devices(gpus)
     package_root = str(Path(__file__).resolve().parents[1])  # the workers import this same code
     env = {
         "OMP_NUM_THREADS": str(max(1, (os.cpu_count() or 1) // queues)),
@@ -774,7 +786,7 @@ def run_in_gpu_queues(jobs: List[BenchArgs], gpus: int, runs_per_gpu: int = 1) -
             with open(folder / "log.txt", "w") as log:
                 code = subprocess.call(
                     _command_line(job),
-                    env={**env, "CUDA_VISIBLE_DEVICES": str(gpu)},
+                    env={**env, "CUDA_VISIBLE_DEVICES": devices[gpu]},
                     stdout=log,
                     stderr=subprocess.STDOUT,
                 )

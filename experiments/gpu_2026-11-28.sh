@@ -6,10 +6,15 @@
 #     GPUS=2 bash experiments/gpu_2026-11-28.sh ablations-generated   # nothing carried (generated scenes)
 #     GPUS=2 bash experiments/gpu_2026-11-28.sh ablations-flight2     # .data/flight2 .data/cache carried
 #     GPUS=2 bash experiments/gpu_2026-11-28.sh ablations-dunr        # .data/dunr .data/cache carried
+# or, on four GPUs (nvidia-h200-x4), the same runs two calls side by side (each bench keeps to the GPUs that
+# CUDA_VISIBLE_DEVICES names), with issue 34's speed runs under today's defaults beside them:
+#     bash experiments/gpu_2026-11-28.sh install                          # .devicebundle carried
+#     bash experiments/gpu_2026-11-28.sh four-flight2                     # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-28.sh four-dunr                        # .data/dunr .data/cache carried
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -24,7 +29,7 @@ case "$plan" in
     # time on each GPU), one after another
     for method in "${ABLATIONS[@]}"; do
       test -d /tmp/site || exit 3
-      PYTHONPATH=$PWD:/tmp/site timeout 190 python3 -m experiments.bench --output-dir "/tmp/gen-$method" \
+      PYTHONPATH=$PWD:/tmp/site timeout 185 python3 -m experiments.bench --output-dir "/tmp/gen-$method" \
         --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods "$method" \
         --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 9 \
         --gpus "${GPUS:-2}" > "$OUT/generated-$method.log" 2>&1
@@ -35,11 +40,52 @@ case "$plan" in
     # steps of the 30k schedule asked, the stop on (as ablations-* of gpu_2026-11-27.sh), nine runs over GPUS GPUs
     test -d /tmp/site || exit 3
     scene=${plan#ablations-}
-    PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/ablations-$scene" \
+    PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/ablations-$scene" \
       --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --seeds 3 --gpus "${GPUS:-2}" --runs-per-gpu 5 \
       --methods "${ABLATIONS[@]}" --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
       > "$OUT/$scene-ablations.log" 2>&1
     cp "/tmp/ablations-$scene/bench.json" "$OUT/$scene-ablations.json"
+    ;;
+  four-flight2)  # GPUs 0-1 the flight2 ablations, GPUs 2-3 the generated ones, side by side
+    test -d /tmp/site || exit 3
+    CUDA_VISIBLE_DEVICES=0,1 GPUS=2 bash "$0" ablations-flight2 &
+    CUDA_VISIBLE_DEVICES=2,3 GPUS=2 bash "$0" ablations-generated &
+    wait
+    (cd "$OUT" && tar czf four-flight2.tgz --remove-files -- *[!z])
+    ;;
+  speed-dunr)  # issue 34 under today's defaults: the full method's default DUNR schedule (the stop on), seeds SEEDS
+    # (default "0 1") one after another alone on its GPU (ms/step over the schedule, time to quality: --eval-at as
+    # the ttq plans of gpu_2026-11-27.sh), then experiments.render_fps three times on the first seed's run
+    test -d /tmp/site || exit 3
+    for seed in ${SEEDS:-0 1}; do
+      PYTHONPATH=$PWD:/tmp/site timeout 230 python3 -m experiments.bench --output-dir "/tmp/speed-dunr-$seed" \
+        --scenes "$PWD/.data/dunr" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 1 --seed "$seed" \
+        --fit-steps 20 --fps-frames 0 --steps 30000 --eval-at 1000 2000 5000 10000 20000 30000 --time-limit 200 \
+        > "$OUT/speed-dunr-seed$seed.log" 2>&1
+      cp "/tmp/speed-dunr-$seed/bench.json" "$OUT/speed-dunr-seed$seed-bench.json"
+    done
+    first=$(set -- ${SEEDS:-0 1}; echo "$1")
+    config=$(python3 -c "import json; print(json.load(open('/tmp/speed-dunr-$first/bench.json'))['runs'][0]['config'])")
+    for round in 1 2 3; do
+      profile=0; [ "$round" = 1 ] && profile=200
+      fps=/tmp/fps-$first-$round
+      PYTHONPATH=$PWD:/tmp/site timeout 40 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
+        --profile-frames $profile --output-dir "$fps" > "$fps.log" 2>&1 || tail -5 "$fps.log"
+      python3 -c "import json, sys; r = {'round': $round, **json.load(open(sys.argv[1]))}
+open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $round, r['fps'])" "$fps/fps.json" \
+        "$OUT/speed-dunr-seed$first-fps.jsonl"
+    done
+    cp "/tmp/fps-$first-1/render_profile.md" "$OUT/speed-dunr-seed$first-render_profile.md"
+    ;;
+  four-dunr)  # GPUs 0-1 the DUNR ablations; GPU 2 speed-dunr seeds 0 and 1; GPU 3 speed-dunr seed 2, then the GPU tests
+    test -d /tmp/site || exit 3
+    CUDA_VISIBLE_DEVICES=0,1 GPUS=2 bash "$0" ablations-dunr &
+    CUDA_VISIBLE_DEVICES=2 SEEDS="0 1" bash "$0" speed-dunr &
+    (CUDA_VISIBLE_DEVICES=3 SEEDS=2 bash "$0" speed-dunr
+     CUDA_VISIBLE_DEVICES=3 PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m pytest -q -p no:cacheprovider \
+       tests/test_gpu_parity.py > "$OUT/gpu_tests.log" 2>&1; tail -2 "$OUT/gpu_tests.log") &
+    wait
+    (cd "$OUT" && tar czf four-dunr.tgz --remove-files -- *[!z])  # one file back (a call returns at most 8)
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

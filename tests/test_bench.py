@@ -141,6 +141,20 @@ def test_runs_spread_over_gpus_one_process_each_and_merge(tmp_path):
     assert "| wild-thermal-3dgs-stab | " in (tmp_path / "bench.md").read_text()
 
 
+def test_gpu_queues_keep_to_the_gpus_the_parent_may_see(monkeypatch):
+    """Two benches on one host each take their own GPUs: a limited parent's queues use its devices, in order."""
+    import pytest
+
+    from experiments.bench import gpu_devices
+
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
+    assert gpu_devices(2) == ["0", "1"]
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "2,3")
+    assert gpu_devices(2) == ["2", "3"] and gpu_devices(1) == ["2"]
+    with pytest.raises(ValueError, match="CUDA_VISIBLE_DEVICES=2,3"):
+        gpu_devices(3)
+
+
 def test_several_runs_per_gpu_share_the_cores_and_are_labelled(tmp_path, monkeypatch):
     """--runs-per-gpu K: K queues per GPU, each process with cores / queues torch threads (not
     torch's default of one per core), and the merged results say their timings were shared."""
