@@ -6,6 +6,7 @@
 #     GPUS=2 bash experiments/gpu_2026-11-28.sh ablations-generated   # nothing carried (generated scenes)
 #     GPUS=2 bash experiments/gpu_2026-11-28.sh ablations-flight2     # .data/flight2 .data/cache carried
 #     GPUS=2 bash experiments/gpu_2026-11-28.sh ablations-dunr        # .data/dunr .data/cache carried
+# (on one GPU: GPUS=1 RUNS_PER_GPU=9 for the real captures, all nine runs side by side)
 # or, on four GPUs (nvidia-h200-x4), the same runs two calls side by side (each bench keeps to the GPUs that
 # CUDA_VISIBLE_DEVICES names), with issue 34's speed runs under today's defaults beside them:
 #     bash experiments/gpu_2026-11-28.sh install                          # .devicebundle carried
@@ -41,7 +42,7 @@ case "$plan" in
     test -d /tmp/site || exit 3
     scene=${plan#ablations-}
     PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/ablations-$scene" \
-      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --seeds 3 --gpus "${GPUS:-2}" --runs-per-gpu 5 \
+      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --seeds 3 --gpus "${GPUS:-2}" --runs-per-gpu "${RUNS_PER_GPU:-5}" \
       --methods "${ABLATIONS[@]}" --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
       > "$OUT/$scene-ablations.log" 2>&1
     cp "/tmp/ablations-$scene/bench.json" "$OUT/$scene-ablations.json"
