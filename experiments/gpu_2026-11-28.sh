@@ -12,10 +12,16 @@
 #     bash experiments/gpu_2026-11-28.sh install                          # .devicebundle carried
 #     bash experiments/gpu_2026-11-28.sh four-flight2                     # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh four-dunr                        # .data/dunr .data/cache carried
+# Next (issue 33's misses at every method's default: the full method's stop ends drift and flat-field runs earlier than
+# the emission-MLP ablation's, docs/results/ablations_grow_h200): the full method's defaults against a patience of
+# PATIENCE checks (default 8), one GPU:
+#     bash experiments/gpu_2026-11-28.sh install && bash experiments/gpu_2026-11-28.sh patience-generated  # .devicebundle
+#     bash experiments/gpu_2026-11-28.sh patience-flight2                 # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-28.sh patience-dunr                    # .data/dunr .data/cache carried
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -87,6 +93,32 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
        tests/test_gpu_parity.py > "$OUT/gpu_tests.log" 2>&1; tail -2 "$OUT/gpu_tests.log") &
     wait
     (cd "$OUT" && tar czf four-dunr.tgz --remove-files -- *[!z])  # one file back (a call returns at most 8)
+    ;;
+  patience-generated)  # the full method on the demo and the five stress scenes, issue 16's protocol, 3 seeds, its
+    # defaults then a patience of PATIENCE checks (18 runs side by side each, one after the other)
+    for name in default "patience${PATIENCE:-8}"; do
+      test -d /tmp/site || exit 3
+      set_args=(); [ "$name" = default ] || set_args=(--set "auto_stop.patience=${PATIENCE:-8}")
+      PYTHONPATH=$PWD:/tmp/site timeout 280 python3 -m experiments.bench --output-dir "/tmp/patience-$name" \
+        --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal \
+        --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 18 \
+        --gpus 1 "${set_args[@]}" > "$OUT/generated-$name.log" 2>&1
+      cp "/tmp/patience-$name/bench.json" "$OUT/generated-$name-bench.json"
+    done
+    ;;
+  patience-flight2|patience-dunr)  # the full method on one real capture, 3 seeds, its defaults and a patience of
+    # PATIENCE checks side by side (6 runs), the first 15,000 steps of the 30k schedule asked
+    test -d /tmp/site || exit 3
+    scene=${plan#patience-}
+    for name in default "patience${PATIENCE:-8}"; do
+      set_args=(); [ "$name" = default ] || set_args=(--set "auto_stop.patience=${PATIENCE:-8}")
+      PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/patience-$name" \
+        --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000 "${set_args[@]}" \
+        > "$OUT/$scene-$name.log" 2>&1 &
+    done
+    wait
+    for name in default "patience${PATIENCE:-8}"; do cp "/tmp/patience-$name/bench.json" "$OUT/$scene-$name.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
