@@ -14,7 +14,7 @@
 #     bash experiments/gpu_2026-11-28.sh four-dunr                        # .data/dunr .data/cache carried
 # Next (issue 33's misses at every method's default: the full method's stop ends drift and flat-field runs earlier than
 # the emission-MLP ablation's, docs/results/ablations_grow_h200): the full method's defaults against a patience of
-# PATIENCE checks (default 8), one GPU:
+# PATIENCE checks (default 8), on one GPU or, with GPUS=2, the two side by side, one GPU each:
 #     bash experiments/gpu_2026-11-28.sh install && bash experiments/gpu_2026-11-28.sh patience-generated  # .devicebundle
 #     bash experiments/gpu_2026-11-28.sh patience-flight2                 # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh patience-dunr                    # .data/dunr .data/cache carried
@@ -95,27 +95,37 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     (cd "$OUT" && tar czf four-dunr.tgz --remove-files -- *[!z])  # one file back (a call returns at most 8)
     ;;
   patience-generated)  # the full method on the demo and the five stress scenes, issue 16's protocol, 3 seeds, its
-    # defaults then a patience of PATIENCE checks (18 runs side by side each, one after the other)
+    # defaults and a patience of PATIENCE checks, 18 runs side by side each: one after the other on one GPU, or
+    # with GPUS=2 side by side, one GPU each
+    test -d /tmp/site || exit 3
+    gpu=0
     for name in default "patience${PATIENCE:-8}"; do
-      test -d /tmp/site || exit 3
       set_args=(); [ "$name" = default ] || set_args=(--set "auto_stop.patience=${PATIENCE:-8}")
-      PYTHONPATH=$PWD:/tmp/site timeout 280 python3 -m experiments.bench --output-dir "/tmp/patience-$name" \
-        --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal \
-        --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 18 \
-        --gpus 1 "${set_args[@]}" > "$OUT/generated-$name.log" 2>&1
+      CUDA_VISIBLE_DEVICES=$gpu PYTHONPATH=$PWD:/tmp/site timeout 280 python3 -m experiments.bench \
+        --output-dir "/tmp/patience-$name" --scenes demo stress:clean stress:drift stress:ffc stress:outlier \
+        stress:vignetting --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 \
+        --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 18 --gpus 1 "${set_args[@]}" \
+        > "$OUT/generated-$name.log" 2>&1 &
+      if [ "${GPUS:-1}" -ge 2 ]; then gpu=1; else wait; fi
+    done
+    wait
+    for name in default "patience${PATIENCE:-8}"; do
       cp "/tmp/patience-$name/bench.json" "$OUT/generated-$name-bench.json"
     done
     ;;
   patience-flight2|patience-dunr)  # the full method on one real capture, 3 seeds, its defaults and a patience of
-    # PATIENCE checks side by side (6 runs), the first 15,000 steps of the 30k schedule asked
+    # PATIENCE checks side by side (6 runs on one GPU; GPUS=2: 3 on each), the first 15,000 steps of the 30k
+    # schedule asked
     test -d /tmp/site || exit 3
     scene=${plan#patience-}
+    gpu=0
     for name in default "patience${PATIENCE:-8}"; do
       set_args=(); [ "$name" = default ] || set_args=(--set "auto_stop.patience=${PATIENCE:-8}")
-      PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/patience-$name" \
+      CUDA_VISIBLE_DEVICES=$gpu PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/patience-$name" \
         --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
         --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000 "${set_args[@]}" \
         > "$OUT/$scene-$name.log" 2>&1 &
+      [ "${GPUS:-1}" -ge 2 ] && gpu=1
     done
     wait
     for name in default "patience${PATIENCE:-8}"; do cp "/tmp/patience-$name/bench.json" "$OUT/$scene-$name.json"; done
