@@ -18,10 +18,12 @@
 #     bash experiments/gpu_2026-11-28.sh install && bash experiments/gpu_2026-11-28.sh patience-generated  # .devicebundle
 #     bash experiments/gpu_2026-11-28.sh patience-flight2                 # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh patience-dunr                    # .data/dunr .data/cache carried
+# Then (the patience floor, 2026-11-28: docs/results/patience_h200x2), which part costs `time` on the drifting
+# generated scenes, two GPUs: bash experiments/gpu_2026-11-28.sh install && GPUS=2 bash ... parts-drifting
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -129,6 +131,26 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     done
     wait
     for name in default "patience${PATIENCE:-8}"; do cp "/tmp/patience-$name/bench.json" "$OUT/$scene-$name.json"; done
+    ;;
+  parts-drifting)  # which part of the full method costs `time` on the drifting generated scenes (the ablation
+    # without all four leads there): today's defaults and each part off in turn, stress-drift and stress-ffc,
+    # issue 16's protocol, 3 seeds; two benches side by side on each of two GPUs (12 runs per GPU)
+    test -d /tmp/site || exit 3
+    declare -A parts=([default]="" [no-background]="pipeline.model.use_background_mlp=False"
+      [no-heat-ssim]="pipeline.model.heat_aware_ssim=False" [no-alpha]="pipeline.model.alpha_lambda=0")
+    k=0
+    for name in default no-background no-heat-ssim no-alpha; do
+      set_args=(); [ -n "${parts[$name]}" ] && set_args=(--set "${parts[$name]}")
+      CUDA_VISIBLE_DEVICES=$((k / 2 % ${GPUS:-2})) PYTHONPATH=$PWD:/tmp/site timeout 290 python3 -m experiments.bench \
+        --output-dir "/tmp/parts-$name" --scenes stress:drift stress:ffc --methods wild-thermal --seeds 3 \
+        --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 6 --gpus 1 \
+        "${set_args[@]}" > "$OUT/parts-$name.log" 2>&1 &
+      k=$((k + 1))
+    done
+    wait
+    for name in default no-background no-heat-ssim no-alpha; do
+      cp "/tmp/parts-$name/bench.json" "$OUT/parts-$name-bench.json"
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

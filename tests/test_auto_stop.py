@@ -27,6 +27,24 @@ def test_the_rule_stops_a_plateau_and_not_a_rise():
     assert not PlateauRule(3, 0.05, history=[]).plateaued
 
 
+def test_a_shortened_schedule_checks_more_often_but_waits_at_least_the_floor():
+    full = AutoStopConfig()
+    full.scale_to(30_000)
+    assert (full.check_every, full.patience) == (500, 4)  # the full schedule's wait (2,000 steps) is over the floor
+    short = AutoStopConfig()
+    short.scale_to(5_000)
+    assert short.check_every == 83 and short.patience == 8 and short.patience * short.check_every >= 650
+    tiny = AutoStopConfig()
+    tiny.scale_to(300)  # the floor never asks more than the schedule
+    assert tiny.check_every == 10 and tiny.patience == 30
+    unfloored = AutoStopConfig(patience_floor_steps=0)
+    unfloored.scale_to(5_000)
+    assert (unfloored.check_every, unfloored.patience) == (83, 4)
+    patient = AutoStopConfig(patience=12)
+    patient.scale_to(5_000)
+    assert patient.patience == 12  # a longer patience than the floor is kept
+
+
 def test_a_non_finite_score_is_never_a_best():
     rule = PlateauRule(patience=2, min_improvement=0.0)
     assert not rule.update(0, float("nan"))

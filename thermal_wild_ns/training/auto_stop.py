@@ -55,6 +55,13 @@ class AutoStopConfig:
     """Steps between two scores of the held-back frames."""
     patience: int = 4
     """Checks in a row without an improvement after which training stops."""
+    patience_floor_steps: int = 650
+    """Fewest steps `patience` checks span where `scale_to` fits the checks to a shorter schedule: there
+    the checks come more often, and the patience grows to span this many steps. The held-back score fits a
+    gain and offset per frame, so it flattens before the per-frame states have settled; where the wait was
+    4 checks of a 5,000-step schedule (332 steps), a wait of twice that lifted `time` on most generated
+    scenes, and doubling the full schedule's wait changed neither real capture clearly
+    (docs/results/patience_h200x2). 0: the patience in checks alone."""
     min_improvement: float = 0.05
     """Rise of the score (PSNR, dB) over the best so far that counts as an improvement."""
     keep_best: bool = True
@@ -85,8 +92,11 @@ class AutoStopConfig:
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
-        long instead of `full_schedule` (the one `check_every` is given for)."""
+        long instead of `full_schedule` (the one `check_every` is given for), and wait at least
+        `patience_floor_steps` (in checks, within the schedule) before stopping."""
         self.check_every = max(self.check_every * min(schedule, full_schedule) // full_schedule, 10)
+        floor_steps = min(self.patience_floor_steps, schedule)
+        self.patience = max(self.patience, math.ceil(floor_steps / self.check_every))
 
 
 @dataclass
