@@ -19,11 +19,12 @@
 #     bash experiments/gpu_2026-11-28.sh patience-flight2                 # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh patience-dunr                    # .data/dunr .data/cache carried
 # Then (the patience floor, 2026-11-28: docs/results/patience_h200x2), which part costs `time` on the drifting
-# generated scenes, two GPUs: bash experiments/gpu_2026-11-28.sh install && GPUS=2 bash ... parts-drifting
+# generated scenes, two GPUs: bash experiments/gpu_2026-11-28.sh install && GPUS=2 bash ... parts-drifting;
+# and six more seeds of the full method and the emission-MLP ablation there, one call: ... drifting-seeds
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -150,6 +151,23 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     wait
     for name in default no-background no-heat-ssim no-alpha; do
       cp "/tmp/parts-$name/bench.json" "$OUT/parts-$name-bench.json"
+    done
+    ;;
+  drifting-seeds)  # the full method and the emission-MLP ablation on stress-drift and stress-ffc, six more seeds
+    # (3-8), side by side in one call (the full method on GPU 0, the ablation on GPU 1, 12 runs each): the flat-field
+    # `time` row moved between calls beyond one call's spread (docs/results/patience_h200x2)
+    test -d /tmp/site || exit 3
+    gpu=0
+    for method in wild-thermal wild-thermal-emission-mlp; do
+      CUDA_VISIBLE_DEVICES=$gpu PYTHONPATH=$PWD:/tmp/site timeout 290 python3 -m experiments.bench \
+        --output-dir "/tmp/seeds-$method" --scenes stress:drift stress:ffc --methods "$method" --seeds 6 --seed 3 \
+        --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 12 --gpus 1 \
+        > "$OUT/seeds-$method.log" 2>&1 &
+      gpu=$(( (gpu + 1) % ${GPUS:-2} ))
+    done
+    wait
+    for method in wild-thermal wild-thermal-emission-mlp; do
+      cp "/tmp/seeds-$method/bench.json" "$OUT/seeds-$method-bench.json"
     done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
