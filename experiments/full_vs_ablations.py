@@ -5,9 +5,10 @@
 
 Reads bench.json files (`python -m experiments.bench`). `--full`: the runs of `wild-thermal` (its
 label before any " (...)"), one configuration per scene: where several files hold a scene, the last
-file's runs replace the earlier ones. `--others`: every other method's runs (the full method's runs
-in them are left out). For each scene and protocol (`aligned`, `time`), the full method's mean over
-seeds against the best other method's mean: the margin, and whether it is within `--tolerance` dB.
+file's runs replace the earlier ones (`--pool`: they add to them, more seeds of one configuration).
+`--others`: every other method's runs (the full method's runs in them are left out). For each scene and
+protocol (`aligned`, `time`), the full method's mean over seeds against the best other method's mean: the
+margin, and whether it is within `--tolerance` dB.
 Also the steps the automatic stop saved: steps asked minus steps trained, and those steps at the
 run's own ms/step.
 """
@@ -37,6 +38,9 @@ class Args:
     others: Tuple[Path, ...]
     """bench.json files with the ablations' and splatfacto's runs."""
     output: Path = Path("outputs/full_vs_ablations.md")
+    pool: bool = False
+    """Pool the full method's runs of a scene over the `--full` files (more seeds of the same configuration
+    from several calls) instead of letting a later file replace them."""
     tolerance: float = 0.3
     """How far (dB) under the best other method the full method may be."""
 
@@ -58,7 +62,8 @@ def collect(args: Args) -> Tuple[Dict[str, List[dict]], Dict[Tuple[str, str], Li
         for run in _runs(path):
             if base_method(run["method"]) == FULL:
                 by_scene[run["scene"]].append(run)
-        full.update(by_scene)  # a later file's scene replaces the earlier one
+        for scene, runs in by_scene.items():  # a later file's scene replaces the earlier one, or adds to it
+            full[scene] = full.get(scene, []) + runs if args.pool else runs
     others: Dict[Tuple[str, str], List[dict]] = defaultdict(list)
     for path in args.others:
         for run in _runs(path):

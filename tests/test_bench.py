@@ -487,6 +487,11 @@ def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scen
     assert not got[("b", "aligned")]["met"] and got[("b", "time")]["met"]
     text = (tmp_path / "out.md").read_text()
     assert "**no**, 1.00 dB short" in text and "| b | 1 | 200 | 500 | 300 | 3.00 |" in text
+    # --pool: the later file's runs add to the first file's (mean 17.33 aligned over three seeds)
+    pooled_args = Args(full=(first, later), others=(others,), output=tmp_path / "pooled.md", pool=True)
+    pooled = {(r["scene"], r["protocol"]): r for r in main(pooled_args)}
+    assert pooled[("a", "aligned")]["seeds"] == 3 and pooled[("a", "aligned")]["full"] == pytest.approx(52 / 3)
+    assert not pooled[("a", "aligned")]["met"] and pooled[("b", "aligned")]["seeds"] == 1
 
 
 def test_variant_table_marks_a_change_bold_only_where_the_seeds_ranges_are_apart(tmp_path):
