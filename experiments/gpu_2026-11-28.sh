@@ -20,11 +20,14 @@
 #     bash experiments/gpu_2026-11-28.sh patience-dunr                    # .data/dunr .data/cache carried
 # Then (the patience floor, 2026-11-28: docs/results/patience_h200x2), which part costs `time` on the drifting
 # generated scenes, two GPUs: bash experiments/gpu_2026-11-28.sh install && GPUS=2 bash ... parts-drifting;
-# and six more seeds of the full method and the emission-MLP ablation there, one call: ... drifting-seeds
+# and six more seeds of the full method and the emission-MLP ablation there, one call: ... drifting-seeds.
+# Not yet run: the floor on both real captures' shortened schedule, so that its default cites two real scenes:
+#     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-flight2  # .data/flight2 .data/cache
+#     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-dunr     # .data/dunr .data/cache
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -169,6 +172,23 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     for method in wild-thermal wild-thermal-emission-mlp; do
       cp "/tmp/seeds-$method/bench.json" "$OUT/seeds-$method-bench.json"
     done
+    ;;
+  floor-flight2|floor-dunr)  # the stop's floor (patience_floor_steps, ef5b67f) on a real capture's shortened
+    # schedule (5,000 steps: checks every 83 steps, the floor's 8 against 4 without it), 3 seeds each, the two
+    # side by side (6 runs on one GPU; GPUS=2: 3 on each): the floor's default cites generated scenes only
+    test -d /tmp/site || exit 3
+    scene=${plan#floor-}
+    gpu=0
+    for name in floor nofloor; do
+      set_args=(); [ "$name" = floor ] || set_args=(--set auto_stop.patience_floor_steps=0)
+      CUDA_VISIBLE_DEVICES=$gpu PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench \
+        --output-dir "/tmp/floor-$name" --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" \
+        --methods wild-thermal --seeds 3 --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 \
+        --eval-at 1000 2000 5000 "${set_args[@]}" > "$OUT/$scene-$name.log" 2>&1 &
+      [ "${GPUS:-1}" -ge 2 ] && gpu=1
+    done
+    wait
+    for name in floor nofloor; do cp "/tmp/floor-$name/bench.json" "$OUT/$scene-$name.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
