@@ -58,3 +58,6 @@ def test_the_config_decides_what_no_rule_measures(tmp_path, demo_scene_dir):
     assert decisions["background MLP"].choice == "off"
     assert decisions["training length"].decided_by == "data"  # the demo's automatic stop is on
     assert "held back" in decisions["training length"].why
+    # how long it waits, as the schedule set it (12 steps: a check every 10, the patience's 4 checks)
+    waits = "every 10 steps; it stops after 4 checks (40 steps) without a 0.05 dB rise"
+    assert waits in decisions["training length"].why

@@ -33,8 +33,12 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
             "training length", f"{steps_asked:,} steps", "--max-num-iterations (no automatic stop)", "config"
         )
     if last_step is None:
-        frames = auto_stop.held_back_frames
-        why = f"automatic stop: capture frames {frames} held back to score it; at most {steps_asked:,} steps"
+        frames, config = auto_stop.held_back_frames, auto_stop.config
+        why = (
+            f"automatic stop: capture frames {frames} held back to score it every {config.check_every:,} steps; it"
+            f" stops after {config.patience} checks ({config.patience * config.check_every:,} steps) without a"
+            f" {config.min_improvement:g} dB rise; at most {steps_asked:,} steps"
+        )
         return Decision("training length", "until the held-back frames stop improving", why, "data")
     kept = auto_stop.kept_step
     model = "" if kept in (None, last_step) else f"; kept the model of step {kept:,}, the best on the held-back frames"
