@@ -503,10 +503,12 @@ def test_a_render_outside_training_equals_the_general_path():
     from nerfstudio.data.scene_box import OrientedBox
 
     torch.manual_seed(0)
-    for background_mlp in (True, False):
-        model = make_model(use_background_mlp=background_mlp)
+    for background_mlp, coupling in ((True, "mlp"), (True, "affine"), (False, "mlp")):
+        model = make_model(use_background_mlp=background_mlp, background_frame_coupling=coupling)
         if background_mlp:
             perturb_output_layers(model)
+            if model.background_mlp.frame_affine is not None:
+                model.background_mlp.frame_affine[-1].weight.data.normal_(0, 0.1)
         else:
             model.emission_mlp.net[-1].weight.data.normal_(0, 0.1)
         model.eval()
@@ -520,6 +522,31 @@ def test_a_render_outside_training_equals_the_general_path():
             for name, value in general.items():
                 assert viewing[name].shape == value.shape and torch.equal(viewing[name], value), name
             assert float(viewing["accumulation"].max()) > 0.1  # Gaussians in view: a render, not only background
+
+
+def test_an_affine_background_changes_every_direction_alike_from_frame_to_frame():
+    """`background_frame_coupling` 'affine': the frame embedding sets a gain and an offset of a direction-only
+    map, so one frame's background is an affine map of another's over every direction; 'mlp' (the frame
+    embedding an input of the MLP) can change each direction its own way. Both start at `init_value`."""
+    from thermal_wild_ns.model.fields import BackgroundMLP
+
+    torch.manual_seed(0)
+    dirs = torch.nn.functional.normalize(torch.randn(6, 5, 3), dim=-1)  # [6, 5, 3]
+    first, second = torch.randn(8), torch.randn(8)
+    residual = {}
+    for coupling in ("mlp", "affine"):
+        background = BackgroundMLP(8, init_value=0.3, frame_coupling=coupling)
+        assert torch.allclose(background(dirs, first), torch.full((6, 5, 1), 0.3))  # zero-initialised outputs
+        with torch.no_grad():
+            for parameter in background.parameters():
+                parameter.normal_()
+            a, b = background(dirs, first).flatten(), background(dirs, second).flatten()  # [30]
+        basis = torch.stack([a, torch.ones_like(a)], 1)  # [30, 2]
+        fit = basis @ torch.linalg.lstsq(basis, b[:, None]).solution
+        residual[coupling] = float((fit[:, 0] - b).abs().max() / b.abs().max())
+    assert residual["affine"] < 1e-5 and residual["mlp"] > 1e-2
+    with pytest.raises(ValueError, match="'mlp' or 'affine'"):
+        BackgroundMLP(8, frame_coupling="sky")
 
 
 def test_mismatched_checkpoints_are_refused_with_the_reason():

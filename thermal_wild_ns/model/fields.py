@@ -42,14 +42,29 @@ class BackgroundMLP(nn.Module):
     """b(d, e_t): thermal radiance arriving from direction d (sky, far field) in frame t.
 
     Directions are encoded with real spherical harmonics up to degree 3 (smooth, as distant
-    thermal backgrounds are); a learned scalar offset starts it at `init_value`.
+    thermal backgrounds are); a learned scalar offset starts it at `init_value`. `frame_coupling`
+    'mlp': the frame embedding is an input of the MLP (any change with direction and frame);
+    'affine': the MLP sees the direction only, and the frame embedding sets a gain and an offset of
+    the whole map (a frame's state changes every direction alike, as a sensor's drift does).
     """
 
-    def __init__(self, frame_dim: int, width: int = 64, hidden_layers: int = 2, init_value: float = 0.0):
+    def __init__(
+        self,
+        frame_dim: int,
+        width: int = 64,
+        hidden_layers: int = 2,
+        init_value: float = 0.0,
+        frame_coupling: str = "mlp",
+    ):
         super().__init__()
+        if frame_coupling not in ("mlp", "affine"):
+            raise ValueError(f"background frame coupling {frame_coupling!r}: 'mlp' or 'affine'")
         self.encoding = SHEncoding(levels=4, implementation="torch")
-        self.net = mlp(self.encoding.get_out_dim() + frame_dim, width, hidden_layers)
+        net_frame_dim = frame_dim if frame_coupling == "mlp" else 0
+        self.net = mlp(self.encoding.get_out_dim() + net_frame_dim, width, hidden_layers)
         self.offset = nn.Parameter(torch.tensor([init_value]))
+        # zero-initialised: gain 1 and offset 0 for every frame at the start
+        self.frame_affine = mlp(frame_dim, 0, 0, out_dim=2) if frame_coupling == "affine" else None
 
     def encode(self, directions: Tensor) -> Tensor:
         """directions [..., 3] (unit, world frame) -> their encoding [..., 16], which depends on
@@ -59,6 +74,10 @@ class BackgroundMLP(nn.Module):
     def from_encoded(self, encoded: Tensor, frame_embed: Tensor) -> Tensor:
         """encoded directions [..., 16], frame_embed [Df] -> background [..., 1]."""
         enc = encoded.reshape(-1, encoded.shape[-1])  # [P, 16]
+        if self.frame_affine is not None:
+            gain, shift = self.frame_affine(frame_embed)  # [2]
+            out = (self.net(enc) + self.offset) * (1.0 + gain) + shift  # [P, 1]
+            return out.reshape(*encoded.shape[:-1], 1)
         frame = frame_embed[None, :].expand(enc.shape[0], -1)
         out = self.net(torch.cat([enc, frame], dim=-1)) + self.offset
         return out.reshape(*encoded.shape[:-1], 1)

@@ -93,6 +93,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     use_background_mlp: bool = True
     """Fill the residual transmittance with a background MLP b(view direction, frame embedding).
     Off: a constant background of `background_value`."""
+    background_frame_coupling: Literal["mlp", "affine"] = "mlp"
+    """How the frame embedding enters the background MLP: 'mlp', as an input beside the view direction
+    (the paper's b(d, e_t)); 'affine', as a gain and an offset of a direction-only map (a frame's state
+    changes the whole background alike, as a sensor's drift or flat-field step does)."""
     background_value: float = 0.0
     """Constant background (normalised intensity) when the background MLP is off; the background
     MLP's initial value when it is on."""
@@ -259,7 +263,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if cfg.random_background and cfg.use_background_mlp:
             raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self.background_mlp = (
-            BackgroundMLP(cfg.frame_embed_dim, init_value=cfg.background_value) if cfg.use_background_mlp else None
+            BackgroundMLP(
+                cfg.frame_embed_dim, init_value=cfg.background_value, frame_coupling=cfg.background_frame_coupling
+            )
+            if cfg.use_background_mlp
+            else None
         )
         self.background_field = ThermalBackground(self.background_mlp, cfg)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.respond`); zero: no fall-off
