@@ -56,8 +56,9 @@ class AutoStopConfig:
     patience: int = 4
     """Checks in a row without an improvement after which training stops."""
     patience_floor_steps: int = 650
-    """Fewest steps `patience` checks span where `scale_to` fits the checks to a shorter schedule: there
-    the checks come more often, and the patience grows to span this many steps. The held-back score fits a
+    """Fewest steps `patience` checks span where the checks are fitted to a shorter schedule (`scale_to`:
+    the demo's and the bench's; `ns-train` keeps the full schedule's checks): there the checks come more
+    often, and the patience grows to span this many steps. The held-back score fits a
     gain and offset per frame, so it flattens before the per-frame states have settled; where the wait was
     4 checks of a 5,000-step schedule (332 steps), a wait of twice that lifted `time` on most generated
     scenes, and doubling the full schedule's wait changed neither real capture clearly
