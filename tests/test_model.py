@@ -508,7 +508,7 @@ def test_a_render_outside_training_equals_the_general_path():
         if background_mlp:
             perturb_output_layers(model)
             if model.background_mlp.frame_affine is not None:
-                model.background_mlp.frame_affine[-1].weight.data.normal_(0, 0.1)
+                model.background_mlp.frame_affine.weight.data.normal_(0, 0.1)
         else:
             model.emission_mlp.net[-1].weight.data.normal_(0, 0.1)
         model.eval()

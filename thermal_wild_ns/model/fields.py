@@ -63,8 +63,11 @@ class BackgroundMLP(nn.Module):
         net_frame_dim = frame_dim if frame_coupling == "mlp" else 0
         self.net = mlp(self.encoding.get_out_dim() + net_frame_dim, width, hidden_layers)
         self.offset = nn.Parameter(torch.tensor([init_value]))
-        # zero-initialised: gain 1 and offset 0 for every frame at the start
-        self.frame_affine = mlp(frame_dim, 0, 0, out_dim=2) if frame_coupling == "affine" else None
+        self.frame_affine = None  # [Df] -> (gain - 1, offset) of the whole map, 'affine' only
+        if frame_coupling == "affine":
+            self.frame_affine = nn.Linear(frame_dim, 2)
+            nn.init.zeros_(self.frame_affine.weight)  # gain 1 and offset 0 for every frame at the start
+            nn.init.zeros_(self.frame_affine.bias)
 
     def encode(self, directions: Tensor) -> Tensor:
         """directions [..., 3] (unit, world frame) -> their encoding [..., 16], which depends on
