@@ -62,7 +62,8 @@ class AutoStopConfig:
     gain and offset per frame, so it flattens before the per-frame states have settled; where the wait was
     4 checks of a 5,000-step schedule (332 steps), a wait of twice that lifted `time` on most generated
     scenes, and doubling the full schedule's wait changed neither real capture clearly
-    (docs/results/patience_h200x2). 0: the patience in checks alone."""
+    (docs/results/patience_h200x2); on both real captures' shortened schedule the floor gains or is
+    level (docs/results/floor_real_h200). 0: the patience in checks alone."""
     min_improvement: float = 0.05
     """Rise of the score (PSNR, dB) over the best so far that counts as an improvement."""
     keep_best: bool = True
