@@ -21,7 +21,8 @@
 # Then (the patience floor, 2026-11-28: docs/results/patience_h200x2), which part costs `time` on the drifting
 # generated scenes, two GPUs: bash experiments/gpu_2026-11-28.sh install && GPUS=2 bash ... parts-drifting;
 # and six more seeds of the full method and the emission-MLP ablation there, one call: ... drifting-seeds.
-# Not yet run: the floor on both real captures' shortened schedule, so that its default cites two real scenes:
+# The floor on both real captures' shortened schedule, so that its default cites two real scenes (run 2026-11-28:
+# docs/results/floor_real_h200):
 #     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-flight2  # .data/flight2 .data/cache
 #     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-dunr     # .data/dunr .data/cache
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
