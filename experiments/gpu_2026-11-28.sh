@@ -25,10 +25,14 @@
 # docs/results/floor_real_h200):
 #     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-flight2  # .data/flight2 .data/cache
 #     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-dunr     # .data/dunr .data/cache
+# Next: the view term under today's defaults (camera model on), one H200, each call after `install`:
+#     bash experiments/gpu_2026-11-28.sh view-generated                   # nothing carried
+#     bash experiments/gpu_2026-11-28.sh view-flight2                     # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-28.sh view-dunr                        # .data/dunr .data/cache carried
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -190,6 +194,35 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     done
     wait
     for name in floor nofloor; do cp "/tmp/floor-$name/bench.json" "$OUT/$scene-$name.json"; done
+    ;;
+  view-generated)  # issue 33's growth item: the view term held flight2's model as it grew (docs/results/growth, "The
+    # view term at 1M on raw frames"); it was left off for the vignetting scene's 0.9 dB (view_term_gpu, before the
+    # camera model was on by default). Today's defaults and the term on (view_sh_degree=2) on the demo and the five
+    # stress scenes, issue 16's protocol, 3 seeds, the two benches side by side on one GPU (36 runs)
+    test -d /tmp/site || exit 3
+    for name in default view; do
+      set_args=(); [ "$name" = view ] && set_args=(--set pipeline.model.view_sh_degree=2)
+      PYTHONPATH=$PWD:/tmp/site timeout 540 python3 -m experiments.bench --output-dir "/tmp/view-$name" \
+        --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal \
+        --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 18 \
+        --gpus 1 "${set_args[@]}" > "$OUT/generated-$name.log" 2>&1 &
+    done
+    wait
+    for name in default view; do cp "/tmp/view-$name/bench.json" "$OUT/generated-$name-bench.json"; done
+    ;;
+  view-flight2|view-dunr)  # the same on a real capture, its 5,000-step shortened schedule (as floor-*), 3 seeds each,
+    # the six runs side by side on one GPU
+    test -d /tmp/site || exit 3
+    scene=${plan#view-}
+    for name in default view; do
+      set_args=(); [ "$name" = view ] && set_args=(--set pipeline.model.view_sh_degree=2)
+      PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench \
+        --output-dir "/tmp/view-$name" --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" \
+        --methods wild-thermal --seeds 3 --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 \
+        --eval-at 1000 2000 5000 "${set_args[@]}" > "$OUT/$scene-$name.log" 2>&1 &
+    done
+    wait
+    for name in default view; do cp "/tmp/view-$name/bench.json" "$OUT/$scene-$name.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
