@@ -124,7 +124,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     view_sh_degree: int = 0
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
     change with the view angle), the same at every capture time (`view_emission.py`). 0: none (helped a
-    drone survey, cost a scene with vignetting: docs/results/view_term_gpu). On that survey it is what
+    drone survey, cost a scene with vignetting, with the camera model on as well: docs/results/view_term_gpu,
+    docs/results/view_defaults_h200). On that survey it is what
     keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
     `--auto-stop.decide-view-term` lets each capture's held-back frames decide whether it stays."""
     camera_falloff: bool = False
