@@ -203,12 +203,13 @@ def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canon
     fill = isinstance(model, GuardedModel) and not canonical
     if fill:
         model.interpolate_embeddings(images)
+    shared = canonical_state(pipeline) if canonical else None
     values = []
     for image in images:
         t = dataset.frame_index(image)
         camera = dataset.cameras[image : image + 1].to(model.device)
-        if canonical:
-            state = canonical_state(pipeline)
+        if shared is not None:
+            state = shared
         else:
             lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
             embedding = model.frame_embed.weight[image].detach() if fill else None

@@ -1,0 +1,94 @@
+"""`python -m experiments.view_verdict`: what the view term's trial (`--auto-stop.decide-view-term`,
+`thermal_wild_ns/training/view_probe.py`) decides on each scene and seed, without training on past it.
+
+Each run is the bench's (`experiments.bench`: the same config, schedule and seed) with a view term on
+trial; it stops at the held-back frames' first scored check, where the trial decides, and records the
+verdict: the held-back score at the frames' own states and at the canonical state, without the term and
+with it. A cheap check of the rule against scenes whose answer the GPU runs know (the generated
+vignetting scene loses with the term, `stress:view` gains: docs/results/view_defaults_h200,
+docs/results/view_trial_gpu). Writes `verdicts.json` to `--output-dir`.
+
+    python -m experiments.view_verdict --scenes stress:vignetting stress:view --seeds 3 --output-dir /tmp/verdicts
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import List, Tuple
+
+import tyro
+
+from experiments import train_with_hooks
+from experiments.bench import BenchArgs, scene_name, setup_trainer, trainer_config
+from thermal_wild_ns.progress import track
+
+
+@dataclass
+class VerdictArgs:
+    scenes: Tuple[str, ...] = ("stress:vignetting", "stress:view")
+    """'demo', 'stress:FAULT' or dataset folders (as in python -m experiments.bench)."""
+    seeds: int = 3
+    seed: int = 0
+    """The first seed."""
+    steps: int = 5000
+    """The schedule asked for (the bench's generated-scene protocol: 5,000 steps, one downscale)."""
+    num_downscales: int = 1
+    view_sh_degree: int = 2
+    output_dir: Path = Path("outputs/view_verdict")
+
+
+class _Decided(Exception):
+    """Raised after the step whose check decided the view term: the run has nothing left to show."""
+
+
+def verdict_of(scene: str, seed: int, args: VerdictArgs) -> dict:
+    bench = BenchArgs(
+        scenes=(scene,),
+        methods=("wild-thermal",),
+        steps=args.steps,
+        num_downscales=args.num_downscales,
+        set=(f"pipeline.model.view_sh_degree={args.view_sh_degree}", "auto_stop.decide_view_term=True"),
+        output_dir=args.output_dir,
+    )
+    config = trainer_config("wild-thermal", scene, bench, args.output_dir / "runs" / scene_name(scene), seed)
+    trainer = setup_trainer(config)
+    run = trainer.auto_stop
+
+    def after_step(step: int) -> None:
+        if run.view_verdict is not None:
+            raise _Decided
+
+    try:
+        train_with_hooks(trainer, args.steps, after_step)
+    except _Decided:
+        pass
+    verdict = None if run.view_verdict is None else run.view_verdict.as_record()
+    return dict(scene=scene_name(scene), seed=seed, verdict=verdict)
+
+
+def main(args: VerdictArgs) -> List[dict]:
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    jobs = [(scene, args.seed + k) for scene in args.scenes for k in range(args.seeds)]
+    results = []
+    for scene, seed in track(jobs, "view-term trials"):
+        results.append(verdict_of(scene, seed, args))
+        (args.output_dir / "verdicts.json").write_text(
+            json.dumps(dict(args={k: str(v) for k, v in dataclasses.asdict(args).items()}, runs=results), indent=1)
+        )
+    for r in results:
+        v = r["verdict"]
+        if v is None:
+            print(f"{r['scene']} seed {r['seed']}: no verdict")
+            continue
+        print(
+            f"{r['scene']} seed {r['seed']}: step {v['step']}, own states {v['without']:.2f} -> {v['with_term']:.2f}, "
+            f"canonical {v['canonical_without']:.2f} -> {v['canonical_with']:.2f}: {'kept' if v['kept'] else 'off'}"
+        )
+    return results
+
+
+if __name__ == "__main__":
+    main(tyro.cli(VerdictArgs))
