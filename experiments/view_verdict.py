@@ -3,10 +3,10 @@
 
 Each run is the bench's (`experiments.bench`: the same config, schedule and seed) with a view term on
 trial; it stops at the held-back frames' first scored check, where the trial decides, and records the
-verdict: the held-back score at the frames' own states and at the canonical state, without the term and
-with it. A cheap check of the rule against scenes whose answer the GPU runs know (the generated
-vignetting scene loses with the term, `stress:view` gains: docs/results/view_defaults_h200,
-docs/results/view_trial_gpu). Writes `verdicts.json` to `--output-dir`.
+verdict: the held-back score without the term and with it (`ViewTermVerdict`). A cheap check of the
+rule against scenes whose answer the GPU runs know (the generated vignetting scene loses with the term,
+`stress:view` gains: docs/results/view_defaults_h200, docs/results/view_trial_gpu). Writes `verdicts.json`
+to `--output-dir`.
 
     python -m experiments.view_verdict --scenes stress:vignetting stress:view --seeds 3 --output-dir /tmp/verdicts
 """
@@ -84,8 +84,8 @@ def main(args: VerdictArgs) -> List[dict]:
             print(f"{r['scene']} seed {r['seed']}: no verdict")
             continue
         print(
-            f"{r['scene']} seed {r['seed']}: step {v['step']}, own states {v['without']:.2f} -> {v['with_term']:.2f}, "
-            f"canonical {v['canonical_without']:.2f} -> {v['canonical_with']:.2f}: {'kept' if v['kept'] else 'off'}"
+            f"{r['scene']} seed {r['seed']}: step {v['step']}, held-back {v['without']:.2f} -> {v['with_term']:.2f} "
+            f"dB: {'kept' if v['kept'] else 'off'}"
         )
     return results
 

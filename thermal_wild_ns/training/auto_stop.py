@@ -34,7 +34,6 @@ from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
-    canonical_state,
     check_same_geometry,
     preprocessed_sequence,
     render,
@@ -89,10 +88,9 @@ class AutoStopConfig:
     decide whether it stays. Until the first scored check, training renders alternate with and without
     the term; there the held-back frames are scored both ways (a radial fall-off fitted to each, so
     that mimicking the camera's vignetting earns nothing), and the term stays where it scores higher
-    by `min_improvement` and their score at the canonical state does not fall by more than that, else
-    it is zeroed for good (`view_probe.py`); one GPU only. Off: the term trains from the start. Off by
-    default: without the canonical score it kept the term on the generated vignetting scene
-    (docs/results/view_trial_gpu); the rule with it is not yet run on the GPU."""
+    by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
+    trains from the start. Off by default: right on a scene made to need the term and on DUNR, it
+    still keeps the term on the generated vignetting scene (docs/results/view_trial_gpu)."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
@@ -190,31 +188,25 @@ def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
 
 
-def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canonical: bool = False) -> float:
+def held_back_score(pipeline, images: Sequence[int], radial: bool = False) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
-    around them, embedding and LUT alike (`canonical`: at the canonical state, every novel view's),
-    after a least-squares gain + offset fit to each frame (`radial`: and a radial fall-off,
-    `fit_with_radial_falloff`)."""
+    around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame
+    (`radial`: and a radial fall-off, `fit_with_radial_falloff`)."""
 
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
     held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    fill = isinstance(model, GuardedModel) and not canonical
+    fill = isinstance(model, GuardedModel)
     if fill:
         model.interpolate_embeddings(images)
-    shared = canonical_state(pipeline) if canonical else None
     values = []
     for image in images:
         t = dataset.frame_index(image)
+        lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
+        embedding = model.frame_embed.weight[image].detach() if fill else None
         camera = dataset.cameras[image : image + 1].to(model.device)
-        if shared is not None:
-            state = shared
-        else:
-            lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
-            embedding = model.frame_embed.weight[image].detach() if fill else None
-            state = PhotometricState(f"held-back:{t}", embedding, lut)
-        _, pred = render(pipeline, camera, state)  # [H, W]
+        _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
         truth = datamanager.held_back_truth(image)  # [H, W]
         check_same_geometry(pred, truth, f"held-back frame {t}")
         finite = np.isfinite(truth)
@@ -389,14 +381,8 @@ class AutoStopRun:
         pipeline, held_back = self.pipeline, self.pipeline.datamanager.held_back
         # scored with a radial fall-off fitted to each frame: a term that only mimics the camera's
         # vignetting (the same in every frame, so in the held-back ones too) gains nothing there
-        # and at the canonical state: a term that shares each frame's state with the frame embeddings
-        # (times and view directions move together along the path) lowers every novel view's render
         verdict = judge_view_term(
-            pipeline.model,
-            lambda: held_back_score(pipeline, held_back, radial=True),
-            self.config.min_improvement,
-            step,
-            canonical_score=lambda: held_back_score(pipeline, held_back, radial=True, canonical=True),
+            pipeline.model, lambda: held_back_score(pipeline, held_back, radial=True), self.config.min_improvement, step
         )
         self.view_verdict = verdict
         CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")
