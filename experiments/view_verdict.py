@@ -24,6 +24,7 @@ import tyro
 from experiments import train_with_hooks
 from experiments.bench import BenchArgs, scene_name, setup_trainer, trainer_config
 from thermal_wild_ns.progress import track
+from thermal_wild_ns.training.auto_stop import held_back_score
 
 
 @dataclass
@@ -66,7 +67,28 @@ def verdict_of(scene: str, seed: int, args: VerdictArgs) -> dict:
     except _Decided:
         pass
     verdict = None if run.view_verdict is None else run.view_verdict.as_record()
-    return dict(scene=scene_name(scene), seed=seed, verdict=verdict)
+    return dict(scene=scene_name(scene), seed=seed, verdict=verdict, scores=_scores_both_ways(trainer))
+
+
+def _scores_both_ways(trainer) -> dict:
+    """Where the trial kept the term: the held-back score without it and with it (PSNR, dB) at the
+    frames' own states and at the canonical state, each with the trial's fit (gain, offset and radial
+    fall-off) and with gain and offset alone (the `aligned` protocol's); {} where it went (zeroed)."""
+    model, pipeline = trainer.pipeline.model, trainer.pipeline
+    if not model.renders_view_term():
+        return {}
+    held = pipeline.datamanager.held_back
+    scores = {}
+    for term in ("without", "with"):
+        if term == "without":
+            model.try_view_term()  # renders outside training leave the term out, as on trial
+        else:
+            model.use_view_term(True)
+        for canonical in (False, True):
+            for radial in (True, False):
+                key = f"{'canonical' if canonical else 'own'}-{'radial' if radial else 'plain'}-{term}"
+                scores[key] = held_back_score(pipeline, held, radial=radial, canonical=canonical)
+    return scores
 
 
 def main(args: VerdictArgs) -> List[dict]:
@@ -87,6 +109,10 @@ def main(args: VerdictArgs) -> List[dict]:
             f"{r['scene']} seed {r['seed']}: step {v['step']}, held-back {v['without']:.2f} -> {v['with_term']:.2f} "
             f"dB: {'kept' if v['kept'] else 'off'}"
         )
+        s = r["scores"]
+        for way in ("own-radial", "own-plain", "canonical-radial", "canonical-plain"):
+            if f"{way}-with" in s:
+                print(f"    {way}: {s[f'{way}-without']:.2f} -> {s[f'{way}-with']:.2f}")
     return results
 
 

@@ -6,6 +6,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 import torch
 from layout_fixtures import cameras as arc_poses
 from layout_fixtures import opengl
@@ -15,6 +16,7 @@ from test_model import make_model
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
+from thermal_wild_ns.training.auto_stop import held_back_score
 from thermal_wild_ns.training.trainer import seeded_trainer
 from thermal_wild_ns.training.view_probe import judge_view_term
 
@@ -216,6 +218,27 @@ def test_a_run_drops_the_view_term_its_held_back_frames_do_not_gain_from(tmp_pat
     resumed.train()
     assert resumed.pipeline.model.gauss_params["view_sh"].abs().max() == 0
     assert resumed.auto_stop.view_verdict is not None and not resumed.auto_stop.view_verdict.kept
+
+
+def test_the_canonical_score_renders_every_held_back_frame_at_the_canonical_state(tmp_path, demo_scene_dir):
+    """`held_back_score(canonical=True)` scores at the state every novel view renders with: where every
+    frame has the same embedding it is each held-back frame's own state too, and the two scores agree;
+    where the frames' embeddings differ, they do not."""
+    config = demo_trainer_config(tmp_path, steps=4, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    trainer = seeded_trainer(config)
+    trainer.train()
+    pipeline, held = trainer.pipeline, trainer.pipeline.datamanager.held_back
+    weight = pipeline.model.frame_embed.weight
+    assert len(held) > 0
+    with torch.no_grad():
+        weight.copy_(torch.randn(weight.shape[1], generator=torch.Generator().manual_seed(0)).expand_as(weight))
+    same = held_back_score(pipeline, held), held_back_score(pipeline, held, canonical=True)
+    assert same[0] == pytest.approx(same[1], abs=1e-4)
+    with torch.no_grad():
+        weight.copy_(3.0 * torch.randn(weight.shape, generator=torch.Generator().manual_seed(1)))
+    apart = held_back_score(pipeline, held), held_back_score(pipeline, held, canonical=True)
+    assert abs(apart[0] - apart[1]) > 0.01, apart
 
 
 def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_path, demo_scene_dir):

@@ -34,6 +34,7 @@ from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
+    canonical_state,
     check_same_geometry,
     preprocessed_sequence,
     render,
@@ -188,25 +189,31 @@ def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
 
 
-def held_back_score(pipeline, images: Sequence[int], radial: bool = False) -> float:
+def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canonical: bool = False) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
-    around them, embedding and LUT alike, after a least-squares gain + offset fit to each frame
-    (`radial`: and a radial fall-off, `fit_with_radial_falloff`)."""
+    around them, embedding and LUT alike (`canonical`: at the canonical state, every novel view's),
+    after a least-squares gain + offset fit to each frame (`radial`: and a radial fall-off,
+    `fit_with_radial_falloff`)."""
 
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
     held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    fill = isinstance(model, GuardedModel)
+    fill = isinstance(model, GuardedModel) and not canonical
     if fill:
         model.interpolate_embeddings(images)
+    shared = canonical_state(pipeline) if canonical else None
     values = []
     for image in images:
         t = dataset.frame_index(image)
-        lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
-        embedding = model.frame_embed.weight[image].detach() if fill else None
         camera = dataset.cameras[image : image + 1].to(model.device)
-        _, pred = render(pipeline, camera, PhotometricState(f"held-back:{t}", embedding, lut))  # [H, W]
+        if shared is not None:
+            state = shared
+        else:
+            lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
+            embedding = model.frame_embed.weight[image].detach() if fill else None
+            state = PhotometricState(f"held-back:{t}", embedding, lut)
+        _, pred = render(pipeline, camera, state)  # [H, W]
         truth = datamanager.held_back_truth(image)  # [H, W]
         check_same_geometry(pred, truth, f"held-back frame {t}")
         finite = np.isfinite(truth)
