@@ -38,6 +38,8 @@ class VerdictArgs:
     """The schedule asked for (the bench's generated-scene protocol: 5,000 steps, one downscale)."""
     num_downscales: int = 1
     view_sh_degree: int = 2
+    view_trial_checks: int = 1
+    """The scored check at which the trial decides (`auto_stop.view_trial_checks`)."""
     output_dir: Path = Path("outputs/view_verdict")
 
 
@@ -51,7 +53,11 @@ def verdict_of(scene: str, seed: int, args: VerdictArgs) -> dict:
         methods=("wild-thermal",),
         steps=args.steps,
         num_downscales=args.num_downscales,
-        set=(f"pipeline.model.view_sh_degree={args.view_sh_degree}", "auto_stop.decide_view_term=True"),
+        set=(
+            f"pipeline.model.view_sh_degree={args.view_sh_degree}",
+            "auto_stop.decide_view_term=True",
+            f"auto_stop.view_trial_checks={args.view_trial_checks}",
+        ),
         output_dir=args.output_dir,
     )
     config = trainer_config("wild-thermal", scene, bench, args.output_dir / "runs" / scene_name(scene), seed)

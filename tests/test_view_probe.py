@@ -160,7 +160,7 @@ def test_a_term_on_trial_renders_on_odd_training_steps_only():
     assert model.gauss_params["view_sh"].abs().max() == 0 and torch.equal(train_render(1), without)
 
 
-def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12):
+def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1):
     """The demo with a degree-2 view term decided by the held-back frames at the first check (step
     3), whose scores follow `scores` (one per call: without the term and with it, radial fall-off fitted;
     then one per check, the first at the verdict)."""
@@ -169,6 +169,7 @@ def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12):
     config.pipeline.model.view_sh_degree = 2
     config.auto_stop.check_every, config.auto_stop.patience = 4, 10
     config.auto_stop.decide_view_term = True
+    config.auto_stop.view_trial_checks = trial_checks
     calls = iter(scores)
     fits = []
 
@@ -192,7 +193,8 @@ def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12):
     run = trainer.config.get_base_dir()
     decisions = json.loads((run / "decisions.json").read_text())
     entry = next(d for d in decisions if d["part"] == "view-dependent emission")
-    assert fits == [True, True, False, False, False]  # the verdict's pair with the fall-off fitted, then plain checks
+    # plain checks before the verdict, its pair with the fall-off fitted, then plain checks (3 in all: steps 3, 7, 11)
+    assert fits == [False] * (trial_checks - 1) + [True, True] + [False] * (4 - trial_checks)
     return trainer, json.loads((run / "auto_stop.json").read_text())["view_term"], entry, seen
 
 
@@ -239,6 +241,16 @@ def test_the_canonical_score_renders_every_held_back_frame_at_the_canonical_stat
         weight.copy_(3.0 * torch.randn(weight.shape, generator=torch.Generator().manual_seed(1)))
     apart = held_back_score(pipeline, held), held_back_score(pipeline, held, canonical=True)
     assert abs(apart[0] - apart[1]) > 0.01, apart
+
+
+def test_a_run_can_put_off_the_verdict_to_a_later_check(tmp_path, demo_scene_dir, monkeypatch):
+    """`view_trial_checks` 2: the first check scores the model as every check does (the term on trial,
+    left out of the render), the second decides; until then the term trains on its steps."""
+    trainer, verdict, entry, seen = _run(
+        tmp_path, demo_scene_dir, monkeypatch, [20.0, 20.1, 20.6, 20.5, 21.0], trial_checks=2
+    )
+    assert seen == [("trial", True)] and verdict["step"] == 7 and verdict["kept"]
+    assert "until step 7" in entry["why"] and "20.10 -> 20.60" in entry["why"]
 
 
 def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_path, demo_scene_dir):

@@ -92,6 +92,10 @@ class AutoStopConfig:
     by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
     trains from the start. Off by default: right on a scene made to need the term and on DUNR, it
     still keeps the term on the generated vignetting scene (docs/results/view_trial_gpu)."""
+    view_trial_checks: int = 1
+    """With `decide_view_term`: the scored check at which the held-back frames decide (1: the first). A
+    later verdict lets the term and the frame states train side by side for longer before they are judged
+    (docs/results/view_verdict_cpu)."""
 
     def scale_to(self, schedule: int, full_schedule: int = 30_000) -> None:
         """Check as often, relative to the schedule, in a run whose schedule is `schedule` steps
@@ -268,6 +272,8 @@ class AutoStopRun:
             and not self.ranks.split
         )
         self.view_verdict: Optional[ViewTermVerdict] = None
+        self.scored_checks = 0
+        """Checks that scored the held-back frames so far (a resumed run counts those it replays)."""
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -333,6 +339,7 @@ class AutoStopRun:
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
+                self.scored_checks += 1
                 if "gaussians" in check:
                     self.check_counts[check["step"]] = check["gaussians"]
                 if check["step"] in raised_at:
@@ -363,7 +370,8 @@ class AutoStopRun:
         self.last_step = step
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
-        if self.decides_view_term and self.view_verdict is None:
+        self.scored_checks += 1
+        if self.decides_view_term and self.view_verdict is None and self.scored_checks >= self.config.view_trial_checks:
             score = self._decide_view_term(step)
         else:
             score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
