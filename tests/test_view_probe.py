@@ -268,3 +268,14 @@ def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_p
     assert entry["choice"] == "off" and "ended at step 7" in entry["why"]
     assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() == 0  # trained on trial, zeroed at the end
     assert not trainer.pipeline.model.renders_view_term()
+
+
+def test_the_pending_decision_names_the_check_that_will_decide():
+    from types import SimpleNamespace
+
+    from thermal_wild_ns.training.decisions import view_term_decision
+
+    for checks, words in ((1, "the first scored check"), (3, "scored check 3")):
+        pending = SimpleNamespace(view_verdict=None, config=SimpleNamespace(view_trial_checks=checks))
+        decision = view_term_decision(pending)
+        assert decision.choice == "to be decided" and decision.why.endswith(words), decision

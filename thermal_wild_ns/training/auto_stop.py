@@ -43,7 +43,7 @@ from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
 from thermal_wild_ns.training.checkpoints import restore, snapshot
 from thermal_wild_ns.training.model_interface import GuardedModel
-from thermal_wild_ns.training.view_probe import ViewTermVerdict, judge_view_term
+from thermal_wild_ns.training.view_probe import ViewTermVerdict, judge_view_term, verdict_check
 
 
 @dataclass
@@ -86,7 +86,7 @@ class AutoStopConfig:
     """The most Gaussians `grow_budget` may reach (over every GPU)."""
     decide_view_term: bool = False
     """With a view term in the model (`--pipeline.model.view-sh-degree` 1 or 2): let the held-back frames
-    decide whether it stays. Until the first scored check, training renders alternate with and without
+    decide whether it stays. Until the scored check `view_trial_checks`, training renders alternate with and without
     the term; there the held-back frames are scored both ways (a radial fall-off fitted to each, so
     that mimicking the camera's vignetting earns nothing), and the term stays where it scores higher
     by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
@@ -296,7 +296,7 @@ class AutoStopRun:
             pipeline.model.try_view_term()
             CONSOLE.log(
                 "view term: on trial (every other training step) until the held-back frames decide it "
-                "at the first scored check"
+                f"at {verdict_check(config.view_trial_checks)}"
             )
         elif config.decide_view_term:
             CONSOLE.log(

@@ -21,6 +21,7 @@ from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_text_atomically
 from thermal_wild_ns.training.model_interface import GuardedModel
+from thermal_wild_ns.training.view_probe import verdict_check
 
 DECISIONS_FILE = "decisions.json"
 
@@ -71,10 +72,11 @@ def view_term_decision(auto_stop, last_step: Optional[int] = None) -> Decision:
     on or off; off where the run ended (`last_step`) before a scored check."""
     verdict = auto_stop.view_verdict
     if verdict is None and last_step is not None:
-        why = f"the run ended at step {last_step:,}, before the held-back frames' first scored check: zeroed"
+        why = f"the run ended at step {last_step:,}, before the held-back frames' verdict: zeroed"
         return Decision("view-dependent emission", "off", why, "data")
     if verdict is None:
-        why = "on trial (every other training step) until the held-back frames decide at the first scored check"
+        checks = auto_stop.config.view_trial_checks
+        why = f"on trial (every other training step) until the held-back frames decide at {verdict_check(checks)}"
         return Decision("view-dependent emission", "to be decided", why, "data")
     return Decision("view-dependent emission", "on" if verdict.kept else "off", verdict.why(), "data")
 

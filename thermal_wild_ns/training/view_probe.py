@@ -64,3 +64,8 @@ def judge_view_term(model, score: Callable[[], float], min_gain: float, step: in
     if not kept:
         model.use_view_term(False)
     return ViewTermVerdict(step, without, with_term, kept)
+
+
+def verdict_check(checks: int) -> str:
+    """The scored check where the view term's trial ends, in words."""
+    return "the first scored check" if checks <= 1 else f"scored check {checks}"
