@@ -21,7 +21,9 @@ is off by default. That scene loses with the term at the canonical state (`novel
 the frames' own (`time`: docs/results/view_defaults_h200); scoring the held-back frames at the
 canonical state too was tried, and at the first check it moved with their own states' score on every
 scene, vignetting included (docs/results/view_verdict_cpu): it would decide nothing, so it is not
-part of the rule.
+part of the rule. The reason: that scene is scored against its clean truth (no camera in it), and the
+term takes part of the camera's vignetting into the scene; every recorded frame, held back or not, is
+explained as well either way, so no score against recorded frames can see it (the same folder).
 """
 
 from __future__ import annotations
