@@ -25,7 +25,8 @@
 # docs/results/floor_real_h200):
 #     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-flight2  # .data/flight2 .data/cache
 #     bash experiments/gpu_2026-11-28.sh install; GPUS=2 bash experiments/gpu_2026-11-28.sh floor-dunr     # .data/dunr .data/cache
-# Next: the view term under today's defaults (camera model on), one H200, each call after `install`:
+# The view term under today's defaults (camera model on), one H200, each call after `install` (run 2026-11-28:
+# docs/results/view_defaults_h200):
 #     bash experiments/gpu_2026-11-28.sh view-generated                   # nothing carried
 #     bash experiments/gpu_2026-11-28.sh view-flight2                     # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh view-dunr                        # .data/dunr .data/cache carried
