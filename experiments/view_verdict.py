@@ -2,7 +2,7 @@
 `thermal_wild_ns/training/view_probe.py`) decides on each scene and seed, without training on past it.
 
 Each run is the bench's (`experiments.bench`: the same config, schedule and seed) with a view term on
-trial; it stops at the held-back frames' first scored check, where the trial decides, and records the
+trial; it stops at the scored check where the trial decides (`--view-trial-checks`), and records the
 verdict: the held-back score without the term and with it (`ViewTermVerdict`). A cheap check of the
 rule against scenes whose answer the GPU runs know (the generated vignetting scene loses with the term,
 `stress:view` gains: docs/results/view_defaults_h200, docs/results/view_trial_gpu). Writes `verdicts.json`
