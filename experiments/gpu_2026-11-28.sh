@@ -30,10 +30,12 @@
 #     bash experiments/gpu_2026-11-28.sh view-generated                   # nothing carried
 #     bash experiments/gpu_2026-11-28.sh view-flight2                     # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh view-dunr                        # .data/dunr .data/cache carried
+# Next (not yet run): whether the view term takes the camera's vignetting from the camera model (view_verdict_cpu):
+#     bash experiments/gpu_2026-11-28.sh install && bash experiments/gpu_2026-11-28.sh view-split-generated
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr}
+plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -224,6 +226,24 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     done
     wait
     for name in default view; do cp "/tmp/view-$name/bench.json" "$OUT/$scene-$name.json"; done
+    ;;
+  view-split-generated)  # issue 33 (docs/results/view_verdict_cpu): does the view term take part of the camera's
+    # vignetting from the camera model? stress-vignetting and stress-clean, today's defaults and the term always on,
+    # 3 seeds, the two benches side by side on one GPU; each run's decisions.json (the camera fall-off it fitted,
+    # written at the run's end) copied out beside the bench files, one archive
+    test -d /tmp/site || exit 3
+    for name in default view; do
+      set_args=(); [ "$name" = view ] && set_args=(--set pipeline.model.view_sh_degree=2)
+      PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench --output-dir "/tmp/split-$name" \
+        --scenes stress:vignetting stress:clean --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 \
+        --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 6 --gpus 1 "${set_args[@]}" \
+        > "$OUT/split-$name.log" 2>&1 &
+    done
+    wait
+    for name in default view; do
+      cp "/tmp/split-$name/bench.json" "$OUT/split-$name-bench.json"
+      (cd "/tmp/split-$name" && find . -name decisions.json | tar czf "$OUT/split-$name-decisions.tgz" -T -)
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
