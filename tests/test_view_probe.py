@@ -4,6 +4,7 @@ run, on trial until the first scored check, recorded, reported and replayed on r
 
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
 from thermal_wild_ns.training.auto_stop import held_back_score
+from thermal_wild_ns.training.decisions import view_term_decision
 from thermal_wild_ns.training.trainer import seeded_trainer
 from thermal_wild_ns.training.view_probe import judge_view_term
 
@@ -161,9 +163,9 @@ def test_a_term_on_trial_renders_on_odd_training_steps_only():
 
 
 def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1):
-    """The demo with a degree-2 view term decided by the held-back frames at the first check (step
-    3), whose scores follow `scores` (one per call: without the term and with it, radial fall-off fitted;
-    then one per check, the first at the verdict)."""
+    """The demo with a degree-2 view term decided by the held-back frames at scored check `trial_checks`
+    (checks at steps 3, 7 and 11), whose scores follow `scores` (one per call: without the term and with
+    it at the verdict, radial fall-off fitted; one per check otherwise, the verdict's check included)."""
     config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.view_sh_degree = 2
@@ -271,10 +273,6 @@ def test_a_run_that_ends_before_its_first_scored_check_leaves_the_term_off(tmp_p
 
 
 def test_the_pending_decision_names_the_check_that_will_decide():
-    from types import SimpleNamespace
-
-    from thermal_wild_ns.training.decisions import view_term_decision
-
     for checks, words in ((1, "the first scored check"), (3, "scored check 3")):
         pending = SimpleNamespace(view_verdict=None, config=SimpleNamespace(view_trial_checks=checks))
         decision = view_term_decision(pending)

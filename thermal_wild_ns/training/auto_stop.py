@@ -63,8 +63,8 @@ class AutoStopConfig:
     gain and offset per frame, so it flattens before the per-frame states have settled; where the wait was
     4 checks of a 5,000-step schedule (332 steps), a wait of twice that lifted `time` on most generated
     scenes, and doubling the full schedule's wait changed neither real capture clearly
-    (docs/results/patience_h200x2); on both real captures' shortened schedule the floor gains or is
-    level (docs/results/floor_real_h200). 0: the patience in checks alone."""
+    (docs/results/patience_h200x2); on both real captures' shortened schedule it is level or higher
+    within the seeds' spread (docs/results/floor_real_h200). 0: the patience in checks alone."""
     min_improvement: float = 0.05
     """Rise of the score (PSNR, dB) over the best so far that counts as an improvement."""
     keep_best: bool = True
@@ -86,8 +86,8 @@ class AutoStopConfig:
     """The most Gaussians `grow_budget` may reach (over every GPU)."""
     decide_view_term: bool = False
     """With a view term in the model (`--pipeline.model.view-sh-degree` 1 or 2): let the held-back frames
-    decide whether it stays. Until the scored check `view_trial_checks`, training renders alternate with and without
-    the term; there the held-back frames are scored both ways (a radial fall-off fitted to each, so
+    decide whether it stays. Until scored check `view_trial_checks`, training renders alternate with and
+    without the term; there the held-back frames are scored both ways (a radial fall-off fitted to each, so
     that mimicking the camera's vignetting earns nothing), and the term stays where it scores higher
     by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
     trains from the start. Off by default: right on a scene made to need the term and on DUNR, it
@@ -272,8 +272,6 @@ class AutoStopRun:
             and not self.ranks.split
         )
         self.view_verdict: Optional[ViewTermVerdict] = None
-        self.scored_checks = 0
-        """Checks that scored the held-back frames so far (a resumed run counts those it replays)."""
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -339,7 +337,6 @@ class AutoStopRun:
         for check in record["checks"]:
             if check["step"] < start_step:
                 self.progress.update(check["step"], check["psnr"])
-                self.scored_checks += 1
                 if "gaussians" in check:
                     self.check_counts[check["step"]] = check["gaussians"]
                 if check["step"] in raised_at:
@@ -370,8 +367,8 @@ class AutoStopRun:
         self.last_step = step
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
-        self.scored_checks += 1
-        if self.decides_view_term and self.view_verdict is None and self.scored_checks >= self.config.view_trial_checks:
+        this_check = len(self.progress.history) + 1  # scored checks so far, a resumed run's replayed ones too
+        if self.decides_view_term and self.view_verdict is None and this_check >= self.config.view_trial_checks:
             score = self._decide_view_term(step)
         else:
             score = self.ranks.from_rank_0(held_back_score(self.pipeline, self.pipeline.datamanager.held_back))
