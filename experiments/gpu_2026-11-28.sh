@@ -30,7 +30,8 @@
 #     bash experiments/gpu_2026-11-28.sh view-generated                   # nothing carried
 #     bash experiments/gpu_2026-11-28.sh view-flight2                     # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh view-dunr                        # .data/dunr .data/cache carried
-# Next (not yet run): whether the view term takes the camera's vignetting from the camera model (view_verdict_cpu):
+# Whether the view term takes the camera's vignetting from the camera model (view_verdict_cpu; run 2026-11-28:
+# docs/results/view_split_h200):
 #     bash experiments/gpu_2026-11-28.sh install && bash experiments/gpu_2026-11-28.sh view-split-generated
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
