@@ -33,10 +33,15 @@
 # Whether the view term takes the camera's vignetting from the camera model (view_verdict_cpu; run 2026-11-28:
 # docs/results/view_split_h200):
 #     bash experiments/gpu_2026-11-28.sh install && bash experiments/gpu_2026-11-28.sh view-split-generated
+# The view term on trial with the radial-share rule (view_probe.radial_share) against today's defaults, one H200,
+# each call after `install`:
+#     bash experiments/gpu_2026-11-28.sh share-generated                  # nothing carried
+#     bash experiments/gpu_2026-11-28.sh share-flight2                    # .data/flight2 .data/cache carried
+#     bash experiments/gpu_2026-11-28.sh share-dunr                       # .data/dunr .data/cache carried
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
+plan=${1:?plan: install, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -245,6 +250,34 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
       cp "/tmp/split-$name/bench.json" "$OUT/split-$name-bench.json"
       (cd "/tmp/split-$name" && find . -name decisions.json | tar czf "$OUT/split-$name-decisions.tgz" -T -)
     done
+    ;;
+  share-generated)  # issue 33: the view term on trial with the radial-share rule (view_probe.radial_share,
+    # docs/results/view_verdict_cpu) against today's defaults, the demo, the five stress scenes and stress:view
+    # (made to need the term), issue 16's protocol, 3 seeds, the two benches side by side on one GPU (42 runs)
+    test -d /tmp/site || exit 3
+    for name in default share; do
+      set_args=(); [ "$name" = share ] && set_args=(--set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True)
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/share-$name" \
+        --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting stress:view \
+        --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 \
+        --runs-per-gpu 21 --gpus 1 "${set_args[@]}" > "$OUT/generated-$name.log" 2>&1 &
+    done
+    wait
+    for name in default share; do cp "/tmp/share-$name/bench.json" "$OUT/generated-$name-bench.json"; done
+    ;;
+  share-flight2|share-dunr)  # the same on a real capture, its 5,000-step shortened schedule (as view-*), 3 seeds
+    # each, the six runs side by side on one GPU
+    test -d /tmp/site || exit 3
+    scene=${plan#share-}
+    for name in default share; do
+      set_args=(); [ "$name" = share ] && set_args=(--set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True)
+      PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench \
+        --output-dir "/tmp/share-$name" --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" \
+        --methods wild-thermal --seeds 3 --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 \
+        --eval-at 1000 2000 5000 "${set_args[@]}" > "$OUT/$scene-$name.log" 2>&1 &
+    done
+    wait
+    for name in default share; do cp "/tmp/share-$name/bench.json" "$OUT/$scene-$name.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -16,13 +16,14 @@ from test_model import make_model
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
-from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
-from thermal_wild_ns.training.auto_stop import held_back_score
+from thermal_wild_ns.pipeline.evaluation import centre_r2, fit_gain_offset, fit_with_radial_falloff
+from thermal_wild_ns.training.auto_stop import AutoStopConfig, held_back_score
 from thermal_wild_ns.training.decisions import view_term_decision
 from thermal_wild_ns.training.trainer import seeded_trainer
-from thermal_wild_ns.training.view_probe import judge_view_term
+from thermal_wild_ns.training.view_probe import judge_view_term, radial_share
 
 WIDTH, HEIGHT = 48, 32
+MAX_SHARE = AutoStopConfig().view_max_radial_share
 
 
 def arc_cameras(n: int):
@@ -38,10 +39,18 @@ def arc_cameras(n: int):
     return cameras
 
 
-def scalar_model(frames: int) -> WildThermalModel:
-    """Plain scalar emission with a degree-2 view term (zero): the same Gaussians at every call."""
+def scalar_model(frames: int, camera_falloff: bool = False) -> WildThermalModel:
+    """Plain scalar emission with a degree-2 view term (zero): the same Gaussians at every call; with
+    the camera's radial fall-off fitted (`camera_falloff`) or not."""
     torch.manual_seed(0)  # their rotations are drawn from torch's generator
-    return make_model(n=300, frames=frames, use_emission_mlp=False, use_background_mlp=False, view_sh_degree=2)
+    return make_model(
+        n=300,
+        frames=frames,
+        use_emission_mlp=False,
+        use_background_mlp=False,
+        view_sh_degree=2,
+        camera_falloff=camera_falloff,
+    )
 
 
 def render(model, camera) -> torch.Tensor:
@@ -50,12 +59,16 @@ def render(model, camera) -> torch.Tensor:
         return model.get_outputs(camera)["thermal"]
 
 
-def trial_on(truth_view: bool, frame_noise: float, vignetting: float = 0.0, steps: int = 120):
+def trial_on(
+    truth_view: bool, frame_noise: float, vignetting: float = 0.0, steps: int = 120, camera_model: bool = False
+):
     """The rule on a model that has the truth's geometry and a wrong emission: trained (emission and
     view term, Adam) with the term on trial, then judged by held-back views between the training
     views, scored as the automatic stop scores them (after a gain, offset and radial fall-off fit to
-    each). The truth has a view term (`truth_view`) or not; each frame adds its own noise of `frame_noise`;
-    the camera darkens toward the corners by `vignetting` (as the generated scenes' sensor)."""
+    each), and by the share of what the term adds to the training views that is radial. The truth has a
+    view term (`truth_view`) or not; each frame adds its own noise of `frame_noise`; the camera darkens
+    toward the corners by `vignetting` (as the generated scenes' sensor); the model fits the camera's
+    fall-off too where `camera_model` (as every capture's model by default)."""
     held = [3, 8, 13]  # between training views, as the automatic stop holds frames back
     train = [k for k in range(16) if k not in held]
     truth_model = scalar_model(16)
@@ -70,12 +83,13 @@ def trial_on(truth_view: bool, frame_noise: float, vignetting: float = 0.0, step
     truth = [
         render(truth_model, c) * falloff + frame_noise * torch.randn(HEIGHT, WIDTH, 1, generator=g) for c in cameras
     ]
-    model = scalar_model(16)
+    model = scalar_model(16, camera_falloff=camera_model)
     assert torch.equal(model.quats, truth_model.quats)  # the truth's Gaussians exactly
     with torch.no_grad():
         model.gauss_params["emission"].fill_(0.5)
     model.try_view_term()
     params = [model.gauss_params["emission"], model.gauss_params["view_sh"]]
+    params += [model.camera_falloff] if camera_model else []
     optimizer = torch.optim.Adam(params, lr=2e-2)
     order = torch.Generator().manual_seed(3)
     for step in range(steps):
@@ -96,12 +110,16 @@ def trial_on(truth_view: bool, frame_noise: float, vignetting: float = 0.0, step
             errors.append(float(((fitted - target.reshape(-1)) ** 2).mean()))
         return float(sum(-10 * math.log10(e) for e in errors) / len(errors))
 
-    return judge_view_term(model, score, 0.05, step=steps), model
+    def views():
+        return [render(model, cameras[k])[..., 0].numpy() for k in train]  # the scene's, no camera response
+
+    return judge_view_term(model, score, views, 0.05, MAX_SHARE, step=steps), model
 
 
 def test_the_view_term_is_kept_where_the_radiance_changes_with_the_view():
     verdict, model = trial_on(truth_view=True, frame_noise=0.01)
     assert verdict.kept and verdict.with_term > verdict.without + 0.3, verdict
+    assert verdict.radial_share < MAX_SHARE, verdict  # it follows the surfaces, not the sensor
     assert model.renders_view_term() and model.gauss_params["view_sh"].abs().max() > 0
 
 
@@ -117,11 +135,35 @@ def test_the_view_term_stays_off_where_the_camera_vignettes():
     they did not: docs/results/view_trial_gpu.)"""
     verdict, _ = trial_on(truth_view=False, frame_noise=0.01, vignetting=0.35)
     assert not verdict.kept, verdict
+    # without a camera model the term takes the fall-off, and what it adds is radial: off for that too
+    assert verdict.radial_share > MAX_SHARE, verdict
+    verdict, _ = trial_on(truth_view=False, frame_noise=0.01, vignetting=0.35, camera_model=True)
+    assert not verdict.kept and verdict.radial_share < MAX_SHARE, verdict  # the camera model took it
 
 
 def test_the_view_term_is_kept_where_the_radiance_changes_with_the_view_and_the_camera_vignettes():
-    verdict, _ = trial_on(truth_view=True, frame_noise=0.01, vignetting=0.35)
-    assert verdict.kept and verdict.with_term > verdict.without + 0.3, verdict
+    """The camera model (on for every capture by default) takes the fall-off, the term the view."""
+    verdict, _ = trial_on(truth_view=True, frame_noise=0.01, vignetting=0.35, camera_model=True)
+    assert verdict.kept and verdict.with_term > verdict.without + 0.3 and verdict.radial_share < MAX_SHARE, verdict
+
+
+def test_the_radial_share_is_what_one_camera_response_explains():
+    """A camera's fall-off (the same gain and offset in r^2 in every view) is all radial; a pattern tied
+    to each view's content is not; a term that adds nothing has nothing radial; bad input is named."""
+    rng = np.random.default_rng(0)
+    plain = [rng.random((32, 48)) for _ in range(4)]
+    r2 = centre_r2(32, 48)
+    vignetted = [p * (1 - 0.2 * r2) - 0.03 * r2**2 for p in plain]
+    assert radial_share(plain, vignetted) == pytest.approx(1.0, abs=1e-9)
+    content = [p + 0.1 * rng.standard_normal(p.shape) for p in plain]
+    assert radial_share(plain, content) < 0.01
+    mixed = [v + 0.1 * (c - p) for v, c, p in zip(vignetted, content, plain)]
+    assert 0.2 < radial_share(plain, mixed) < 0.99
+    assert radial_share(plain, plain) == 0.0
+    with pytest.raises(ValueError, match="same views"):
+        radial_share(plain, vignetted[:2])
+    with pytest.raises(ValueError, match="rendered at"):
+        radial_share(plain[:1], [np.zeros((16, 48))])
 
 
 def test_a_radial_fall_off_and_a_level_are_fitted_exactly():
@@ -162,10 +204,11 @@ def test_a_term_on_trial_renders_on_odd_training_steps_only():
     assert model.gauss_params["view_sh"].abs().max() == 0 and torch.equal(train_render(1), without)
 
 
-def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1):
+def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1, share=0.0):
     """The demo with a degree-2 view term decided by the held-back frames at scored check `trial_checks`
     (checks at steps 3, 7 and 11), whose scores follow `scores` (one per call: without the term and with
-    it at the verdict, radial fall-off fitted; one per check otherwise, the verdict's check included)."""
+    it at the verdict, radial fall-off fitted; one per check otherwise, the verdict's check included), and
+    the radial share of what the term adds to the training views is `share` (the views rendered both ways)."""
     config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.pipeline.model.view_sh_degree = 2
@@ -180,6 +223,14 @@ def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1
         return next(calls)
 
     monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", scored)
+    rendered = []
+
+    def radial(without, with_term):
+        moved = not all(np.array_equal(a, b) for a, b in zip(without, with_term))
+        rendered.append((len(without), len(with_term), moved))
+        return share
+
+    monkeypatch.setattr("thermal_wild_ns.training.view_probe.radial_share", radial)
     monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))
     seen = []
     judge = judge_view_term
@@ -197,6 +248,7 @@ def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1
     entry = next(d for d in decisions if d["part"] == "view-dependent emission")
     # plain checks before the verdict, its pair with the fall-off fitted, then plain checks (3 in all: steps 3, 7, 11)
     assert fits == [False] * (trial_checks - 1) + [True, True] + [False] * (4 - trial_checks)
+    assert rendered == [(12, 12, True)]  # twelve training views, each rendered without the term and with it
     return trainer, json.loads((run / "auto_stop.json").read_text())["view_term"], entry, seen
 
 
@@ -206,6 +258,14 @@ def test_a_run_keeps_the_view_term_its_held_back_frames_gain_from(tmp_path, demo
     assert entry["choice"] == "on" and entry["decided_by"] == "data" and "20.00 -> 20.50" in entry["why"]
     assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() > 0  # trained on trial, then every step
     assert trainer.pipeline.model.renders_view_term()
+
+
+def test_a_run_drops_a_view_term_that_does_what_the_camera_model_does(tmp_path, demo_scene_dir, monkeypatch):
+    """The held-back frames gain with the term, but most of what it adds is one radial fall-off: off."""
+    trainer, verdict, entry, _ = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 20.5, 20.4, 21.0, 22.0], share=0.5)
+    assert not verdict["kept"] and verdict["radial_share"] == 0.5 and verdict["max_share"] == MAX_SHARE
+    assert entry["choice"] == "off" and "50% of what it adds" in entry["why"] and "camera model's part" in entry["why"]
+    assert trainer.pipeline.model.gauss_params["view_sh"].abs().max() == 0
 
 
 def test_a_run_drops_the_view_term_its_held_back_frames_do_not_gain_from(tmp_path, demo_scene_dir, monkeypatch):

@@ -71,16 +71,20 @@ def fit_gain_offset(pred: np.ndarray, target: np.ndarray) -> Tuple[float, float]
     return a, float(t.mean() - a * p.mean())
 
 
+def centre_r2(height: int, width: int) -> np.ndarray:
+    """Each pixel's squared distance from the image centre [H, W], 1 at the corners: the variable of a
+    camera's radial fall-off as the scorers fit it (`fit_with_radial_falloff`, `view_probe.radial_share`)."""
+    v, u = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
+    return ((u - width / 2) ** 2 + (v - height / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)
+
+
 def fit_with_radial_falloff(pred: np.ndarray, target: np.ndarray) -> np.ndarray:
     """`pred` [H, W] after the least-squares fit to `target` [H, W] (its finite pixels) of a gain, an
     offset and a radial field in r^2 from the image centre, multiplied and added (a + c r^2) pred +
     b + d r^2: what a camera's own fall-off (vignetting) and a frame's level can explain, credited to
     neither render. The fitted values of `target`'s finite pixels [M]."""
-    height, width = pred.shape
-    v, u = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
-    r2 = ((u - width / 2) ** 2 + (v - height / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)  # [H, W], 1 at corners
     finite = np.isfinite(target)
-    p, t, r = (np.asarray(x, dtype=np.float64)[finite] for x in (pred, target, r2))  # [M] each
+    p, t, r = (np.asarray(x, dtype=np.float64)[finite] for x in (pred, target, centre_r2(*pred.shape)))  # [M] each
     basis = np.stack([p, np.ones_like(p), r * p, r], axis=1)  # [M, 4]
     coefficients, *_ = np.linalg.lstsq(basis, t, rcond=None)
     return basis @ coefficients

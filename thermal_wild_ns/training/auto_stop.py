@@ -92,6 +92,14 @@ class AutoStopConfig:
     by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
     trains from the start. Off by default: right on a scene made to need the term and on DUNR, it
     still keeps the term on the generated vignetting scene (docs/results/view_trial_gpu)."""
+    view_max_radial_share: float = 0.09
+    """With `decide_view_term`: the largest share of what the term adds to training views that one radial
+    fall-off about the image centre may explain, and the term stay. Above it the term does what the camera
+    model does (a camera's vignetting is the same radial pattern in every view; radiance that changes with
+    the view follows surfaces, not the sensor) and is zeroed, whatever the held-back frames score. Set
+    between the shares the trial saw on CPU at its first check: the generated vignetting scene above it,
+    the generated scene made to need the term and the tests' small one below (docs/results/view_verdict_cpu,
+    "The term's radial share")."""
     view_trial_checks: int = 1
     """With `decide_view_term`: the scored check at which the held-back frames decide (1: the first). A
     later verdict lets the term and the frame states train side by side for longer before they are judged
@@ -228,6 +236,22 @@ def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canon
             fitted = a * pred[finite] + b
         values.append(float(psnr(torch.from_numpy(fitted), torch.from_numpy(truth[finite]))))
     return float(np.mean(values))
+
+
+def share_images(num_images: int, held_back: Sequence[int], count: int = 12) -> Tuple[int, ...]:
+    """Up to `count` trained image indices spread evenly over the capture (the held-back ones left out):
+    the views whose renders show where the view term puts what it adds (`view_probe.radial_share`)."""
+    trained = [k for k in range(num_images) if k not in set(held_back)]
+    if len(trained) <= count:
+        return tuple(trained)
+    return tuple(trained[round(k * (len(trained) - 1) / (count - 1))] for k in range(count))
+
+
+def scene_renders(pipeline, images: Sequence[int]) -> List[np.ndarray]:
+    """The scene's renders [H, W] (training space, no camera response) of training `images` at the
+    canonical state: what the model puts in the scene, the same state in every view."""
+    dataset, model, state = pipeline.datamanager.train_dataset, pipeline.model, canonical_state(pipeline)
+    return [render(pipeline, dataset.cameras[k : k + 1].to(model.device), state, recorded=False)[0] for k in images]
 
 
 class AutoStopRun:
@@ -394,7 +418,12 @@ class AutoStopRun:
         # scored with a radial fall-off fitted to each frame: a term that only mimics the camera's
         # vignetting (the same in every frame, so in the held-back ones too) gains nothing there
         verdict = judge_view_term(
-            pipeline.model, lambda: held_back_score(pipeline, held_back, radial=True), self.config.min_improvement, step
+            pipeline.model,
+            lambda: held_back_score(pipeline, held_back, radial=True),
+            lambda: scene_renders(pipeline, share_images(len(pipeline.datamanager.train_dataset), held_back)),
+            self.config.min_improvement,
+            self.config.view_max_radial_share,
+            step,
         )
         self.view_verdict = verdict
         CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")

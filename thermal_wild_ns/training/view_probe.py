@@ -23,13 +23,24 @@ state too was tried, and at the first check it moved with their own states' scor
 vignetting included (docs/results/view_verdict_cpu): it would decide nothing, so it is not part of the
 rule. The reason: that scene is scored against its clean truth (no camera in it), and the term takes
 part of the camera's vignetting into the scene; every recorded frame, held back or not, is explained as
-well either way, so no score against recorded frames can see it (the same folder).
+well either way, so no score against recorded frames can see it (the same folder; at the full
+protocol on a GPU the camera model kept about half the fall-off with the term that it kept without:
+docs/results/view_split_h200). So the verdict also looks at the split itself: the term's contribution to
+renders of training views (with it minus without it), and how much of it one radial camera response (a
+gain and an offset fall-off about the image centre, the same in every view) explains (`radial_share`).
+A term that the camera model could have taken is the camera's, not the scene's: above `max_share` it is
+zeroed whatever the held-back frames score. Radiance that changes with the view is tied to surfaces
+seen from different sides, not to a place on the sensor, so little of it is radial in every view.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Callable
+from typing import Callable, List, Optional, Sequence
+
+import numpy as np
+
+from thermal_wild_ns.pipeline.evaluation import centre_r2
 
 
 @dataclass
@@ -43,29 +54,78 @@ class ViewTermVerdict:
     with_term: float
     """Their score of the same model rendered with it."""
     kept: bool
+    radial_share: Optional[float] = None
+    """The share of the term's contribution to training views that one radial camera response explains
+    (`radial_share`; None in records written before the rule looked at it)."""
+    max_share: Optional[float] = None
+    """The largest share the term may have and stay (`AutoStopConfig.view_max_radial_share`)."""
 
     def as_record(self) -> dict:
         return asdict(self)
 
     def why(self) -> str:
         change = "raised" if self.with_term > self.without else "did not raise"
-        return (
+        scores = (
             f"trained on every other step until step {self.step:,}, the view term {change} the held-back "
             f"frames' PSNR beyond what a radial fall-off explains ({self.without:.2f} -> {self.with_term:.2f} dB)"
         )
+        if self.radial_share is None:
+            return scores
+        radial = self.max_share is not None and self.radial_share > self.max_share
+        verdict = "above the" if radial else "within the"
+        camera = ": the camera model's part, not the scene's" if radial else ""
+        share = (
+            f"{self.radial_share:.0%} of what it adds to the training views is one radial fall-off about the "
+            f"image centre ({verdict} {self.max_share:.0%} a view effect may have{camera})"
+        )
+        return f"{scores}; {share}"
 
 
-def judge_view_term(model, score: Callable[[], float], min_gain: float, step: int) -> ViewTermVerdict:
+def radial_share(without: Sequence[np.ndarray], with_term: Sequence[np.ndarray]) -> float:
+    """How much of the view term's contribution one camera response explains: over renders of several
+    views without the term and with it ([H, W] each, the same views in the same order), the least-squares
+    fit of their differences by a gain fall-off and an offset fall-off in r^2 and r^4 (r from the image
+    centre, `centre_r2`), the same four coefficients in every view; 1 - the residual's energy / the
+    differences' energy (0: nothing radial, 1: a camera's fall-off and nothing else; 0 where the term
+    adds nothing)."""
+    if len(without) != len(with_term) or not without:
+        raise ValueError("radial_share needs the same views rendered both ways, at least one")
+    differences, bases = [], []
+    for plain, termed in zip(without, with_term):
+        plain, termed = (np.asarray(x, dtype=np.float64) for x in (plain, termed))  # [H, W]
+        if plain.shape != termed.shape:
+            raise ValueError(f"radial_share: a view rendered at {plain.shape} and {termed.shape}")
+        r2 = centre_r2(*plain.shape)
+        differences.append((termed - plain).reshape(-1))  # [HW]
+        bases.append(np.stack([plain * r2, plain * r2**2, r2, r2**2], axis=-1).reshape(-1, 4))  # [HW, 4]
+    difference, basis = np.concatenate(differences), np.concatenate(bases)  # [M], [M, 4]
+    energy = float(np.square(difference).sum())
+    if energy == 0.0:
+        return 0.0
+    coefficients, *_ = np.linalg.lstsq(basis, difference, rcond=None)
+    return 1.0 - float(np.square(difference - basis @ coefficients).sum()) / energy
+
+
+def judge_view_term(
+    model,
+    score: Callable[[], float],
+    views: Callable[[], List[np.ndarray]],
+    min_gain: float,
+    max_share: float,
+    step: int,
+) -> ViewTermVerdict:
     """Score the held-back frames (`score()`) of `model`, whose view term is on trial
-    (`try_view_term`: left out of renders outside training), without the term and with it; keep the
-    term where it gains `min_gain`, else zero it (`use_view_term`)."""
-    without = score()
+    (`try_view_term`: left out of renders outside training), and render training views (`views()`),
+    without the term and with it; keep the term where it gains `min_gain` and no more than `max_share`
+    of what it adds to the views is radial (`radial_share`), else zero it (`use_view_term`)."""
+    without, plain = score(), views()
     model.use_view_term(True)
-    with_term = score()
-    kept = with_term >= without + min_gain
+    with_term, termed = score(), views()
+    share = radial_share(plain, termed)
+    kept = with_term >= without + min_gain and share <= max_share
     if not kept:
         model.use_view_term(False)
-    return ViewTermVerdict(step, without, with_term, kept)
+    return ViewTermVerdict(step, without, with_term, kept, share, max_share)
 
 
 def verdict_check(checks: int) -> str:
