@@ -127,7 +127,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     drone survey, cost a scene with vignetting, with the camera model on as well: docs/results/view_term_gpu,
     docs/results/view_defaults_h200). On that survey it is what
     keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
-    `--auto-stop.decide-view-term` lets each capture's held-back frames decide whether it stays."""
+    `--auto-stop.decide-view-term` lets each capture decide whether it stays (it drops a term that does
+    the camera model's work: docs/results/view_share_h200)."""
     camera_falloff: bool = False
     """Fit the camera's own radial fall-off (a gain and an offset growing towards the image corners,
     the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image

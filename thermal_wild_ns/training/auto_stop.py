@@ -89,9 +89,11 @@ class AutoStopConfig:
     decide whether it stays. Until scored check `view_trial_checks`, training renders alternate with and
     without the term; there the held-back frames are scored both ways (a radial fall-off fitted to each, so
     that mimicking the camera's vignetting earns nothing), and the term stays where it scores higher
-    by `min_improvement`, else it is zeroed for good (`view_probe.py`); one GPU only. Off: the term
-    trains from the start. Off by default: right on a scene made to need the term and on DUNR, it
-    still keeps the term on the generated vignetting scene (docs/results/view_trial_gpu)."""
+    by `min_improvement` and little of what it adds is radial (`view_max_radial_share`), else it is zeroed
+    for good (`view_probe.py`); one GPU only. Off: the term trains from the start. Off by default: right
+    on every generated scene whose answer is known, it drops the term on both real captures (what the term
+    adds there is mostly radial), so by default it would only add its cost (docs/results/view_share_h200).
+    For captures whose view effect is not radial: oblique views of façades, reflections of the sky."""
     view_max_radial_share: float = 0.09
     """With `decide_view_term`: the largest share of what the term adds to training views that one radial
     fall-off about the image centre may explain, and the term stay. Above it the term does what the camera

@@ -16,21 +16,20 @@ A camera's vignetting does carry over (every frame has it), and the term can mim
 generated vignetting scene, where the held-back frames rose with it: docs/results/view_trial_gpu); so
 both scores are taken after fitting each held-back frame a radial fall-off as well as its gain and
 offset: the term is credited only with what the camera's own fall-off cannot explain. That shrank the
-vignetting scene's gain but did not remove it (the rule still keeps the term there), so the rule is off
-by default. That scene loses with the term at the canonical state (`novel`, `aligned`), not at the
-frames' own (`time`: docs/results/view_defaults_h200); scoring the held-back frames at the canonical
-state too was tried, and at the first check it moved with their own states' score on every scene,
-vignetting included (docs/results/view_verdict_cpu): it would decide nothing, so it is not part of the
-rule. The reason: that scene is scored against its clean truth (no camera in it), and the term takes
-part of the camera's vignetting into the scene; every recorded frame, held back or not, is explained as
-well either way, so no score against recorded frames can see it (the same folder; at the full
-protocol on a GPU the camera model kept about half the fall-off with the term that it kept without:
-docs/results/view_split_h200). So the verdict also looks at the split itself: the term's contribution to
+vignetting scene's gain but did not remove it. That scene loses with the term against its clean truth
+(`novel`, `aligned`), not against its recorded frames (`time`: docs/results/view_defaults_h200): the term
+takes part of the camera's vignetting into the scene, and the camera model keeps less of it
+(docs/results/view_split_h200); every recorded frame, held back or not, is explained as well either way,
+so no score against recorded frames can see it, at the canonical state or at a later check either
+(docs/results/view_verdict_cpu). So the verdict also looks at the split itself: the term's contribution to
 renders of training views (with it minus without it), and how much of it one radial camera response (a
 gain and an offset fall-off about the image centre, the same in every view) explains (`radial_share`).
 A term that the camera model could have taken is the camera's, not the scene's: above `max_share` it is
 zeroed whatever the held-back frames score. Radiance that changes with the view is tied to surfaces
-seen from different sides, not to a place on the sensor, so little of it is radial in every view.
+seen from different sides, not to a place on the sensor, so little of it is radial in every view
+(docs/results/view_share_h200). Where the two look alike (a nadir survey over flat ground, whose
+emissivity falls with the angle off the optical axis), the camera model takes it, and the scene keeps
+each surface's temperature seen square-on.
 """
 
 from __future__ import annotations
