@@ -219,19 +219,22 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     wait
     for name in default view; do cp "/tmp/view-$name/bench.json" "$OUT/generated-$name-bench.json"; done
     ;;
-  view-flight2|view-dunr)  # the same on a real capture, its 5,000-step shortened schedule (as floor-*), 3 seeds each,
-    # the six runs side by side on one GPU
+  view-flight2|view-dunr|share-flight2|share-dunr)  # view-*, share-*: view-generated's and share-generated's
+    # comparison on a real capture, its 5,000-step shortened schedule (as floor-*), 3 seeds each, the six runs side
+    # by side on one GPU
     test -d /tmp/site || exit 3
-    scene=${plan#view-}
-    for name in default view; do
-      set_args=(); [ "$name" = view ] && set_args=(--set pipeline.model.view_sh_degree=2)
+    scene=${plan#*-} variant=${plan%%-*}
+    variant_args=(pipeline.model.view_sh_degree=2)
+    [ "$variant" = share ] && variant_args+=(auto_stop.decide_view_term=True)
+    for name in default "$variant"; do
+      set_args=(); [ "$name" = "$variant" ] && set_args=(--set "${variant_args[@]}")
       PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench \
-        --output-dir "/tmp/view-$name" --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" \
+        --output-dir "/tmp/$variant-$name" --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" \
         --methods wild-thermal --seeds 3 --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 \
         --eval-at 1000 2000 5000 "${set_args[@]}" > "$OUT/$scene-$name.log" 2>&1 &
     done
     wait
-    for name in default view; do cp "/tmp/view-$name/bench.json" "$OUT/$scene-$name.json"; done
+    for name in default "$variant"; do cp "/tmp/$variant-$name/bench.json" "$OUT/$scene-$name.json"; done
     ;;
   view-split-generated)  # issue 33 (docs/results/view_verdict_cpu): does the view term take part of the camera's
     # vignetting from the camera model? stress-vignetting and stress-clean, today's defaults and the term always on,
@@ -264,20 +267,6 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     done
     wait
     for name in default share; do cp "/tmp/share-$name/bench.json" "$OUT/generated-$name-bench.json"; done
-    ;;
-  share-flight2|share-dunr)  # the same on a real capture, its 5,000-step shortened schedule (as view-*), 3 seeds
-    # each, the six runs side by side on one GPU
-    test -d /tmp/site || exit 3
-    scene=${plan#share-}
-    for name in default share; do
-      set_args=(); [ "$name" = share ] && set_args=(--set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True)
-      PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench \
-        --output-dir "/tmp/share-$name" --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" \
-        --methods wild-thermal --seeds 3 --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 \
-        --eval-at 1000 2000 5000 "${set_args[@]}" > "$OUT/$scene-$name.log" 2>&1 &
-    done
-    wait
-    for name in default share; do cp "/tmp/share-$name/bench.json" "$OUT/$scene-$name.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
