@@ -17,7 +17,7 @@ from test_model import make_model
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.evaluation import centre_r2, fit_gain_offset, fit_with_radial_falloff
-from thermal_wild_ns.training.auto_stop import AutoStopConfig, held_back_score
+from thermal_wild_ns.training.auto_stop import AutoStopConfig, held_back_score, share_images
 from thermal_wild_ns.training.decisions import view_term_decision
 from thermal_wild_ns.training.trainer import seeded_trainer
 from thermal_wild_ns.training.view_probe import judge_view_term, radial_share
@@ -337,3 +337,10 @@ def test_the_pending_decision_names_the_check_that_will_decide():
         pending = SimpleNamespace(view_verdict=None, config=SimpleNamespace(view_trial_checks=checks))
         decision = view_term_decision(pending)
         assert decision.choice == "to be decided" and decision.why.endswith(words), decision
+
+
+def test_the_share_is_taken_on_trained_views_spread_over_the_capture():
+    images = share_images(40, held_back=(13, 26))
+    assert len(images) == 12 and images[0] == 0 and images[-1] == 39  # the capture's ends
+    assert not {13, 26} & set(images) and list(images) == sorted(set(images))
+    assert share_images(8, held_back=(3,)) == (0, 1, 2, 4, 5, 6, 7)  # a short capture: every trained view

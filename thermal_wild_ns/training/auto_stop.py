@@ -243,7 +243,8 @@ def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canon
 def share_images(num_images: int, held_back: Sequence[int], count: int = 12) -> Tuple[int, ...]:
     """Up to `count` trained image indices spread evenly over the capture (the held-back ones left out):
     the views whose renders show where the view term puts what it adds (`view_probe.radial_share`)."""
-    trained = [k for k in range(num_images) if k not in set(held_back)]
+    held = set(held_back)
+    trained = [k for k in range(num_images) if k not in held]
     if len(trained) <= count:
         return tuple(trained)
     return tuple(trained[round(k * (len(trained) - 1) / (count - 1))] for k in range(count))
