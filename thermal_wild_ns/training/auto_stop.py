@@ -92,7 +92,8 @@ class AutoStopConfig:
     by `min_improvement` and little of what it adds is radial (`view_max_radial_share`), else it is zeroed
     for good (`view_probe.py`); one GPU only. Off: the term trains from the start. Off by default: right
     on every generated scene whose answer is known, it drops the term on both real captures (what the term
-    adds there is mostly radial), so by default it would only add its cost (docs/results/view_share_h200).
+    adds there is more radial than on a scene made to need it), so by default it would only add its cost
+    (docs/results/view_share_h200).
     For captures whose view effect is not radial: oblique views of façades, reflections of the sky."""
     view_max_radial_share: float = 0.09
     """With `decide_view_term`: the largest share of what the term adds to training views that one radial
