@@ -3,7 +3,8 @@
 
 Each run is the bench's (`experiments.bench`: the same config, schedule and seed) with a view term on
 trial; it stops at the scored check where the trial decides (`--view-trial-checks`), and records the
-verdict: the held-back score without the term and with it (`ViewTermVerdict`). A cheap check of the
+verdict: the held-back score without the term and with it, and the radial share of what it adds to training
+views (`ViewTermVerdict`). A cheap check of the
 rule against scenes whose answer the GPU runs know (the generated vignetting scene loses with the term,
 `stress:view` gains: docs/results/view_defaults_h200, docs/results/view_trial_gpu). Writes `verdicts.json`
 to `--output-dir`.
