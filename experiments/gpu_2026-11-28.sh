@@ -38,10 +38,12 @@
 #     bash experiments/gpu_2026-11-28.sh share-generated                  # nothing carried
 #     bash experiments/gpu_2026-11-28.sh share-flight2                    # .data/flight2 .data/cache carried
 #     bash experiments/gpu_2026-11-28.sh share-dunr                       # .data/dunr .data/cache carried
+# The view term with its radial part penalised (view_radial_penalty), one H200, after `install`, nothing carried:
+#     bash experiments/gpu_2026-11-28.sh radial-penalty-generated
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
+plan=${1:?plan: install, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -267,6 +269,23 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     done
     wait
     for name in default share; do cp "/tmp/share-$name/bench.json" "$OUT/generated-$name-bench.json"; done
+    ;;
+  radial-penalty-generated)  # issue 33: the view term always on with its radial part penalised
+    # (`view_radial_penalty`, weights 10 and 100) on stress-vignetting, stress-clean and stress:view, 3 seeds, the two
+    # benches side by side on one GPU (18 runs); each run's decisions.json (the camera's fitted fall-off) copied out
+    test -d /tmp/site || exit 3
+    for weight in 10 100; do
+      PYTHONPATH=$PWD:/tmp/site timeout 400 python3 -m experiments.bench --output-dir "/tmp/penalty-$weight" \
+        --scenes stress:vignetting stress:clean stress:view --methods wild-thermal --seeds 3 --steps 5000 \
+        --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 9 --gpus 1 \
+        --set pipeline.model.view_sh_degree=2 pipeline.model.view_radial_penalty=$weight \
+        > "$OUT/penalty-$weight.log" 2>&1 &
+    done
+    wait
+    for weight in 10 100; do
+      cp "/tmp/penalty-$weight/bench.json" "$OUT/penalty-$weight-bench.json"
+      (cd "/tmp/penalty-$weight" && find . -name decisions.json | tar czf "$OUT/penalty-$weight-decisions.tgz" -T -)
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -46,7 +46,7 @@ from thermal_wild_ns.model.in_view import in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
-from thermal_wild_ns.model.view_emission import view_term
+from thermal_wild_ns.model.view_emission import radial_part, view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
 from thermal_wild_ns.rendering.captured import CapturedCalls
@@ -129,6 +129,13 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
     `--auto-stop.decide-view-term` lets each capture decide whether it stays (it drops a term that does
     the camera model's work: docs/results/view_share_h200)."""
+    view_radial_penalty: float = 0.0
+    """With a view term (`view_sh_degree` > 0): weight of a training loss on the part of the term that is
+    radial about the image centre in the view being trained (the visible Gaussians' term values fitted by a
+    gain and an offset fall-off in r^2, r^4 of their projected centres: `view_emission.radial_part`), so that
+    the camera model (`camera_falloff`), not the scene, takes what every view shares radially, and the term
+    keeps what follows surfaces. 0: no such loss (the term may take part of a camera's vignetting:
+    docs/results/view_split_h200). Not yet measured on the GPU; off by default."""
     camera_falloff: bool = False
     """Fit the camera's own radial fall-off (a gain and an offset growing towards the image corners,
     the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image
@@ -555,7 +562,17 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         thermal, alpha, depth = composite(render, alpha, background)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
             thermal = self.camera_response(thermal, view.K[0], view.pinhole)
-        return self._outputs(thermal, alpha, background, depth)
+        outputs = self._outputs(thermal, alpha, background, depth)
+        if self.training and self.config.view_radial_penalty > 0 and self.renders_view_term() and not split:
+            visible = self.info["radii"][0].reshape(self.num_points, -1).amax(-1) > 0  # [N]
+            outputs["view_radial"] = radial_part(
+                view_term(self.means[visible], self.gauss_params["view_sh"][visible], camera_position),  # [M, 1]
+                colors[visible].detach(),  # [M, 1]
+                self.info["means2d"][0][visible],  # [M, 2]
+                W,
+                H,
+            )
+        return outputs
 
     def camera_response(
         self, thermal: Tensor, K: Tensor, pinhole: Tuple[float, float, float, float], detach: bool = False
@@ -702,6 +719,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             gt, contrast = self._ground_truth(outputs, batch)
             image = self._training_image(batch)
             losses = self.thermal_loss(outputs, gt, contrast, image)
+        if "view_radial" in outputs:  # the view term's radial part (`view_radial_penalty`)
+            losses["view_radial"] = self.config.view_radial_penalty * outputs["view_radial"]
         if self.training and self.config.state_smoothness > 0:
             # the embeddings are one copy per GPU whose gradients are summed: each rank adds its share
             share = self.config.state_smoothness / self.ranks.world
