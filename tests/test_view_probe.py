@@ -15,6 +15,7 @@ from nerfstudio.cameras.cameras import Cameras
 from test_model import make_model
 
 from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.model.view_emission import radial_part
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.evaluation import centre_r2, fit_gain_offset, fit_with_radial_falloff
 from thermal_wild_ns.training.auto_stop import AutoStopConfig, held_back_score, share_images
@@ -344,3 +345,45 @@ def test_the_share_is_taken_on_trained_views_spread_over_the_capture():
     assert len(images) == 12 and images[0] == 0 and images[-1] == 39  # the capture's ends
     assert not {13, 26} & set(images) and list(images) == sorted(set(images))
     assert share_images(8, held_back=(3,)) == (0, 1, 2, 4, 5, 6, 7)  # a short capture: every trained view
+
+
+def test_the_radial_part_of_the_view_term_is_what_one_camera_response_explains():
+    """`radial_part`: a term that is a gain and offset fall-off of the Gaussians' place in the image is all
+    radial (its whole mean square); one that does not follow the place has little; the loss reaches the term."""
+    g = torch.Generator().manual_seed(0)
+    centres = torch.rand(500, 2, generator=g) * torch.tensor([48.0, 32.0])  # [M, 2] pixels
+    emission = torch.rand(500, 1, generator=g) + 0.5  # [M, 1]
+    r2 = ((centres - torch.tensor([24.0, 16.0])).square().sum(-1, keepdim=True)) / (24.0**2 + 16.0**2)
+    radial = -0.2 * emission * r2 + 0.05 * r2.square()
+    assert radial_part(radial, emission, centres, 48, 32).item() == pytest.approx(
+        radial.square().mean().item(), rel=1e-3
+    )
+    scattered = 0.1 * torch.randn(500, 1, generator=g)
+    assert radial_part(scattered, emission, centres, 48, 32).item() < 0.02 * scattered.square().mean().item()
+    term = radial.clone().requires_grad_(True)
+    radial_part(term, emission, centres, 48, 32).backward()
+    assert term.grad.abs().max() > 0
+
+
+def test_a_training_render_carries_the_view_terms_radial_part_into_the_loss_where_asked():
+    camera = arc_cameras(1)[0]
+    batch = {"image": torch.full((HEIGHT, WIDTH, 1), 0.5), "image_idx": 0}
+    for weight in (0.0, 10.0):
+        torch.manual_seed(0)
+        model = make_model(
+            n=300,
+            frames=16,
+            use_emission_mlp=False,
+            use_background_mlp=False,
+            view_sh_degree=2,
+            view_radial_penalty=weight,
+        )
+        with torch.no_grad():
+            model.gauss_params["view_sh"].normal_(0, 0.3, generator=torch.Generator().manual_seed(1))
+        model.train()
+        outputs = model.get_outputs(camera)
+        losses = model.get_loss_dict(outputs, batch)
+        assert ("view_radial" in losses) == (weight > 0)
+        if weight > 0:
+            assert losses["view_radial"].item() == pytest.approx(weight * outputs["view_radial"].item())
+            assert losses["view_radial"].item() > 0
