@@ -15,6 +15,7 @@ from nerfstudio.cameras.cameras import Cameras
 from test_model import make_model
 
 from thermal_wild_ns.demo import demo_trainer_config
+from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.view_emission import radial_part
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.evaluation import centre_r2, fit_gain_offset, fit_with_radial_falloff
@@ -387,3 +388,8 @@ def test_a_training_render_carries_the_view_terms_radial_part_into_the_loss_wher
         if weight > 0:
             assert losses["view_radial"].item() == pytest.approx(weight * outputs["view_radial"].item())
             assert losses["view_radial"].item() > 0
+
+
+def test_a_radial_penalty_without_a_view_term_is_refused():
+    with pytest.raises(InputError, match="view_radial_penalty 10 penalises the view term, but view_sh_degree is 0"):
+        make_model(n=50, frames=4, view_radial_penalty=10.0)

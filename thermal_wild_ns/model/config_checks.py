@@ -40,6 +40,15 @@ def refuse_unused_options(config) -> None:
         )
 
 
+def refuse_options_without_their_part(config) -> None:
+    """An `InputError` where an option weighs a part the config leaves out (it would do nothing)."""
+    if config.view_radial_penalty > 0 and config.view_sh_degree == 0:
+        raise InputError(
+            f"view_radial_penalty {config.view_radial_penalty:g} penalises the view term, but view_sh_degree is 0 "
+            "(no view term): set --pipeline.model.view-sh-degree 1 or 2, or leave the penalty at 0"
+        )
+
+
 def refuse_mismatched_checkpoint(
     state_dict: dict,
     emission_mlp: bool,

@@ -37,7 +37,11 @@ from thermal_wild_ns.model.camera_falloff import (
     respond,
 )
 from thermal_wild_ns.model.camera_views import TrainingViews, View, ViewingViews, host_sizes, intrinsics
-from thermal_wild_ns.model.config_checks import refuse_mismatched_checkpoint, refuse_unused_options
+from thermal_wild_ns.model.config_checks import (
+    refuse_mismatched_checkpoint,
+    refuse_options_without_their_part,
+    refuse_unused_options,
+)
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
@@ -241,6 +245,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         # .cuda(), a 3-channel SSIM and LPIPS (which downloads AlexNet weights).
         cfg = self.config
         refuse_unused_options(cfg)
+        refuse_options_without_their_part(cfg)
         self.ranks = RankGroup.current() if cfg.distributed else RankGroup()
         # every rank builds the same initial model (one seed), then keeps its share of the Gaussians
         if self.ranks.split and (cfg.use_absgrad or cfg.camera_optimizer.mode != "off"):
