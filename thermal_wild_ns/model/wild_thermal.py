@@ -139,7 +139,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     gain and an offset fall-off in r^2, r^4 of their projected centres: `view_emission.radial_part`), so that
     the camera model (`camera_falloff`), not the scene, takes what every view shares radially, and the term
     keeps what follows surfaces. 0: no such loss (the term may take part of a camera's vignetting:
-    docs/results/view_split_h200). Not yet measured on the GPU; off by default."""
+    docs/results/view_split_h200). At the weights tried so far it gave back only part of a generated
+    scene's vignetting to the camera (docs/results/view_radial_penalty_h200): off by default."""
     camera_falloff: bool = False
     """Fit the camera's own radial fall-off (a gain and an offset growing towards the image corners,
     the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image
