@@ -55,3 +55,17 @@ def image_metrics_and_images(pred: Tensor, gt: Tensor, num_points: int) -> Tuple
         "gaussian_count": float(num_points),
     }
     return metrics, {"img": torch.cat([gt, pred], dim=1).clamp(0, 1).expand(-1, -1, 3)}
+
+
+def radial_fit(values: Tensor, emission: Tensor, r2: Tensor) -> Tensor:
+    """`values` [M, 1] as one camera response explains them: their least-squares fit by a gain fall-off
+    (times `emission` [M, 1]) and an offset fall-off, each in r^2 and r^4 (`r2` [M, 1]: the squared distance
+    from the image centre, 1 at the corners), the same four coefficients for all M. Differentiable in
+    `values` (the normal equations, a ridge of the dtype's precision so that an empty or flat set solves)."""
+    basis = torch.cat([emission * r2, emission * r2.square(), r2, r2.square()], dim=-1)  # [M, 4]
+    gram = basis.T @ basis  # [4, 4]
+    ridge = torch.finfo(gram.dtype).eps * (gram.diagonal().mean() + 1.0)
+    coefficients = torch.linalg.solve(
+        gram + ridge * torch.eye(4, device=gram.device, dtype=gram.dtype), basis.T @ values
+    )
+    return basis @ coefficients  # [M, 1]

@@ -14,6 +14,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from thermal_wild_ns.image_metrics import radial_fit
+
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 
@@ -51,14 +53,10 @@ def view_term(means: Tensor, coefficients: Tensor, camera_position: Tensor) -> T
 
 def radial_part(term: Tensor, emission: Tensor, centres: Tensor, width: int, height: int) -> Tensor:
     """The mean square of the part of the visible Gaussians' view term `term` [M, 1] that one camera
-    response explains in this view: the least-squares fit of the term by a gain fall-off (times their
-    emission `emission` [M, 1]) and an offset fall-off, each in r^2 and r^4 of their projected centres
-    `centres` [M, 2] (pixels of a width x height image; r^2 is 1 at the corners, as
-    `evaluation.centre_r2`). Differentiable in `term` (the normal equations): a loss on it pushes what
-    every view shares radially to the camera model and leaves the term what follows surfaces."""
+    response explains in this view (`radial_fit`, with their `emission` [M, 1] and the r^2 of their
+    projected centres `centres` [M, 2], pixels of a width x height image, as `evaluation.centre_r2`). A
+    loss on it pushes what every view shares radially to the camera model and leaves the term what
+    follows surfaces."""
     centre = centres.new_tensor([width / 2, height / 2])
     r2 = ((centres - centre).square().sum(-1, keepdim=True) / centre.square().sum()).detach()  # [M, 1]
-    basis = torch.cat([emission * r2, emission * r2.square(), r2, r2.square()], dim=-1)  # [M, 4]
-    gram = basis.T @ basis + 1e-6 * torch.eye(4, device=basis.device, dtype=basis.dtype)  # [4, 4]
-    coefficients = torch.linalg.solve(gram, basis.T @ term)  # [4, 1]
-    return (basis @ coefficients).square().mean()
+    return radial_fit(term, emission, r2).square().mean()

@@ -38,7 +38,9 @@ from dataclasses import asdict, dataclass
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
+import torch
 
+from thermal_wild_ns.image_metrics import radial_fit
 from thermal_wild_ns.pipeline.evaluation import centre_r2
 
 
@@ -82,27 +84,25 @@ class ViewTermVerdict:
 
 def radial_share(without: Sequence[np.ndarray], with_term: Sequence[np.ndarray]) -> float:
     """How much of the view term's contribution one camera response explains: over renders of several
-    views without the term and with it ([H, W] each, the same views in the same order), the least-squares
-    fit of their differences by a gain fall-off and an offset fall-off in r^2 and r^4 (r from the image
-    centre, `centre_r2`), the same four coefficients in every view; 1 - the residual's energy / the
-    differences' energy (0: nothing radial, 1: a camera's fall-off and nothing else; 0 where the term
-    adds nothing)."""
+    views without the term and with it ([H, W] each, the same views in the same order), their differences
+    fitted by one gain and one offset fall-off about the image centre (`image_metrics.radial_fit`, r^2 as
+    `centre_r2`), the same in every view; the fitted part's energy / the differences' energy (0: nothing
+    radial, 1: a camera's fall-off and nothing else; 0 where the term adds nothing)."""
     if len(without) != len(with_term) or not without:
         raise ValueError("radial_share needs the same views rendered both ways, at least one")
-    differences, bases = [], []
+    differences, plains, r2s = [], [], []
     for plain, termed in zip(without, with_term):
         plain, termed = (np.asarray(x, dtype=np.float64) for x in (plain, termed))  # [H, W]
         if plain.shape != termed.shape:
             raise ValueError(f"radial_share: a view rendered at {plain.shape} and {termed.shape}")
-        r2 = centre_r2(*plain.shape)
-        differences.append((termed - plain).reshape(-1))  # [HW]
-        bases.append(np.stack([plain * r2, plain * r2**2, r2, r2**2], axis=-1).reshape(-1, 4))  # [HW, 4]
-    difference, basis = np.concatenate(differences), np.concatenate(bases)  # [M], [M, 4]
-    energy = float(np.square(difference).sum())
+        differences.append((termed - plain).reshape(-1, 1))  # [HW, 1]
+        plains.append(plain.reshape(-1, 1))
+        r2s.append(centre_r2(*plain.shape).reshape(-1, 1))
+    difference, plain, r2 = (torch.from_numpy(np.concatenate(x)) for x in (differences, plains, r2s))  # [M, 1]
+    energy = float(difference.square().sum())
     if energy == 0.0:
         return 0.0
-    coefficients, *_ = np.linalg.lstsq(basis, difference, rcond=None)
-    return 1.0 - float(np.square(difference - basis @ coefficients).sum()) / energy
+    return float(radial_fit(difference, plain, r2).square().sum()) / energy
 
 
 def judge_view_term(
