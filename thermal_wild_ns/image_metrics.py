@@ -1,5 +1,6 @@
 """Image metrics of single-channel images ([H, W, 1] tensors): what training logs, the evaluation
-protocols score and the heat-aware SSIM builds on."""
+protocols score and the heat-aware SSIM builds on; and the fit of a camera's radial response that the view
+term's rule and its penalty measure against (`radial_fit`)."""
 
 from __future__ import annotations
 
