@@ -40,10 +40,13 @@
 #     bash experiments/gpu_2026-11-28.sh share-dunr                       # .data/dunr .data/cache carried
 # The view term with its radial part penalised (view_radial_penalty), one H200, after `install`, nothing carried:
 #     bash experiments/gpu_2026-11-28.sh radial-penalty-generated
+# Who takes the vignetting first: the term from a later step, or the camera model at a higher rate, one H200, after
+# `install`, nothing carried:
+#     bash experiments/gpu_2026-11-28.sh view-start-generated
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
+plan=${1:?plan: install, view-start-generated, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -285,6 +288,27 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     for weight in 10 100; do
       cp "/tmp/penalty-$weight/bench.json" "$OUT/penalty-$weight-bench.json"
       (cd "/tmp/penalty-$weight" && find . -name decisions.json | tar czf "$OUT/penalty-$weight-decisions.tgz" -T -)
+    done
+    ;;
+  view-start-generated)  # issue 33: who takes the vignetting first. Today's defaults (no term), the term always on,
+    # the term from step 1,000 (`view_term_from_step`: the camera model fits first) and the term with the camera
+    # model at 10x its rate, on stress-vignetting, stress-clean and stress:view, issue 16's protocol, 3 seeds, the
+    # four benches side by side on one GPU (36 runs); each run's decisions.json (the camera's fit) copied out
+    test -d /tmp/site || exit 3
+    declare -A variants=([default]="" [term]="pipeline.model.view_sh_degree=2"
+      [start1000]="pipeline.model.view_sh_degree=2 pipeline.model.view_term_from_step=1000"
+      [camera-rate]="pipeline.model.view_sh_degree=2 optimizers.camera_falloff.optimizer.lr=0.01")
+    for name in default term start1000 camera-rate; do
+      read -ra set_args <<< "${variants[$name]}"; [ ${#set_args[@]} -gt 0 ] && set_args=(--set "${set_args[@]}")
+      PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/start-$name" \
+        --scenes stress:vignetting stress:clean stress:view --methods wild-thermal --seeds 3 --steps 5000 \
+        --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 9 --gpus 1 "${set_args[@]}" \
+        > "$OUT/start-$name.log" 2>&1 &
+    done
+    wait
+    for name in default term start1000 camera-rate; do
+      cp "/tmp/start-$name/bench.json" "$OUT/start-$name-bench.json"
+      (cd "/tmp/start-$name" && find . -name decisions.json | tar czf "$OUT/start-$name-decisions.tgz" -T -)
     done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;

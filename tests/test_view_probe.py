@@ -393,3 +393,39 @@ def test_a_training_render_carries_the_view_terms_radial_part_into_the_loss_wher
 def test_a_radial_penalty_without_a_view_term_is_refused():
     with pytest.raises(InputError, match="view_radial_penalty 10 penalises the view term, but view_sh_degree is 0"):
         make_model(n=50, frames=4, view_radial_penalty=10.0)
+
+
+def test_the_view_term_joins_training_renders_at_its_step():
+    """`view_term_from_step`: before it a training render is the one without the term and the term's
+    coefficients get no gradient; from it on they are rendered and learn; outside training the term is
+    rendered whatever the step."""
+    camera = arc_cameras(1)[0]
+    batch = {"image": torch.full((HEIGHT, WIDTH, 1), 0.5), "image_idx": 0}
+    torch.manual_seed(0)
+    model = make_model(
+        n=300, frames=16, use_emission_mlp=False, use_background_mlp=False, view_sh_degree=2, view_term_from_step=5
+    )
+    with torch.no_grad():
+        model.gauss_params["view_sh"].normal_(0, 0.3, generator=torch.Generator().manual_seed(1))
+    renders = {}
+    for step in (4, 5):
+        model.train()
+        model.step = step
+        model.zero_grad(set_to_none=True)
+        outputs = model.get_outputs(camera)
+        sum(model.get_loss_dict(outputs, batch).values()).backward()
+        renders[step] = outputs["thermal"].detach()
+        grad = model.gauss_params["view_sh"].grad
+        assert (grad is not None and grad.abs().max() > 0) == (step == 5)
+    assert not torch.allclose(renders[4], renders[5])
+    model.eval()
+    model.step = 0
+    with torch.no_grad():
+        assert torch.allclose(model.get_outputs(camera)["thermal"], renders[5], atol=1e-5)
+
+
+def test_a_view_term_step_without_a_view_term_is_refused():
+    with pytest.raises(InputError, match="view_term_from_step 100 delays the view term, but view_sh_degree is 0"):
+        make_model(n=50, frames=4, view_term_from_step=100)
+    with pytest.raises(InputError, match="view_term_from_step -1: must be 0 or more"):
+        make_model(n=50, frames=4, view_sh_degree=1, view_term_from_step=-1)

@@ -42,11 +42,18 @@ def refuse_unused_options(config) -> None:
 
 def refuse_options_without_their_part(config) -> None:
     """An `InputError` where an option weighs a part the config leaves out (it would do nothing)."""
-    if config.view_radial_penalty > 0 and config.view_sh_degree == 0:
-        raise InputError(
-            f"view_radial_penalty {config.view_radial_penalty:g} penalises the view term, but view_sh_degree is 0 "
-            "(no view term): set --pipeline.model.view-sh-degree 1 or 2, or leave the penalty at 0"
-        )
+    view_options = {
+        "view_radial_penalty": (config.view_radial_penalty, "penalises the view term", "the penalty at 0"),
+        "view_term_from_step": (config.view_term_from_step, "delays the view term", "it at 0"),
+    }
+    for name, (value, what, default) in view_options.items():
+        if value < 0:
+            raise InputError(f"{name} {value:g}: must be 0 or more")
+        if value > 0 and config.view_sh_degree == 0:
+            raise InputError(
+                f"{name} {value:g} {what}, but view_sh_degree is 0 (no view term): "
+                f"set --pipeline.model.view-sh-degree 1 or 2, or leave {default}"
+            )
 
 
 def refuse_mismatched_checkpoint(

@@ -133,6 +133,12 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
     `--auto-stop.decide-view-term` lets each capture decide whether it stays (it drops a term that does
     the camera model's work: docs/results/view_share_h200)."""
+    view_term_from_step: int = 0
+    """With a view term (`view_sh_degree` > 0): the training step from which it takes part in renders.
+    Until then the camera model (`camera_falloff`) and the scene fit alone, so that the camera's own
+    radial response is the camera model's before the term can take it (with both learning from the
+    first step the term took part of a scene's vignetting: docs/results/view_split_h200). 0: from the
+    start."""
     view_radial_penalty: float = 0.0
     """With a view term (`view_sh_degree` > 0): weight of a training loss on the part of the term that is
     radial about the image centre in the view being trained (the visible Gaussians' term values fitted by a
@@ -790,7 +796,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self._view_term = "trial"
 
     def renders_view_term(self) -> bool:
-        """Whether a render now adds the view term (`use_view_term`, `try_view_term`)."""
+        """Whether a render now adds the view term (`use_view_term`, `try_view_term`; in training not
+        before `view_term_from_step`)."""
+        if self.training and self.step < self.config.view_term_from_step:
+            return False
         if self._view_term == "trial":
             return self.training and self.step % 2 == 1
         return self._view_term == "on"
