@@ -43,10 +43,13 @@
 # Who takes the vignetting first: the term from a later step, or the camera model at a higher rate, one H200, after
 # `install`, nothing carried:
 #     bash experiments/gpu_2026-11-28.sh view-start-generated
+# Then the camera model at 10x its rate, with and without the term (each after `install`):
+#     bash experiments/gpu_2026-11-28.sh rate-real          # .data/flight2 .data/dunr .data/cache carried
+#     bash experiments/gpu_2026-11-28.sh rate-generated     # nothing carried
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, view-start-generated, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
+plan=${1:?plan: install, rate-real, rate-generated, view-start-generated, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -310,6 +313,50 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
       cp "/tmp/start-$name/bench.json" "$OUT/start-$name-bench.json"
       (cd "/tmp/start-$name" && find . -name decisions.json | tar czf "$OUT/start-$name-decisions.tgz" -T -)
     done
+    ;;
+  rate-real)  # issue 33 after view-start-generated (the camera model at 10x its rate fitted the vignetting scene's
+    # fall-off nearer the truth, with the view term on or off): both real captures' 5,000-step schedule (as
+    # floor-*), today's defaults, the camera model at 10x and the term with it, 3 seeds, the six benches side by
+    # side on one GPU (18 runs); each run's decisions.json copied out
+    test -d /tmp/site || exit 3
+    declare -A variants=([default]="" [camera-rate]="optimizers.camera_falloff.optimizer.lr=0.01"
+      [term-camera-rate]="pipeline.model.view_sh_degree=2 optimizers.camera_falloff.optimizer.lr=0.01")
+    for scene in flight2 dunr; do
+      for name in default camera-rate term-camera-rate; do
+        read -ra set_args <<< "${variants[$name]}"; [ ${#set_args[@]} -gt 0 ] && set_args=(--set "${set_args[@]}")
+        PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/rate-$scene-$name" \
+          --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 \
+          --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 --eval-at 1000 2000 5000 "${set_args[@]}" \
+          > "/tmp/rate-$scene-$name.log" 2>&1 &
+      done
+    done
+    wait
+    for scene in flight2 dunr; do
+      for name in default camera-rate term-camera-rate; do
+        cp "/tmp/rate-$scene-$name/bench.json" "$OUT/$scene-$name-bench.json"
+        (cd "/tmp/rate-$scene-$name" && find . -name decisions.json | tar czf "$OUT/$scene-$name-decisions.tgz" -T -)
+      done
+    done
+    tail -n 2 /tmp/rate-*.log
+    ;;
+  rate-generated)  # the same two variants on the demo, the five stress scenes and stress:view, issue 16's protocol,
+    # 3 seeds, the two benches side by side on one GPU (42 runs); today's defaults there: view_share_h200's
+    test -d /tmp/site || exit 3
+    declare -A variants=([camera-rate]="optimizers.camera_falloff.optimizer.lr=0.01"
+      [term-camera-rate]="pipeline.model.view_sh_degree=2 optimizers.camera_falloff.optimizer.lr=0.01")
+    for name in camera-rate term-camera-rate; do
+      read -ra set_args <<< "${variants[$name]}"
+      PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/rate-$name" \
+        --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting stress:view \
+        --methods wild-thermal --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 \
+        --runs-per-gpu 21 --gpus 1 --set "${set_args[@]}" > "/tmp/rate-$name.log" 2>&1 &
+    done
+    wait
+    for name in camera-rate term-camera-rate; do
+      cp "/tmp/rate-$name/bench.json" "$OUT/generated-$name-bench.json"
+      (cd "/tmp/rate-$name" && find . -name decisions.json | tar czf "$OUT/generated-$name-decisions.tgz" -T -)
+    done
+    tail -n 2 /tmp/rate-*.log
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
