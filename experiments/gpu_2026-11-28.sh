@@ -338,6 +338,7 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
       done
     done
     tail -n 2 /tmp/rate-*.log
+    (cd "$OUT" && tar czf rate-real.tgz --remove-files -- *[!z])  # one file back (a call returns at most 8)
     ;;
   rate-generated)  # the same two variants on the demo, the five stress scenes and stress:view, issue 16's protocol,
     # 3 seeds, the two benches side by side on one GPU (42 runs); today's defaults there: view_share_h200's
