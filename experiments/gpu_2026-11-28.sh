@@ -44,7 +44,8 @@
 # `install`, nothing carried:
 #     bash experiments/gpu_2026-11-28.sh view-start-generated
 # Then the camera model at 10x its rate, with and without the term (each after `install`):
-#     bash experiments/gpu_2026-11-28.sh rate-real          # .data/flight2 .data/dunr .data/cache carried
+#     SCENES=flight2 bash experiments/gpu_2026-11-28.sh rate-real   # .data/flight2 .data/cache carried
+#     SCENES=dunr bash experiments/gpu_2026-11-28.sh rate-real      # .data/dunr .data/cache carried (64 MiB: not both)
 #     bash experiments/gpu_2026-11-28.sh rate-generated     # nothing carried
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
@@ -321,7 +322,7 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
     test -d /tmp/site || exit 3
     declare -A variants=([default]="" [camera-rate]="optimizers.camera_falloff.optimizer.lr=0.01"
       [term-camera-rate]="pipeline.model.view_sh_degree=2 optimizers.camera_falloff.optimizer.lr=0.01")
-    for scene in flight2 dunr; do
+    for scene in ${SCENES:-flight2 dunr}; do
       for name in default camera-rate term-camera-rate; do
         read -ra set_args <<< "${variants[$name]}"; [ ${#set_args[@]} -gt 0 ] && set_args=(--set "${set_args[@]}")
         PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/rate-$scene-$name" \
@@ -331,14 +332,14 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
       done
     done
     wait
-    for scene in flight2 dunr; do
+    for scene in ${SCENES:-flight2 dunr}; do
       for name in default camera-rate term-camera-rate; do
         cp "/tmp/rate-$scene-$name/bench.json" "$OUT/$scene-$name-bench.json"
         (cd "/tmp/rate-$scene-$name" && find . -name decisions.json | tar czf "$OUT/$scene-$name-decisions.tgz" -T -)
       done
     done
     tail -n 2 /tmp/rate-*.log
-    (cd "$OUT" && tar czf rate-real.tgz --remove-files -- *[!z])  # one file back (a call returns at most 8)
+    (cd "$OUT" && tar czf "rate-${SCENES:-real}.tgz" --remove-files -- *[!z])  # one file back (a call returns at most 8)
     ;;
   rate-generated)  # the same two variants on the demo, the five stress scenes and stress:view, issue 16's protocol,
     # 3 seeds, the two benches side by side on one GPU (42 runs); today's defaults there: view_share_h200's
