@@ -129,8 +129,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """Degree (0, 1 or 2) of a per-Gaussian view-dependent emission term (emissivity and reflected sky
     change with the view angle), the same at every capture time (`view_emission.py`). 0: none (helped a
     drone survey, cost a scene with vignetting, with the camera model on as well: docs/results/view_term_gpu,
-    docs/results/view_defaults_h200). On that survey it is what
-    keeps a model with a larger Gaussian budget from losing held-out views (docs/results/growth).
+    docs/results/view_defaults_h200; less since the camera model learns faster: docs/results/camera_rate_h200).
+    On that survey it is what keeps a model with a larger Gaussian budget from losing held-out views
+    (docs/results/growth).
     `--auto-stop.decide-view-term` lets each capture decide whether it stays (it drops a term that does
     the camera model's work: docs/results/view_share_h200)."""
     view_term_from_step: int = 0
