@@ -138,8 +138,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """With a view term (`view_sh_degree` > 0): the training step from which it takes part in renders.
     Until then the camera model (`camera_falloff`) and the scene fit alone, so that the camera's own
     radial response is the camera model's before the term can take it (with both learning from the
-    first step the term took part of a scene's vignetting: docs/results/view_split_h200). 0: from the
-    start."""
+    first step the term took part of a scene's vignetting: docs/results/view_split_h200; delayed to step
+    1,000 it took less, while the camera model's faster rate fixed it: docs/results/camera_rate_h200). With
+    `--auto-stop.decide-view-term` the trial's renders with the term start here too. 0: from the start."""
     view_radial_penalty: float = 0.0
     """With a view term (`view_sh_degree` > 0): weight of a training loss on the part of the term that is
     radial about the image centre in the view being trained (the visible Gaussians' term values fitted by a
