@@ -47,10 +47,15 @@
 #     SCENES=flight2 bash experiments/gpu_2026-11-28.sh rate-real   # .data/flight2 .data/cache carried
 #     SCENES=dunr bash experiments/gpu_2026-11-28.sh rate-real      # .data/dunr .data/cache carried (64 MiB: not both)
 #     bash experiments/gpu_2026-11-28.sh rate-generated     # nothing carried
+# Next: the trial under the faster camera on every scene (share-generated, share-flight2, share-dunr above: they
+# take today's defaults), then flight2's growth with the term on trial (one H200, after `install`):
+#     bash experiments/gpu_2026-11-28.sh growth-trial-flight2   # .data/flight2 .data/cache/triangulation-ff4070e3f7030d32
+# Carrying: the repository (34 MB) with a capture and the whole .data/cache exceeds the 64 MiB a call carries;
+# carry the capture's own cache folder instead (flight2: triangulation-ff4070e3f7030d32, DUNR: -c639ec94ec8782da).
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
-plan=${1:?plan: install, rate-real, rate-generated, view-start-generated, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
+plan=${1:?plan: install, growth-trial-flight2, rate-real, rate-generated, view-start-generated, radial-penalty-generated, share-generated, share-flight2, share-dunr, ablations-generated, ablations-flight2, ablations-dunr, four-flight2, four-dunr, speed-dunr, patience-generated, patience-flight2, patience-dunr, parts-drifting, drifting-seeds, floor-flight2, floor-dunr, view-generated, view-flight2, view-dunr, view-split-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -359,6 +364,21 @@ open(sys.argv[2], 'a').write(json.dumps(r) + '\n'); print('fps seed $first', $ro
       (cd "/tmp/rate-$name" && find . -name decisions.json | tar czf "$OUT/generated-$name-decisions.tgz" -T -)
     done
     tail -n 2 /tmp/rate-*.log
+    ;;
+  growth-trial-flight2)  # issue 33's growth item under the faster camera (camera_rate_h200): the view term held
+    # flight2's model as it grew (growth-view-flight2 of gpu_2026-11-27.sh) and the trial's share rule dropped it
+    # there at the slower rate (view_share_h200). The full method with the term on trial, fixed budgets of 100k and
+    # 1M (the 15,000 steps of the 30k schedule asked, the stop on), 3 seeds each, the six runs side by side
+    test -d /tmp/site || exit 3
+    for budget in 100000 1000000; do
+      PYTHONPATH=$PWD:/tmp/site timeout 570 python3 -m experiments.bench --output-dir "/tmp/growth-trial-$budget" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 15000 --schedule 30000 --eval-at 2000 5000 10000 15000 \
+        --max-gaussians $budget --time-limit 470 \
+        --set pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True > "$OUT/growth-trial-$budget.log" 2>&1 &
+    done
+    wait
+    for budget in 100000 1000000; do cp "/tmp/growth-trial-$budget/bench.json" "$OUT/growth-trial-$budget.json"; done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
