@@ -49,9 +49,11 @@
 #     bash experiments/gpu_2026-11-28.sh rate-generated     # nothing carried
 # Next: the trial under the faster camera on every scene (share-generated, share-flight2, share-dunr above: they
 # take today's defaults), then flight2's growth with the term on trial (one H200, after `install`):
-#     bash experiments/gpu_2026-11-28.sh growth-trial-flight2   # .data/flight2 .data/cache/triangulation-ff4070e3f7030d32
+#     bash experiments/gpu_2026-11-28.sh growth-trial-flight2   # see Carrying below
 # Carrying: the repository (34 MB) with a capture and the whole .data/cache exceeds the 64 MiB a call carries;
-# carry the capture's own cache folder instead (flight2: triangulation-ff4070e3f7030d32, DUNR: -c639ec94ec8782da).
+# carry the capture's own cache folder instead (flight2: triangulation-ff4070e3f7030d32, DUNR: -c639ec94ec8782da),
+# and of flight2 only what a run reads (.data/flight2/rjpeg and .data/flight2/metashape: its reference rasters,
+# 2.6 MB, are read by no plan; the layout is detected the same without them).
 # Results go to $OUT. The full method's runs at today's defaults are grow_default_h200's (start 12,500, the same
 # protocols); the scene table: python -m experiments.full_vs_ablations (docs/results.md names its inputs).
 set -uo pipefail
