@@ -1,6 +1,6 @@
 """Image metrics of single-channel images ([H, W, 1] tensors): what training logs, the evaluation
 protocols score and the heat-aware SSIM builds on; and the fit of a camera's radial response that the view
-term's rule and its penalty measure against (`radial_fit`)."""
+term's rule and its penalty measure against (`radial_fit`, `squared_centre_distance`)."""
 
 from __future__ import annotations
 
@@ -56,6 +56,13 @@ def image_metrics_and_images(pred: Tensor, gt: Tensor, num_points: int) -> Tuple
         "gaussian_count": float(num_points),
     }
     return metrics, {"img": torch.cat([gt, pred], dim=1).clamp(0, 1).expand(-1, -1, 3)}
+
+
+def squared_centre_distance(u, v, width: int, height: int):
+    """The squared distance of image points (`u`, `v`: pixel coordinates, numpy arrays or tensors of one
+    shape) from the centre of a width x height image, 1 at the corners: the variable of a camera's radial
+    fall-off wherever it is fitted (`evaluation.centre_r2`, `view_emission.radial_part`)."""
+    return ((u - width / 2) ** 2 + (v - height / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)
 
 
 def radial_fit(values: Tensor, emission: Tensor, r2: Tensor) -> Tensor:

@@ -46,9 +46,9 @@ def wild_thermal_optimizers() -> dict:
         "emission_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
         "background_mlp": _adam(1e-3, _APPEARANCE_WEIGHT_DECAY),
         # four coefficients shared by every frame (`camera_falloff`), no decay towards no fall-off. At the MLPs'
-        # rate (1e-3) a short run left a third of a generated scene's vignetting to the scene, and a view term took
-        # more of it; at ten times that the camera model fitted all of it, with or without the term, and both real
-        # captures stayed level (docs/results/camera_rate_h200)
+        # rate (1e-3) a short run left part of a generated scene's vignetting to the scene, and a view term took
+        # more of it; at ten times that the camera model fitted it as made, with or without the term, and both
+        # real captures stayed level (docs/results/camera_rate_h200)
         "camera_falloff": _adam(1e-2),
         "camera_flat_field": _adam(1e-3),  # its cells: the MLPs' rate (not tried higher)
         "camera_opt": _adam(1e-4),

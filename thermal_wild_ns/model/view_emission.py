@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from thermal_wild_ns.image_metrics import radial_fit
+from thermal_wild_ns.image_metrics import radial_fit, squared_centre_distance
 
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
@@ -54,9 +54,9 @@ def view_term(means: Tensor, coefficients: Tensor, camera_position: Tensor) -> T
 def radial_part(term: Tensor, emission: Tensor, centres: Tensor, width: int, height: int) -> Tensor:
     """The mean square of the part of the visible Gaussians' view term `term` [M, 1] that one camera
     response explains in this view (`radial_fit`, with their `emission` [M, 1] and the r^2 of their
-    projected centres `centres` [M, 2], pixels of a width x height image, as `evaluation.centre_r2`). A
+    projected centres `centres` [M, 2], pixels of a width x height image: `squared_centre_distance`). A
     loss on it pushes what every view shares radially to the camera model and leaves the term what
     follows surfaces."""
-    centre = centres.new_tensor([width / 2, height / 2])
-    r2 = ((centres - centre).square().sum(-1, keepdim=True) / centre.square().sum()).detach()  # [M, 1]
+    u, v = centres.detach().split(1, dim=-1)  # [M, 1] each
+    r2 = squared_centre_distance(u, v, width, height)  # [M, 1]
     return radial_fit(term, emission, r2).square().mean()

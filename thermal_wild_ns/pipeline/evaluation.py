@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from thermal_wild_ns.data.palettes import false_colour
-from thermal_wild_ns.image_metrics import psnr, ssim
+from thermal_wild_ns.image_metrics import psnr, squared_centre_distance, ssim
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
     as_recorded,
@@ -75,7 +75,7 @@ def centre_r2(height: int, width: int) -> np.ndarray:
     """Each pixel's squared distance from the image centre [H, W], 1 at the corners: the variable of a
     camera's radial fall-off as the scorers fit it (`fit_with_radial_falloff`, `view_probe.radial_share`)."""
     v, u = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
-    return ((u - width / 2) ** 2 + (v - height / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)
+    return squared_centre_distance(u, v, width, height)
 
 
 def fit_with_radial_falloff(pred: np.ndarray, target: np.ndarray) -> np.ndarray:
