@@ -1,0 +1,95 @@
+#!/usr/bin/env bash
+# Plans for the GPU, 2026-11-29 (issue 33). One H200 (`nvidia-h200`); each call right after the last (a machine
+# stays warm 30 s). The bundle no longer fits beside the repository in one call (34 MB tracked + 32 MB of wheels
+# > 64 MiB): two wheels that only nerfstudio's imports need travel apart, in .data/wheels_extra (ignored):
+#     mkdir -p .data/wheels_extra && mv .devicebundle/wheels/{tensorly,jedi}-*.whl .data/wheels_extra/
+#     bash experiments/gpu_2026-11-29.sh install          # .devicebundle carried
+#     bash experiments/gpu_2026-11-29.sh install-extra    # .data/wheels_extra carried
+# then, each after those two:
+#     bash experiments/gpu_2026-11-29.sh map-rate-dunr    # .data/dunr .data/cache/triangulation-c639ec94ec8782da
+#     bash experiments/gpu_2026-11-29.sh map-rate-flight2 # .data/flight2/rjpeg .data/flight2/metashape
+#                                                         # .data/cache/triangulation-ff4070e3f7030d32
+#     bash experiments/gpu_2026-11-29.sh share-dunr       # as map-rate-dunr
+#     bash experiments/gpu_2026-11-29.sh share-flight2    # .data/flight2/rjpeg .data/flight2/metashape
+#                                                         # .data/cache/triangulation-ff4070e3f7030d32
+# Results go to $OUT (at most 8 files come back from a call: each plan tars its own into one archive, with those of
+# the plans before it on the same machine). Run 2026-11-29: map-rate-dunr, map-rate-flight2, share-dunr
+# (docs/results/map_rate_h200); share-flight2 not run.
+set -uo pipefail
+plan=${1:?plan: install, install-extra, map-rate-dunr, share-dunr, share-flight2}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
+MAP_RATE=optimizers.camera_flat_field.optimizer.lr=0.01
+
+bench() {  # NAME SEED SCENE... -- SETTING...: the full method, 3 seeds from SEED, the 5,000-step shortened schedule
+  # (as floor-* and rate-real of gpu_2026-11-28.sh), in the background; its bench and logs to /tmp/NAME
+  local name=$1 seed=$2 scenes=() set_args=()
+  shift 2
+  while [ $# -gt 0 ] && [ "$1" != -- ]; do scenes+=("$1"); shift; done
+  [ $# -gt 0 ] && shift && [ $# -gt 0 ] && set_args=(--set "$@")
+  PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/$name" \
+    --scenes "${scenes[@]}" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --seed "$seed" \
+    --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 --eval-at 1000 2000 5000 "${set_args[@]}" \
+    > "/tmp/$name.log" 2>&1 &
+}
+
+collect() {  # NAME...: each bench's json, log and the runs' decisions.json into one archive in $OUT
+  local name
+  for name in "$@"; do
+    cp "/tmp/$name/bench.json" "/tmp/collect-$name-bench.json"; cp "/tmp/$name.log" "/tmp/collect-$name.log"
+    (cd "/tmp/$name" && find . -name decisions.json | tar czf "/tmp/collect-$name-decisions.tgz" -T -)
+  done
+  tail -n 2 /tmp/collect-*.log
+  (cd /tmp && tar czf "$OUT/$plan.tgz" collect-*)
+}
+
+case "$plan" in
+  install)
+    bash experiments/gpu_2026-11-26.sh install
+    ;;
+  install-extra)
+    test -d /tmp/site || { echo cold; exit 3; }
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
+      .data/wheels_extra/*.whl 2>&1 | grep -v WARNING
+    PYTHONPATH=/tmp/site python3 -c "import tensorly, jedi, thermal_wild_ns.method_configs; print('extra ready')" 2>&1 | tail -1
+    ;;
+  map-rate-dunr)  # the flat-field map's cells at the fall-off's rate (1e-2; 1e-3 today): rate-real found flight2
+    # `aligned` +1.62 (ranges apart) and DUNR level (`time` -0.61, within the spread). Three more DUNR seeds (3-5)
+    # of both, and the synthetic survey (its map on, its truth clean) with both: 12 runs side by side
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    bench dunr-default 3 "$PWD/.data/dunr"
+    bench dunr-map-rate 3 "$PWD/.data/dunr" -- $MAP_RATE
+    bench survey-default 0 survey:48
+    bench survey-map-rate 0 survey:48 -- $MAP_RATE
+    wait
+    collect dunr-default dunr-map-rate survey-default survey-map-rate
+    ;;
+  map-rate-flight2)  # rate-real's flight2 half again (its files were lost with a machine): today's defaults and the
+    # map at 1e-2, seeds 0-2, 6 runs side by side
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    bench flight2-default 0 "$PWD/.data/flight2"
+    bench flight2-map-rate 0 "$PWD/.data/flight2" -- $MAP_RATE
+    wait
+    collect flight2-default flight2-map-rate
+    ;;
+  share-dunr)  # the view term's trial (view_probe.radial_share) against no term on DUNR, the map at 1e-2 in both
+    # arms, 3 seeds each (0-2): 6 runs side by side
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    bench dunr-map-rate-0 0 "$PWD/.data/dunr" -- $MAP_RATE
+    bench dunr-map-rate-share 0 "$PWD/.data/dunr" -- $MAP_RATE pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True
+    wait
+    collect dunr-map-rate-0 dunr-map-rate-share
+    ;;
+  share-flight2)  # the same trial on flight2, and three more seeds (3-5) of today's defaults and the map at 1e-2:
+    # 12 runs side by side
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    bench flight2-map-rate-0 0 "$PWD/.data/flight2" -- $MAP_RATE
+    bench flight2-map-rate-share 0 "$PWD/.data/flight2" -- $MAP_RATE pipeline.model.view_sh_degree=2 auto_stop.decide_view_term=True
+    bench flight2-default 3 "$PWD/.data/flight2"
+    bench flight2-map-rate 3 "$PWD/.data/flight2" -- $MAP_RATE
+    wait
+    collect flight2-map-rate-0 flight2-map-rate-share flight2-default flight2-map-rate
+    ;;
+  *) echo "unknown plan $plan" >&2; exit 2 ;;
+esac
