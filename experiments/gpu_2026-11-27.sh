@@ -1,4 +1,7 @@
 #!/usr/bin/env bash
+# Since 2026-11-29 the repository and the bundle exceed the 64 MiB a call carries: install with the two calls of
+# `experiments/gpu_2026-11-29.sh` (install, install-extra; its header) in place of `install` here, and carry one
+# capture's own triangulation cache (.data/cache/triangulation-*), not the whole .data/cache.
 # The GPU runs of 2026-11-27 and the plans left for the next sessions (issues 33 and 34; each plan's comment says
 # what it asks), one plan per device call on one warm machine, from the repository root:
 #     bash experiments/gpu_2026-11-27.sh install                 # .devicebundle carried

@@ -1,4 +1,7 @@
 #!/usr/bin/env bash
+# Since 2026-11-29 the repository and the bundle exceed the 64 MiB a call carries: install with the two calls of
+# `experiments/gpu_2026-11-29.sh` (install, install-extra; its header) in place of `install` here, and carry one
+# capture's own triangulation cache (.data/cache/triangulation-*), not the whole .data/cache.
 # Plans for the GPU after the Gaussian budget's default changed (2026-11-28: the held-back frames set it from
 # 12,500; docs/results/grow_default_h200): issue 33's scene table with every method at today's defaults. One plan
 # per device call on one warm machine, from the repository root, two GPUs (nvidia-h100-x2 or nvidia-h200-x2):
