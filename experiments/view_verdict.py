@@ -18,7 +18,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Tuple
+from typing import List, Optional, Tuple
 
 import tyro
 
@@ -37,11 +37,15 @@ class VerdictArgs:
     """The first seed."""
     steps: int = 5000
     """The schedule asked for (the bench's generated-scene protocol: 5,000 steps, one downscale)."""
-    num_downscales: int = 1
+    num_downscales: Optional[int] = 1
+    """The warm-up's downscales (1: the generated-scene protocol); None: the method's own, as the bench's
+    real-capture runs."""
     view_sh_degree: int = 2
     view_trial_checks: int = 1
     """The scored check at which the trial decides (`auto_stop.view_trial_checks`)."""
     output_dir: Path = Path("outputs/view_verdict")
+    cache_dir: Optional[Path] = None
+    """Where a real capture's triangulation is cached (as the bench's `--cache-dir`)."""
 
 
 class _Decided(Exception):
@@ -60,6 +64,7 @@ def verdict_of(scene: str, seed: int, args: VerdictArgs) -> dict:
             f"auto_stop.view_trial_checks={args.view_trial_checks}",
         ),
         output_dir=args.output_dir,
+        cache_dir=args.cache_dir,
     )
     config = trainer_config("wild-thermal", scene, bench, args.output_dir / "runs" / scene_name(scene), seed)
     trainer = setup_trainer(config)
