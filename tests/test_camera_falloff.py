@@ -156,9 +156,9 @@ class CameraFit(NamedTuple):
 
 
 def fit_falloff_alone(model, truth, lr: float, steps: int, map_lr: Optional[float] = None) -> CameraFit:
-    """The model's four coefficients fitted alone (its Gaussians fixed) by Adam at `lr` for `steps` steps to three of its
-    renders that carry the fall-off `truth` [2, 2]; with `map_lr`, an 8x8 flat-field map (zero at the start)
-    fitted beside them at that rate, as training fits both."""
+    """The model's four coefficients fitted alone (its Gaussians fixed) by Adam at `lr` for `steps` steps to
+    three of its renders that carry the fall-off `truth` [2, 2]; with `map_lr`, an 8x8 flat-field map (zero at
+    the start) fitted beside them at that rate, as training fits both."""
     rho = rho_of(intrinsics(), 48, 32)
     with torch.no_grad():
         model.camera_falloff.zero_()
