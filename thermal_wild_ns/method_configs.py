@@ -50,9 +50,8 @@ def wild_thermal_optimizers() -> dict:
         # more of it; at ten times that the camera model fitted it as made, with or without the term, and both
         # real captures stayed level (docs/results/camera_rate_h200)
         "camera_falloff": _adam(1e-2),
-        # its cells at the MLPs' rate: at the fall-off's 1e-2 they took part of a generated survey's fall-off, its
-        # held-back frames plateaued lower and its held-out frames scored lower; the real captures level
-        # (docs/results/map_rate_h200)
+        # its cells at the MLPs' rate: at the fall-off's 1e-2 no scene gained, and they took part of a generated
+        # survey's fall-off, whose held-back frames then plateaued lower (docs/results/map_rate_h200)
         "camera_flat_field": _adam(1e-3),
         "camera_opt": _adam(1e-4),
     }
