@@ -85,18 +85,22 @@ def score_checkpoints(description: str, score_run: Callable[[Path], dict], line:
 
 
 def python_profile_markdown(profiler, per: int, rows: int = 30) -> str:
-    """Markdown table of a `cProfile.Profile`'s functions by cumulative time, per step or frame
-    (`per`: how many the profile covered): where the host's time goes, by Python function. Times
-    are inflated by the profiler itself; the ranking is what to read."""
+    """Markdown tables of a `cProfile.Profile`'s functions by cumulative time and by own time, per step
+    or frame (`per`: how many the profile covered): where the host's time goes, by Python function.
+    Times are inflated by the profiler itself; the ranking is what to read."""
     import pstats
 
     stats = pstats.Stats(profiler).stats  # {(file, line, name): (calls, primitive, tottime, cumtime, callers)}
-    top = sorted(stats.items(), key=lambda kv: kv[1][3], reverse=True)[:rows]
-    lines = ["| function | calls each | own ms each | cumulative ms each |", "| --- | --- | --- | --- |"]
-    for (path, line, name), (calls, _, own, cumulative, _) in top:
-        where = f"{path.split('site-packages/')[-1]}:{line}({name})" if line else name
-        lines.append(f"| {where[-90:]} | {calls / per:.1f} | {1000 * own / per:.3f} | {1000 * cumulative / per:.3f} |")
-    return "\n".join(lines) + "\n"
+    tables = []
+    for title, column in (("by cumulative time", 3), ("by own time (where the host's time is spent)", 2)):
+        top = sorted(stats.items(), key=lambda kv: kv[1][column], reverse=True)[:rows]
+        lines = [title, "", "| function | calls each | own ms each | cumulative ms each |", "| --- | --- | --- | --- |"]
+        for (path, line, name), (calls, _, own, cumulative, _) in top:
+            where = f"{path.split('site-packages/')[-1]}:{line}({name})" if line else name
+            each = f"{calls / per:.1f} | {1000 * own / per:.3f} | {1000 * cumulative / per:.3f}"
+            lines.append(f"| {where[-90:]} | {each} |")
+        tables.append("\n".join(lines) + "\n")
+    return "\n".join(tables)
 
 
 def train_with_hooks(

@@ -16,7 +16,7 @@
 # the plans before it on the same machine). Run 2026-11-29: map-rate-dunr, map-rate-flight2, share-dunr
 # (docs/results/map_rate_h200); share-flight2 not run (changed after: the map at 1e-3 in its arms).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -91,6 +91,40 @@ case "$plan" in
     bench flight2-default-3 3 "$PWD/.data/flight2"
     wait
     collect flight2-default-0 flight2-share flight2-default-3
+    ;;
+  profile-dunr)  # issue 34, a later session: where today's step spends its host time (the full method's defaults
+    # on DUNR at step 1,500 and at step 4,000, a larger model), and the baked render of the step-4,000 run
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for warmup in 1500 4000; do
+      PYTHONPATH=$PWD:/tmp/site timeout 200 python3 -m experiments.profile_step --scene "$PWD/.data/dunr" \
+        --cache-dir "$PWD/.data/cache" --warmup $warmup --output-dir "/tmp/profile-$warmup" > "/tmp/profile-$warmup.log" 2>&1 \
+        || tail -20 "/tmp/profile-$warmup.log"
+      cp "/tmp/profile-$warmup/profile.md" "$OUT/profile-$warmup.md"
+      grep -E "ms/step|syncs per step" "$OUT/profile-$warmup.md"
+    done
+    PYTHONPATH=$PWD:/tmp/site timeout 90 python3 -m experiments.render_fps --frames 300 --profile-frames 50 \
+      --output-dir /tmp/render --load-config /tmp/profile-4000/runs/*/wild-thermal/run/config.yml > /tmp/render.log 2>&1
+    tail -6 /tmp/render.log
+    cp /tmp/render/fps.json /tmp/render/render_profile.md "$OUT/"
+    ;;
+  speed-ab)  # issue 34: before (.baseline: `git archive BASE thermal_wild_ns | tar -x -C .baseline`, carried with
+    # .data/dunr and DUNR's triangulation cache) and after (this tree), profile_step on DUNR at step 3,000, 500 timed
+    # steps, alternated over ROUNDS rounds (2); first the GPU tests of the optimizer step (no host sync)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_upstream.py -k fused_adam 2>&1 \
+      | grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" | head -20
+    rm -rf .baseline/experiments && cp -r experiments .baseline/
+    root=$PWD
+    for round in $(seq ${ROUNDS:-2}); do
+      for side in before after; do
+        dir=$PWD; [ $side = before ] && dir=$PWD/.baseline
+        (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$root/.data/dunr" \
+          --cache-dir "$root/.data/cache" --warmup 3000 --steps 500 --output-dir "/tmp/ab-$side-$round" \
+          > "/tmp/ab-$side-$round.log" 2>&1) || tail -20 "/tmp/ab-$side-$round.log"
+        cp "/tmp/ab-$side-$round/profile.md" "$OUT/profile-$side-$round.md"
+        echo "$side $round: $(grep -E 'ms/step' "$OUT/profile-$side-$round.md" | head -1) $(grep -E 'syncs per step' "$OUT/profile-$side-$round.md")"
+      done
+    done
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -1005,3 +1005,29 @@ def test_the_viewer_opens_through_the_nearest_training_camera():
     controls._look_through_training_camera(controls.nearest_training_image())
     assert client.camera.wxyz == frustum.wxyz
     assert np.allclose(client.camera.position, [1.0, 2.0, 3.2])  # 2 frustum scales along +z (viser's view axis)
+
+
+def test_a_training_step_resizes_and_checks_its_frame_once(monkeypatch):
+    """A training step asks for its frame at the render's size twice (metrics, loss): the frame is
+    resized once and both get the same answer a fresh resize gives; outside training every call
+    resizes (nothing is kept between renders there)."""
+    model = make_model()
+    model.config.num_downscales = 1  # a warm-up step: the frame is resized to the half-size render
+    model.train()
+    calls = []
+    resize = model.get_gt_img
+    monkeypatch.setattr(model, "get_gt_img", lambda image: calls.append(tuple(image.shape)) or resize(image))
+    outputs = model.get_outputs(make_camera(1))
+    assert outputs["thermal"].shape == (16, 24, 1)
+    batch = {"image": torch.rand(32, 48, 1), "image_idx": 1}
+    losses = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
+    assert calls == [(32, 48, 1)]
+    fresh = {key: value for key, value in outputs.items() if key != wild_thermal.GROUND_TRUTH_KEY}
+    again = model.get_loss_dict(fresh, batch)
+    assert len(calls) == 2 and all(torch.equal(losses[key], again[key]) for key in losses)
+    model.eval()
+    with torch.no_grad():
+        outputs = model.get_outputs(make_camera(1))
+    model.get_metrics_dict(outputs, batch)
+    model.get_metrics_dict(outputs, batch)
+    assert len(calls) == 4 and wild_thermal.GROUND_TRUTH_KEY not in outputs

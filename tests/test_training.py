@@ -274,3 +274,23 @@ def test_viewer_screenshot_shows_the_thermal_colormap(tmp_path, demo_scene_dir):
     distance, _ = cKDTree(palette_rgb("iron").astype(np.float32)).query(view)
     assert np.mean(distance < 30) > 0.8  # (almost) every pixel of the view is an iron colour
     assert len(np.unique(view, axis=0)) > 200  # and they form an image, not a flat fill
+
+
+def test_the_pipeline_switches_to_training_only_the_modules_that_are_not(tmp_path, demo_scene_dir, monkeypatch):
+    """nerfstudio's loop calls `pipeline.train()` before every step: where every module already trains
+    it sets nothing; a module left in eval mode (e.g. by an evaluation) is switched back."""
+    from demo_trainers import demo_trainer
+
+    pipeline = demo_trainer(tmp_path, demo_scene_dir, steps=2, section="guard").pipeline
+    pipeline.train()
+    switched = []
+    train = torch.nn.Module.train
+    counted = lambda module, mode=True: switched.append(module) or train(module, mode)  # noqa: E731
+    monkeypatch.setattr(torch.nn.Module, "train", counted)
+    pipeline.train()
+    assert switched == [] and all(module.training for module in pipeline.modules())
+    pipeline.model.emission_mlp.eval()
+    pipeline.train()
+    assert switched and all(module.training for module in pipeline.modules())
+    pipeline.eval()
+    assert not any(module.training for module in pipeline.modules())

@@ -196,3 +196,25 @@ def test_a_config_naming_a_moved_module_still_loads():
     for old, (cls, field, value) in named.items():
         config = yaml.load(f"!!python/object:{old}.{cls.__name__} {{{field}: {value}}}", Loader=yaml.Loader)
         assert type(config) is cls and getattr(config, field) == value
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_fused_adam_step_does_not_wait_for_the_gpu():
+    """The training step's optimizers take the divergence guard's verdict on the device: stepping them
+    must not read it back (a host sync at every step leaves the GPU idle while the host catches up).
+    torch raises in its sync debug mode "error" where a call waits for the GPU."""
+    from thermal_wild_ns._upstream import fused_adam_step
+
+    params = [torch.nn.Parameter(torch.randn(n, 3, device="cuda")) for n in (5, 7)]
+    optimizers = [torch.optim.Adam([p], lr=1e-2, fused=True) for p in params]
+    for step in range(3):
+        for p in params:
+            p.grad = torch.randn_like(p)
+        accepted = torch.tensor(step != 1, device="cuda")
+        torch.cuda.synchronize()
+        torch.cuda.set_sync_debug_mode("error")
+        try:
+            fused_adam_step(optimizers, accepted)
+        finally:
+            torch.cuda.set_sync_debug_mode("default")
+    assert float(optimizers[0].state[params[0]]["step"]) == 2  # three steps, one rejected

@@ -120,7 +120,10 @@ def fused_adam_step(optimizers, accepted: Optional[torch.Tensor] = None) -> None
     if not work:
         return
     steps = [state["step"] for _, _, states in work for state in states]
-    torch._foreach_add_(steps, 1 if accepted is None else accepted.float())
+    if accepted is None:
+        torch._foreach_add_(steps, 1)
+    else:  # the list form: the 0-dim tensor form waited for the GPU at every step (a host sync, torch 2.11)
+        torch._foreach_add_(steps, [accepted.float()] * len(steps))
     found_inf = None if accepted is None else (~accepted).float()
     for group, params, states in work:
         beta1, beta2 = group["betas"]

@@ -62,6 +62,9 @@ TYPICAL_STATE_GAUSSIANS = 16_384
 BAKE_ROWS = 1 << 22
 """Gaussians per evaluation of the emission MLP when its output is baked (`baked_emission`)."""
 
+GROUND_TRUTH_KEY = "_ground_truth"
+"""Where a training step's outputs keep its frame as the loss compares it (`_ground_truth`)."""
+
 
 def composite(render: Tensor, alpha: Tensor, background: Tensor) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
     """gsplat's render [1, H, W, 1(+1)] (emission, and depth where asked) with its alpha [1, H, W, 1]
@@ -719,10 +722,18 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return int(batch["image_idx"]) if self.training and "image_idx" in batch else None
 
     def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Optional[Tensor]]:
-        """The frame at the render's resolution and its contrast (`ThermalLoss.ground_truth`)."""
+        """The frame at the render's resolution and its contrast (`ThermalLoss.ground_truth`). A training
+        step asks twice (its metrics, its loss): the first answer is kept in the step's `outputs`, so
+        the frame is resized and checked once per step."""
+        kept = outputs.get(GROUND_TRUTH_KEY)
+        if kept is not None:
+            return kept
         gt = self.get_gt_img(checked_thermal_image(batch))
         image = self._training_image(batch)
-        return self.thermal_loss.ground_truth(gt, outputs["thermal"], image, batch.get("image_idx"))
+        answer = self.thermal_loss.ground_truth(gt, outputs["thermal"], image, batch.get("image_idx"))
+        if image is not None:  # a training step's outputs (a render outside training is scored once)
+            outputs[GROUND_TRUTH_KEY] = answer
+        return answer
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
         gt, _ = self._ground_truth(outputs, batch)

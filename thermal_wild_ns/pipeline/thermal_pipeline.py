@@ -90,6 +90,14 @@ class ThermalPipeline(VanillaPipeline):
             self.model.viewer_controls.on_state_change(self.update_colour_bar)
             self.update_colour_bar()
 
+    def train(self, mode: bool = True):
+        """`nn.Module.train`, skipped where every module already is in `mode`: nerfstudio's training loop
+        calls it before every step, and it sets an attribute on each of the pipeline's modules (host
+        time in every step, for a flag that changes only around evaluations)."""
+        if all(module.training == mode for module in self.modules()):
+            return self
+        return super().train(mode)
+
     def _record_or_check_data(self, record: Path, loads_a_run: bool) -> None:
         """Training: record what the run is trained on (`ThermalDataParser.fingerprint`) beside its
         config. Loading a run (ns-eval, ns-render, the viewer): the data must be what it was, or the
