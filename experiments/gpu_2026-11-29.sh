@@ -14,7 +14,10 @@
 #                                                         # .data/cache/triangulation-ff4070e3f7030d32
 # Results go to $OUT (at most 8 files come back from a call: each plan tars its own into one archive, with those of
 # the plans before it on the same machine). Run 2026-11-29: map-rate-dunr, map-rate-flight2, share-dunr
-# (docs/results/map_rate_h200); share-flight2 not run (changed after: the map at 1e-3 in its arms).
+# (docs/results/map_rate_h200); share-flight2 not run (changed after: the map at 1e-3 in its arms). A later session,
+# the same day: profile-dunr, then speed-ab with ROUNDS=3 (docs/results/speed_host_h200), each after the two installs:
+#     bash experiments/gpu_2026-11-29.sh profile-dunr     # .data/dunr .data/cache/triangulation-c639ec94ec8782da
+#     ROUNDS=3 bash experiments/gpu_2026-11-29.sh speed-ab   # the same and .baseline (see the plan)
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab}
 OUT=${OUT:-/tmp/out}
