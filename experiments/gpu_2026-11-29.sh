@@ -19,7 +19,7 @@
 #     bash experiments/gpu_2026-11-29.sh profile-dunr     # .data/dunr .data/cache/triangulation-c639ec94ec8782da
 #     ROUNDS=3 bash experiments/gpu_2026-11-29.sh speed-ab   # the same and .baseline (see the plan)
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -128,6 +128,23 @@ case "$plan" in
         echo "$side $round: $(grep -E 'ms/step' "$OUT/profile-$side-$round.md" | head -1) $(grep -E 'syncs per step' "$OUT/profile-$side-$round.md")"
       done
     done
+    ;;
+  growth-far-raw-flight2)  # issue 33's growth item toward splatfacto's count (536k on flight2 at 30k steps) under
+    # today's defaults (raw frames, the faster camera): both variants with a degree-2 view term, grown fast (gradient
+    # threshold 0.0004), the 3DGS variant given the full method's camera model, a 1M budget, the stop's held-back
+    # checks recorded but never stopping (patience 1000), 8,000 steps of the 30k schedule, 3 seeds each (6 runs)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    far=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000)
+    camera=(pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
+    for method in wild-thermal wild-thermal-3dgs; do
+      extra=("${far[@]}"); [ $method = wild-thermal-3dgs ] && extra+=("${camera[@]}")
+      PYTHONPATH=$PWD:/tmp/site timeout 450 python3 -m experiments.bench --output-dir "/tmp/far-$method" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods $method --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 8000 --schedule 30000 --eval-at 2000 5000 8000 \
+        --max-gaussians 1000000 --time-limit 420 --set "${extra[@]}" > "/tmp/far-$method.log" 2>&1 &
+    done
+    wait
+    collect far-wild-thermal far-wild-thermal-3dgs
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -67,7 +67,7 @@ def chart(found: Dict[str, dict], path: Path) -> None:
             line = ax.plot(gaussians, novel.mean(1), marker="o", label=name)[0]
             ax.fill_between(gaussians, novel.min(1), novel.max(1), color=line.get_color(), alpha=0.15)
         ax.set_xscale("log")
-        ax.set_xlabel("Gaussians (mean of the seeds, at steps 2k, 5k, 10k)")
+        ax.set_xlabel("Gaussians (mean of the seeds, at each checkpoint: steps 2k, 5k and 8k or 10k)")
         ax.set_ylabel("`novel` PSNR (dB): mean, band = min-max of the seeds")
         ax.set_title(f"{title}: held-out views as the model grows", fontsize=10)
         ax.legend(fontsize=7)
