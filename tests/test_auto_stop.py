@@ -77,7 +77,9 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=2, grow_budget=True)
     model = trainer.pipeline.model
     start = trainer.auto_stop.budget.start = model.num_points  # at its budget from the start
+    model.config.view_term_above_budget = 3 * start  # the full method's view term, for a budget past 3x the start
     model.start_budget(start)
+    assert model.has_view_term() and not model.renders_view_term()
     # the model fills each budget it is given (densification's growth has tests of its own)
     monkeypatch.setattr(WildThermalModel, "gaussian_budget", lambda m: (m.strategy.max_gaussians,) * 2)
     # checks at steps 3, 7, ...: a plateau at 11 (raise), a new best at 15, a plateau at 23 (raise), none after
@@ -95,12 +97,16 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     assert all(isinstance(c["gaussians"], int) and c["gaussians"] > 0 for c in record["checks"])
     curve = f"{start:,}: 20.00 dB; {2 * start:,}: 25.00 dB; {4 * start:,}: 24.90 dB"
     assert budget["why"].endswith(f"best held-back PSNR per budget: {curve}")
+    # the view term came in with the raise past 3x the start (step 23), and stays with the budget reached
+    view = next(d for d in decisions if d["part"] == "view-dependent emission")
+    assert view["choice"] == "on" and f"the Gaussian budget {4 * start:,}" in view["why"]
     # a resumed run starts from the budget the run had reached, not from its config's
     config = trainer.config
     config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 36
     config.auto_stop.budget_start = start
     resumed = seeded_trainer(config)
     assert resumed.pipeline.model.gaussian_budget()[1] == raises[-1]["budget"]
+    assert resumed.pipeline.model.renders_view_term()
 
 
 def test_by_default_the_held_back_frames_set_the_budget_from_its_start_and_the_fixed_one_applies_without_them(

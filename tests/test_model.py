@@ -1031,3 +1031,49 @@ def test_a_training_step_resizes_and_checks_its_frame_once(monkeypatch):
     model.get_metrics_dict(outputs, batch)
     model.get_metrics_dict(outputs, batch)
     assert len(calls) == 4 and wild_thermal.GROUND_TRUTH_KEY not in outputs
+
+
+def test_the_view_term_waits_until_the_gaussian_budget_passes_its_threshold():
+    """`view_term_above_budget`: below it the term is in no render (training or not) and gets no
+    gradient, whatever its coefficients; a budget raise past it, or a start above it, brings it in; the
+    trial, where asked, decides instead; a checkpoint whose term was trained renders it."""
+    model = make_model(view_sh_degree=2, view_term_above_budget=1000, max_gaussians=800)
+    perturb_output_layers(model)
+    model.train()
+    with torch.no_grad():
+        model.gauss_params["view_sh"].normal_(0, 0.5)  # coefficients the rule must leave out
+    trained = {k: v.clone() if torch.is_tensor(v) else v for k, v in model.state_dict().items()}
+    camera, batch = make_camera(1), {"image": torch.rand(32, 48, 1), "image_idx": 1}
+
+    def render(m):
+        return m.get_outputs(camera)["thermal"]
+
+    zeroed = make_model(view_sh_degree=2, view_term_above_budget=1000, max_gaussians=800)
+    zeroed.load_state_dict({**trained, "gauss_params.view_sh": torch.zeros_like(trained["gauss_params.view_sh"])})
+    zeroed.train()
+    assert not model.renders_view_term() and torch.equal(render(model), render(zeroed))
+    sum(model.get_loss_dict(model.get_outputs(camera), batch).values()).backward()
+    assert model.gauss_params["view_sh"].grad is None
+    view = next(d for d in model.decisions() if d.part == "view-dependent emission")
+    assert view.choice == "off" and "view_term_above_budget 1,000, the Gaussian budget 800" in view.why
+    model.raise_budget(1600)  # the held-back frames ask for more: the term comes in
+    assert model.renders_view_term() and not torch.equal(render(model), render(zeroed))
+    assert next(d for d in model.decisions() if d.part == "view-dependent emission").choice == "on"
+    # a fixed budget above the threshold: the term from the start
+    assert make_model(view_sh_degree=2, view_term_above_budget=1000, max_gaussians=2000).renders_view_term()
+    # the trial decides where it is on: the budget no longer does
+    trial = make_model(view_sh_degree=2, view_term_above_budget=1000, max_gaussians=800)
+    trial.try_view_term()
+    trial.start_budget(500)
+    trial.train()
+    trial.step = 1
+    assert trial.renders_view_term()
+    trial.use_view_term(True)  # its verdict: kept, whatever budget comes after
+    trial.raise_budget(900)
+    assert trial.renders_view_term()
+    # a run's checkpoint whose term was trained (its budget passed the threshold) renders the term when loaded
+    loaded = make_model(view_sh_degree=2, view_term_above_budget=1000, max_gaussians=800)
+    loaded.load_state_dict(trained)
+    loaded.eval()
+    assert loaded.renders_view_term()
+    assert not zeroed.renders_view_term()  # one whose term never took part has nothing to render

@@ -82,7 +82,17 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
             # flat-field map where the content crosses the sensor enough to tell a fixed pattern from the scene: the
             # threshold sits between the real captures, which gain, and the generated orbits, whose scene the map
             # takes in (docs/results/camera_flat_field)
-            model=WildThermalModelConfig(camera_falloff=True, camera_flat_field=8, camera_pattern_min_motion=0.22),
+            # and a view term that takes part once the held-back frames ask for more than 250k Gaussians: a small model
+            # gained nothing from it on either real capture (docs/results/view_defaults_h200, view_share_h200), a
+            # drone survey's model grown past ~250k lost held-out views without it and held them with it past
+            # splatfacto's count, DUNR's grown model was level or higher with it (docs/results/growth)
+            model=WildThermalModelConfig(
+                camera_falloff=True,
+                camera_flat_field=8,
+                camera_pattern_min_motion=0.22,
+                view_sh_degree=2,
+                view_term_above_budget=250_000,
+            ),
         ),
         optimizers=wild_thermal_optimizers(),
         viewer=ViewerConfig(num_rays_per_chunk=1 << 15),
@@ -102,6 +112,7 @@ def ablation_trainer(name: str, preprocessing: str, emission_mlp: bool) -> Guard
     model.heat_aware_ssim = False
     model.alpha_lambda = 0.0
     model.camera_falloff, model.camera_flat_field = False, 0  # the paper's rows: no camera model
+    model.view_sh_degree, model.view_term_above_budget = 0, None  # and no view term
     return config
 
 

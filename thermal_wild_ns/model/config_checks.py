@@ -46,6 +46,9 @@ def refuse_options_without_their_part(config) -> None:
         "view_radial_penalty": (config.view_radial_penalty, "penalises the view term", "the penalty at 0"),
         "view_term_from_step": (config.view_term_from_step, "delays the view term", "it at 0"),
     }
+    # `view_term_above_budget` is the full method's default: without a view term it simply has nothing to hold back
+    if config.view_term_above_budget is not None and config.view_term_above_budget < 0:
+        raise InputError(f"view_term_above_budget {config.view_term_above_budget}: must be 0 or more (None: no rule)")
     for name, (value, what, default) in view_options.items():
         if value < 0:
             raise InputError(f"{name} {value:g}: must be 0 or more")

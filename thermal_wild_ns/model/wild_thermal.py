@@ -152,6 +152,14 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     keeps what follows surfaces. 0: no such loss (the term may take part of a camera's vignetting:
     docs/results/view_split_h200). At the weights tried so far it gave back only part of a generated
     scene's vignetting to the camera (docs/results/view_radial_penalty_h200): off by default."""
+    view_term_above_budget: Optional[int] = None
+    """With a view term (`view_sh_degree` > 0): the term takes part in renders only once the Gaussian budget
+    (over every GPU: `max_gaussians`, or the one the held-back frames set, `--auto-stop.grow-budget`) is above
+    this many; until then it is left out of every render and gets no gradient. A small model gained nothing from
+    the term on either real capture, while on a drone survey a model grown past about 250k Gaussians lost
+    held-out views without it and held them with it, past splatfacto's count (docs/results/growth); a scene
+    that never asks for a large model never pays for the term. None: the term takes part from the start.
+    `--auto-stop.decide-view-term` replaces this rule where it is on."""
     camera_falloff: bool = False
     """Fit the camera's own radial fall-off (a gain and an offset growing towards the image corners,
     the same in every frame: `camera_falloff.py`) with the scene. It is rendered into every image
@@ -277,6 +285,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self._discard_statistics = False  # `discard_step_statistics`
         self._step_accepted: Optional[Tensor] = None  # `weigh_step_statistics`
         self._view_term = "on" if "view_sh" in self.gauss_params else "off"  # `use_view_term`, `try_view_term`
+        self._view_term_waits = False  # for the Gaussian budget to pass `view_term_above_budget` (`_follow_budget`)
+        self._view_term_by_trial = False  # the held-back frames' trial decides it instead (`try_view_term`)
         nn.init.zeros_(self.frame_embed.weight)
         self.emission_mlp = (
             EmissionMLP(cfg.gaussian_embed_dim, cfg.frame_embed_dim, cfg.emission_mlp_width, cfg.emission_mlp_layers)
@@ -325,6 +335,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.strategy = BudgetedDefaultStrategy.for_splatfacto(cfg, self.num_train_data, self.ranks.world)
         self.strategy_state = self.strategy.initialize_state(scene_scale=1.0)
         self._growth_ceiling: Optional[int] = None  # where a step ran out of GPU memory (`limit_growth`)
+        self._follow_budget()  # the fixed budget's: a run whose held-back frames set it says so at its start
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
 
@@ -776,9 +787,14 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("background MLP", cfg.use_background_mlp, "use_background_mlp"),
             ("heat-aware SSIM", cfg.heat_aware_ssim, "heat_aware_ssim"),
             ("alpha regulariser", cfg.alpha_lambda > 0, f"alpha_lambda {cfg.alpha_lambda:g}"),
-            ("view-dependent emission", cfg.view_sh_degree > 0, f"view_sh_degree {cfg.view_sh_degree}"),
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
+        view = f"view_sh_degree {cfg.view_sh_degree}"
+        if cfg.view_sh_degree > 0 and cfg.view_term_above_budget is not None and not self._view_term_by_trial:
+            budget_now = self.strategy.max_gaussians * self.ranks.world
+            view += f"; view_term_above_budget {cfg.view_term_above_budget:,}, the Gaussian budget {budget_now:,}"
+        on = cfg.view_sh_degree > 0 and not self._view_term_waits
+        entries.append(Decision("view-dependent emission", "on" if on else "off", view, "config"))
         falloff = "off" if self.camera_falloff is None else f"on: {describe_falloff(self.camera_falloff)}"
         entries.append(Decision("camera fall-off", falloff, self.falloff_why, "config"))
         flat_field = "off" if self.camera_flat_field is None else f"on: {describe_flat_field(self.camera_flat_field)}"
@@ -806,12 +822,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         training leaves it out."""
         if not self.has_view_term():
             raise ValueError("this model has no view term (view_sh_degree 0)")
-        self._view_term = "trial"
+        # the trial decides it from now on, not the budget (its verdict too: `use_view_term`)
+        self._view_term, self._view_term_waits, self._view_term_by_trial = "trial", False, True
 
     def renders_view_term(self) -> bool:
         """Whether a render now adds the view term (`use_view_term`, `try_view_term`; in training not
-        before `view_term_from_step`)."""
-        if self.training and self.step < self.config.view_term_from_step:
+        before `view_term_from_step`; in no render while the budget is below `view_term_above_budget`)."""
+        if self._view_term_waits or (self.training and self.step < self.config.view_term_from_step):
             return False
         if self._view_term == "trial":
             return self.training and self.step % 2 == 1
@@ -824,6 +841,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def start_budget(self, count: int) -> None:
         """Densification grows to `count` Gaussians at most from now on, in place of `max_gaussians`."""
         self.strategy.max_gaussians = count
+        self._follow_budget()
 
     def raise_budget(self, count: int) -> None:
         """Densification may grow to `count` Gaussians from now on, never past a count at which a step
@@ -832,6 +850,21 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.strategy.max_gaussians = max(
             self.strategy.max_gaussians, count if ceiling is None else min(count, ceiling)
         )
+        self._follow_budget()
+
+    def _follow_budget(self) -> None:
+        """The view term waits while the Gaussian budget (over every GPU) is at or below
+        `view_term_above_budget`, and takes part once it passes it (said on the console during a run)."""
+        threshold = self.config.view_term_above_budget
+        if threshold is None or not self.has_view_term() or self._view_term_by_trial:
+            return
+        waits = self.strategy.max_gaussians * self.ranks.world <= threshold
+        if self._view_term_waits and not waits and self.step > 0 and self.ranks.rank == 0:
+            CONSOLE.log(
+                f"step {self.step}: the Gaussian budget passed {threshold:,}: the view-dependent emission "
+                "term takes part from now on (view_term_above_budget)"
+            )
+        self._view_term_waits = waits
 
     def densifies(self, step: int) -> bool:
         """Whether gsplat's strategy still grows the model after `step` (it refines until `stop_split_at`)."""
@@ -862,7 +895,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         has_parts = (self.emission_mlp is not None, self.background_mlp is not None, self.camera_falloff is not None)
         has_parts += (self.camera_flat_field is not None,)
         refuse_mismatched_checkpoint(state_dict, *has_parts, tuple(self.frame_embed.weight.shape))
-        return super().load_state_dict(state_dict, strict=strict, **kwargs)
+        loaded = super().load_state_dict(state_dict, strict=strict, **kwargs)
+        if self._view_term_waits and bool(self.gauss_params["view_sh"].any()):
+            # a run whose budget passed `view_term_above_budget` trained the term: render it (a resumed run's
+            # automatic stop sets the budget it had reached, and the rule again, right after this)
+            self._view_term_waits = False
+        return loaded
 
     # densification statistics and torch's RNG (gsplat's splits draw from it) are saved: a resume continues the run
     def get_extra_state(self) -> dict:
