@@ -18,8 +18,10 @@
 # the same day: profile-dunr, then speed-ab with ROUNDS=3 (docs/results/speed_host_h200), each after the two installs:
 #     bash experiments/gpu_2026-11-29.sh profile-dunr     # .data/dunr .data/cache/triangulation-c639ec94ec8782da
 #     ROUNDS=3 bash experiments/gpu_2026-11-29.sh speed-ab   # the same and .baseline (see the plan)
+#     bash experiments/gpu_2026-11-29.sh growth-far-raw-flight2   # flight2's carry (docs/results/growth)
+# Not run yet (for the next session): view-cost-dunr (DUNR's carry), view-rule-flight2 (flight2's carry).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -145,6 +147,35 @@ case "$plan" in
     done
     wait
     collect far-wild-thermal far-wild-thermal-3dgs
+    ;;
+  view-cost-dunr)  # issue 34, not run yet: what the full method's waiting view term (view_term_above_budget, b47ed5e:
+    # its coefficients exist, in no render below a 250k budget) costs a step: profile_step on DUNR at step 3,000, the
+    # default and view_sh_degree=0 alternated over ROUNDS rounds (2)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for round in $(seq ${ROUNDS:-2}); do
+      for arm in default no-term; do
+        extra=(); [ $arm = no-term ] && extra=(--set pipeline.model.view_sh_degree=0)
+        PYTHONPATH=$PWD:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$PWD/.data/dunr" \
+          --cache-dir "$PWD/.data/cache" --warmup 3000 --steps 500 --python-steps 0 --output-dir "/tmp/cost-$arm-$round" \
+          "${extra[@]}" > "/tmp/cost-$arm-$round.log" 2>&1 || tail -20 "/tmp/cost-$arm-$round.log"
+        cp "/tmp/cost-$arm-$round/profile.md" "$OUT/profile-$arm-$round.md"
+        echo "$arm $round: $(grep -E 'ms/step' "$OUT/profile-$arm-$round.md" | head -1)"
+      done
+    done
+    ;;
+  view-rule-flight2)  # issue 33, not run yet: the view term coming in at a budget raise past 250k, mid-run (b47ed5e):
+    # flight2's full method from a 200k budget (its first raise passes 250k), with the rule (the default) and without a
+    # view term, 3 seeds each, 10,000 steps of the 30k schedule, the stop on (6 runs side by side)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for arm in rule no-term; do
+      extra=(auto_stop.budget_start=200000); [ $arm = no-term ] && extra+=(pipeline.model.view_sh_degree=0)
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/rule-$arm" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --runs-per-gpu 3 \
+        --fit-steps 20 --fps-frames 0 --steps 10000 --schedule 30000 --eval-at 2000 5000 10000 --time-limit 500 \
+        --set "${extra[@]}" > "/tmp/rule-$arm.log" 2>&1 &
+    done
+    wait
+    collect rule-rule rule-no-term
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
