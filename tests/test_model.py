@@ -973,18 +973,23 @@ def test_a_model_without_view_term_renders_as_one_with_a_zero_view_term():
 
 def test_the_view_term_trains_through_nerfstudio(tmp_path, demo_scene_dir):
     """With `view_sh_degree`, `ns-train`'s trainer has an optimizer for the coefficients (the method's
-    `view_sh` group) and steps them."""
+    `view_sh` group) and steps them once the term takes part; the full method's default holds it back at
+    the demo's budget (below `view_term_above_budget`), so its coefficients stay zero."""
     from thermal_wild_ns.demo import demo_trainer_config
     from thermal_wild_ns.training.trainer import seeded_trainer
 
-    config = demo_trainer_config(tmp_path, steps=3, max_gaussians=3000)
-    config.pipeline.datamanager.dataparser.data = demo_scene_dir
-    config.pipeline.model.view_sh_degree = 1
-    trainer = seeded_trainer(config)
-    trainer.train()
-    coefficients = trainer.pipeline.model.gauss_params["view_sh"]
-    assert "view_sh" in trainer.optimizers.optimizers and coefficients.abs().sum() > 0
-    assert coefficients.shape == (trainer.pipeline.model.num_points, 3)
+    for from_the_start in (True, False):  # the rule off; the method's default rule
+        config = demo_trainer_config(tmp_path / str(from_the_start), steps=3, max_gaussians=3000)
+        config.pipeline.datamanager.dataparser.data = demo_scene_dir
+        config.pipeline.model.view_sh_degree = 1
+        assert config.pipeline.model.view_term_above_budget > 3000  # the full method's
+        if from_the_start:
+            config.pipeline.model.view_term_above_budget = None
+        trainer = seeded_trainer(config)
+        trainer.train()
+        coefficients = trainer.pipeline.model.gauss_params["view_sh"]
+        assert "view_sh" in trainer.optimizers.optimizers and bool(coefficients.abs().sum() > 0) == from_the_start
+        assert coefficients.shape == (trainer.pipeline.model.num_points, 3)
 
 
 def test_the_viewer_opens_through_the_nearest_training_camera():
