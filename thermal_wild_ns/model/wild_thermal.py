@@ -134,7 +134,8 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     drone survey, cost a scene with vignetting, with the camera model on as well: docs/results/view_term_gpu,
     docs/results/view_defaults_h200; less since the camera model learns faster: docs/results/camera_rate_h200).
     On that survey it is what keeps a model with a larger Gaussian budget from losing held-out views
-    (docs/results/growth).
+    (docs/results/growth): `wild-thermal` has a degree-2 term that waits for a large budget
+    (`view_term_above_budget`).
     `--auto-stop.decide-view-term` lets each capture decide whether it stays (it drops a term that does
     the camera model's work: docs/results/view_share_h200)."""
     view_term_from_step: int = 0
