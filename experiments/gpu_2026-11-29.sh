@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Plans for the GPU, 2026-11-29 (issue 33). One H200 (`nvidia-h200`); each call right after the last (a machine
+# Plans for the GPU, 2026-11-29 (issues 33, 34). One H200 (`nvidia-h200`); each call right after the last (a machine
 # stays warm 30 s). The bundle no longer fits beside the repository in one call (34 MB tracked + 32 MB of wheels
 # > 64 MiB): two wheels that only nerfstudio's imports need travel apart, in .data/wheels_extra (ignored):
 #     mkdir -p .data/wheels_extra && mv .devicebundle/wheels/{tensorly,jedi}-*.whl .data/wheels_extra/
