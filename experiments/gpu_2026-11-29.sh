@@ -39,6 +39,18 @@ bench() {  # NAME SEED SCENE... -- SETTING...: the full method, 3 seeds from SEE
     > "/tmp/$name.log" 2>&1 &
 }
 
+profile_arm() {  # ARM ROUND DIR [SETTING...]: profile_step on DUNR at step 3,000 (500 timed steps) with the package
+  # of DIR (this tree, or .baseline/), the method's config with SETTINGs; its profile to $OUT/profile-ARM-ROUND.md
+  local arm=$1 round=$2 dir=$3 root=$PWD extra=()
+  shift 3
+  [ $# -gt 0 ] && extra=(--set "$@")
+  (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$root/.data/dunr" \
+    --cache-dir "$root/.data/cache" --warmup 3000 --steps 500 --output-dir "/tmp/profile-$arm-$round" "${extra[@]}" \
+    > "/tmp/profile-$arm-$round.log" 2>&1) || tail -20 "/tmp/profile-$arm-$round.log"
+  cp "/tmp/profile-$arm-$round/profile.md" "$OUT/profile-$arm-$round.md"
+  echo "$arm $round: $(grep -E 'ms/step' "$OUT/profile-$arm-$round.md" | head -1) $(grep -E 'syncs per step' "$OUT/profile-$arm-$round.md")"
+}
+
 collect() {  # NAME...: each bench's json, log and the runs' decisions.json into one archive in $OUT
   local name
   for name in "$@"; do
@@ -119,16 +131,9 @@ case "$plan" in
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_upstream.py -k fused_adam 2>&1 \
       | grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" | head -20
     rm -rf .baseline/experiments && cp -r experiments .baseline/
-    root=$PWD
     for round in $(seq ${ROUNDS:-2}); do
-      for side in before after; do
-        dir=$PWD; [ $side = before ] && dir=$PWD/.baseline
-        (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$root/.data/dunr" \
-          --cache-dir "$root/.data/cache" --warmup 3000 --steps 500 --output-dir "/tmp/ab-$side-$round" \
-          > "/tmp/ab-$side-$round.log" 2>&1) || tail -20 "/tmp/ab-$side-$round.log"
-        cp "/tmp/ab-$side-$round/profile.md" "$OUT/profile-$side-$round.md"
-        echo "$side $round: $(grep -E 'ms/step' "$OUT/profile-$side-$round.md" | head -1) $(grep -E 'syncs per step' "$OUT/profile-$side-$round.md")"
-      done
+      profile_arm before "$round" "$PWD/.baseline"
+      profile_arm after "$round" "$PWD"
     done
     ;;
   growth-far-raw-flight2)  # issue 33's growth item toward splatfacto's count (536k on flight2 at 30k steps) under
@@ -153,14 +158,8 @@ case "$plan" in
     # default and view_sh_degree=0 alternated over ROUNDS rounds (2)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     for round in $(seq ${ROUNDS:-2}); do
-      for arm in default no-term; do
-        extra=(); [ $arm = no-term ] && extra=(--set pipeline.model.view_sh_degree=0)
-        PYTHONPATH=$PWD:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$PWD/.data/dunr" \
-          --cache-dir "$PWD/.data/cache" --warmup 3000 --steps 500 --python-steps 0 --output-dir "/tmp/cost-$arm-$round" \
-          "${extra[@]}" > "/tmp/cost-$arm-$round.log" 2>&1 || tail -20 "/tmp/cost-$arm-$round.log"
-        cp "/tmp/cost-$arm-$round/profile.md" "$OUT/profile-$arm-$round.md"
-        echo "$arm $round: $(grep -E 'ms/step' "$OUT/profile-$arm-$round.md" | head -1)"
-      done
+      profile_arm default "$round" "$PWD"
+      profile_arm no-term "$round" "$PWD" pipeline.model.view_sh_degree=0
     done
     ;;
   view-rule-flight2)  # issue 33, not run yet: the view term coming in at a budget raise past 250k, mid-run (b47ed5e):

@@ -84,8 +84,8 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
             # takes in (docs/results/camera_flat_field)
             # and a view term that takes part once the held-back frames ask for more than 250k Gaussians: a small model
             # gained nothing from it on either real capture (docs/results/view_defaults_h200, view_share_h200), a
-            # drone survey's model grown past ~250k lost held-out views without it and held them with it past
-            # splatfacto's count, DUNR's grown model was level or higher with it (docs/results/growth)
+            # drone survey's large model lost held-out views without it and held them with it, DUNR's was level or
+            # higher with it (docs/results/growth; the threshold's evidence: docs/results.md, the defaults table)
             model=WildThermalModelConfig(
                 camera_falloff=True,
                 camera_flat_field=8,

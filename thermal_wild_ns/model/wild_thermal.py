@@ -157,9 +157,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """With a view term (`view_sh_degree` > 0): the term takes part in renders only once the Gaussian budget
     (over every GPU: `max_gaussians`, or the one the held-back frames set, `--auto-stop.grow-budget`) is above
     this many; until then it is left out of every render and gets no gradient. A small model gained nothing from
-    the term on either real capture, while on a drone survey a model grown past about 250k Gaussians lost
-    held-out views without it and held them with it, past splatfacto's count (docs/results/growth); a scene
-    that never asks for a large model never pays for the term. None: the term takes part from the start.
+    the term on either real capture, while a large model of a drone survey lost held-out views without it and
+    held them with it (docs/results/growth, where the threshold comes from); a scene that never asks for a large
+    model never pays for the term. None: the term takes part from the start.
     `--auto-stop.decide-view-term` replaces this rule where it is on."""
     camera_falloff: bool = False
     """Fit the camera's own radial fall-off (a gain and an offset growing towards the image corners,
