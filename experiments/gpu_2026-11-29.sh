@@ -19,9 +19,10 @@
 #     bash experiments/gpu_2026-11-29.sh profile-dunr     # .data/dunr .data/cache/triangulation-c639ec94ec8782da
 #     ROUNDS=3 bash experiments/gpu_2026-11-29.sh speed-ab   # the same and .baseline (see the plan)
 #     bash experiments/gpu_2026-11-29.sh growth-far-raw-flight2   # flight2's carry (docs/results/growth)
-# Not run yet (for the next session): view-cost-dunr (DUNR's carry), view-rule-flight2 (flight2's carry).
+# A third session: view-cost-dunr then render-ab in one call (DUNR's carry and .baseline), view-rule-flight2
+# (flight2's carry).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -175,6 +176,29 @@ case "$plan" in
     done
     wait
     collect rule-rule rule-no-term
+    ;;
+  render-ab)  # issue 34, a third session: the render's host read of the camera per frame (camera_views.CameraSizes:
+    # a batch's sizes read once); after view-cost-dunr on the same machine (it trains the model: its first default
+    # run). render_fps (a slice of one GPU batch per frame, as ns-render) with the package before (.baseline:
+    # `git archive e05d79e thermal_wild_ns | tar -x -C .baseline`) and after, alternated over 3 rounds, 1,000 frames;
+    # round 1 profiled; then the GPU parity tests of the render
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    config=$(ls /tmp/profile-default-1/runs/*/wild-thermal/run/config.yml | head -1)
+    rm -rf .baseline/experiments && cp -r experiments .baseline/
+    for round in 1 2 3; do
+      for arm in before after; do
+        dir=$PWD; [ $arm = before ] && dir=$PWD/.baseline
+        profiled=(); [ $round = 1 ] && profiled=(--profile-frames 100)
+        (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout 150 python3 -m experiments.render_fps --load-config "$config" \
+          --frames 1000 --output-dir "/tmp/render-$arm-$round" "${profiled[@]}" > "/tmp/render-$arm-$round.log" 2>&1) \
+          || tail -20 "/tmp/render-$arm-$round.log"
+        python3 -c "import json,sys; r=json.load(open(sys.argv[1])); r['arm'],r['round']=sys.argv[2],int(sys.argv[3]); print(json.dumps(r))" \
+          "/tmp/render-$arm-$round/fps.json" $arm $round | tee -a "$OUT/fps_rounds.jsonl"
+        [ $round = 1 ] && cp "/tmp/render-$arm-$round/render_profile.md" "$OUT/render_profile-$arm.md"
+      done
+    done
+    PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py 2>&1 \
+      | grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" | head -20
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

@@ -51,9 +51,12 @@ def _fps(render: Callable[[int], torch.Tensor], frames: int) -> float:
     return frames / (time.perf_counter() - start)
 
 
-def test_cameras(pipeline) -> list:
-    """The pipeline's held-out cameras, one per view, on the model's device."""
-    return [camera.to(pipeline.model.device) for camera, _ in pipeline.datamanager.fixed_indices_eval_dataloader]
+def test_cameras(pipeline) -> Callable[[int], object]:
+    """The pipeline's held-out cameras as ns-render hands them to the model: one batch moved to the
+    model's device once, frame `i` its slice `i % n` (a new camera object per frame, views of the batch)."""
+    batch = pipeline.datamanager.eval_dataset.cameras.to(pipeline.model.device)
+    n = len(batch)
+    return lambda i: batch[i % n : i % n + 1]
 
 
 def measure_fps(pipeline, frames: int) -> Dict:
@@ -66,12 +69,13 @@ def measure_fps(pipeline, frames: int) -> Dict:
     model = pipeline.model
     pipeline.eval()
     cameras = test_cameras(pipeline)
-    width, height = int(cameras[0].width), int(cameras[0].height)
+    count = len(pipeline.datamanager.eval_dataset.cameras)
+    width, height = int(cameras(0).width), int(cameras(0).height)
     ours = hasattr(model, "gaussian_emission")
     has_mlp = ours and model.emission_mlp is not None
 
     def baked(i: int) -> torch.Tensor:
-        outputs = model.get_outputs_for_camera(cameras[i % len(cameras)])
+        outputs = model.get_outputs_for_camera(cameras(i))
         return outputs["thermal"] if ours else outputs["rgb"]
 
     def unbaked(i: int) -> torch.Tensor:
@@ -84,7 +88,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
         if has_mlp:
             ways["unbaked"] = unbaked
             result["max_abs_difference_baked_unbaked"] = max(
-                float((unbaked(i) - baked(i)).abs().max()) for i in range(len(cameras))
+                float((unbaked(i) - baked(i)).abs().max()) for i in range(count)
             )
         if ours:
             splat = dict(
@@ -94,7 +98,9 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 opacities=torch.sigmoid(model.opacities).squeeze(-1),
                 colors=model.gaussian_emission(model.inference_embedding()),
             )
-            views = [(world_to_camera(c.camera_to_worlds), intrinsics(c)) for c in cameras]  # [1, 4, 4], [1, 3, 3]
+            views = [
+                (world_to_camera(cameras(i).camera_to_worlds), intrinsics(cameras(i))) for i in range(count)
+            ]  # [1, 4, 4], [1, 3, 3]
 
             def splat_only(i: int) -> torch.Tensor:
                 viewmat, K = views[i % len(views)]
@@ -122,7 +128,7 @@ def profile_baked(pipeline, frames: int) -> str:
 
     model = pipeline.model
     cameras = test_cameras(pipeline)
-    render = lambda i: model.get_outputs_for_camera(cameras[i % len(cameras)])
+    render = lambda i: model.get_outputs_for_camera(cameras(i))
     syncs: Dict[str, int] = collections.Counter()
     with torch.no_grad():
         for i in range(5):

@@ -787,6 +787,39 @@ def test_a_training_view_is_nerfstudios_rescaled_camera_and_leaves_the_camera_al
     assert views.get(camera, pose, 4, "cpu", cam_idx=None)[1] is not viewmat  # a camera without a fixed pose: computed
 
 
+def test_a_camera_batchs_sizes_are_read_once_for_all_its_slices_and_again_when_it_changes(monkeypatch):
+    """ns-render hands the model `cameras[i : i + 1]` of one batch: every slice gets its own camera's
+    sizes and intrinsics (as `host_sizes` reads them), the batch is read to the host once, a batch
+    written in place is read again, and a lone camera reads as before."""
+    from thermal_wild_ns.model import camera_views
+
+    batch = Cameras(
+        camera_to_worlds=torch.eye(4)[:3].expand(5, 3, 4).clone(),
+        fx=torch.arange(5.0)[:, None] * 10 + 100.3,
+        fy=torch.arange(5.0)[:, None] * 10 + 101.7,
+        cx=torch.arange(5.0)[:, None] + 30.1,
+        cy=torch.arange(5.0)[:, None] + 20.9,
+        width=torch.arange(5)[:, None] + 60,
+        height=torch.arange(5)[:, None] + 40,
+    )
+    order = (3, 0, 4, 1, 2, 3)
+    slices = [batch[i : i + 1] for i in order]
+    expected = [camera_views.host_sizes(camera) for camera in slices]
+    reads = []
+    tolist = torch.Tensor.tolist
+    monkeypatch.setattr(torch.Tensor, "tolist", lambda self: reads.append(1) or tolist(self))
+    sizes = camera_views.CameraSizes()
+    for i, camera, their_sizes in zip(order, slices, expected):
+        width, height, pinhole = sizes(camera)
+        assert (width, height, pinhole) == their_sizes
+        assert (width, height) == (60 + i, 40 + i)
+    assert len(reads) == 1
+    batch.fx.mul_(2.0)  # written in place: read again
+    assert sizes(batch[2:3])[2][0] == pytest.approx(2 * 120.3, rel=1e-6)
+    lone = make_camera(0, width=93, height=61)
+    assert sizes(lone) == camera_views.host_sizes(lone)
+
+
 def test_baked_background_map_matches_the_mlp_and_is_invalidated():
     """Renders outside training sample the background from a latitude-longitude map of the MLP:
     within 1 % of the background's spread of the MLP itself, at every direction (poles, the

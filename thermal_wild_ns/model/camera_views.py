@@ -56,25 +56,69 @@ def host_sizes(camera: Cameras) -> Tuple[float, float, Tuple[float, float, float
     return width, height, tuple(pinhole)
 
 
+def keep(kept: Dict, key, value, most: int) -> None:
+    """`kept[key] = value` as the most recent entry, the oldest dropped past `most` (`kept.pop(key)` first
+    where a looked-up entry stays)."""
+    kept[key] = value
+    while len(kept) > most:
+        kept.pop(next(iter(kept)))
+
+
+class CameraSizes:
+    """`host_sizes` of the cameras a render outside training gets, read once per camera batch: ns-render
+    hands the model slices of one batch on the GPU (`cameras[i : i + 1]`), whose fields are views of the
+    batch's storage. Reading a GPU tensor waits for every kernel queued before it, so a read per frame
+    made the host wait for the last frame before queueing the next; the batch's six fields are read
+    whole on its first frame and each slice's values picked by its offset. Kept by storage (held, so
+    its address is not reused while kept) and version (a batch written in place is read again)."""
+
+    KEPT = 8
+
+    def __init__(self) -> None:
+        self.kept: Dict[tuple, tuple] = {}  # storage addresses -> (storages, versions, their values on the host)
+
+    def __call__(self, camera: Cameras) -> Tuple[float, float, Tuple[float, float, float, float]]:
+        fields = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
+        if any(field.numel() != 1 for field in fields):
+            return host_sizes(camera)
+        storages = [field.untyped_storage() for field in fields]
+        key = tuple(storage.data_ptr() for storage in storages)
+        versions = tuple(field._version for field in fields)
+        entry = self.kept.pop(key, None)
+        if entry is None or entry[1] != versions:
+            whole = [  # each storage as its field's dtype, in float64: exact for int64 sizes and float32 values
+                field.new_empty(0).set_(storage, 0, (storage.nbytes() // field.element_size(),)).double()
+                for field, storage in zip(fields, storages)
+            ]
+            values = torch.cat(whole).tolist()  # the one transfer
+            starts = [0]
+            for part in whole[:-1]:
+                starts.append(starts[-1] + part.numel())
+            entry = (storages, versions, values, starts)
+        keep(self.kept, key, entry, self.KEPT)
+        values, starts = entry[2], entry[3]
+        width, height, *pinhole = (values[start + field.storage_offset()] for field, start in zip(fields, starts))
+        return width, height, tuple(pinhole)
+
+
 class ViewingViews:
     """The views of renders outside training (full resolution, any pose), whose view matrix their
     caller computes (`View.viewmat` None): the intrinsics [1, 3, 3] kept per (fx, fy, cx, cy), built
-    from the values read to the host anyway, as a viewer renders with the same few again."""
+    from the values read to the host anyway (`CameraSizes`), as a viewer renders with the same few again."""
 
     KEPT = 8
 
     def __init__(self) -> None:
         self.kept: Dict[tuple, Tensor] = {}
+        self.sizes = CameraSizes()
 
     def get(self, camera: Cameras, device) -> View:
-        width, height, pinhole = host_sizes(camera)
+        width, height, pinhole = self.sizes(camera)
         K = self.kept.pop(pinhole, None)
         if K is None:  # the values `intrinsics` stacks, from the same float32 numbers
             fx, fy, cx, cy = pinhole
             K = torch.tensor([[[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]], dtype=camera.fx.dtype, device=device)
-        self.kept[pinhole] = K  # the most recent last
-        while len(self.kept) > self.KEPT:
-            self.kept.pop(next(iter(self.kept)))
+        keep(self.kept, pinhole, K, self.KEPT)
         return View(camera.camera_to_worlds.to(device), None, K, int(width), int(height), pinhole)
 
 
