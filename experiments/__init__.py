@@ -84,6 +84,20 @@ def score_checkpoints(description: str, score_run: Callable[[Path], dict], line:
     return results
 
 
+def gpu_kernel_microseconds(prof) -> float:
+    """Time the GPU spent in kernels and copies under the torch profiler `prof` (not in the ranges named by
+    record_function, which the profiler also reports on the GPU timeline and which overlap the kernels)."""
+    from torch.autograd import DeviceType
+
+    return sum(
+        e.time_range.elapsed_us()
+        for e in prof.events()
+        if e.device_type == DeviceType.CUDA
+        and not getattr(e, "is_user_annotation", False)
+        and not e.name.startswith(("thermal/", "Optimizer.", "ProfilerStep"))
+    )
+
+
 def python_profile_markdown(profiler, per: int, rows: int = 30) -> str:
     """Markdown tables of a `cProfile.Profile`'s functions by cumulative time and by own time, per step
     or frame (`per`: how many the profile covered): where the host's time goes, by Python function.

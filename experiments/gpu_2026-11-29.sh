@@ -20,9 +20,9 @@
 #     ROUNDS=3 bash experiments/gpu_2026-11-29.sh speed-ab   # the same and .baseline (see the plan)
 #     bash experiments/gpu_2026-11-29.sh growth-far-raw-flight2   # flight2's carry (docs/results/growth)
 # A third session: view-cost-dunr then render-ab in one call (DUNR's carry and .baseline), view-rule-flight2
-# (flight2's carry).
+# (flight2's carry), then render-lean (a fresh machine after the installs; DUNR's carry and .baseline).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -177,12 +177,15 @@ case "$plan" in
     wait
     collect rule-rule rule-no-term
     ;;
-  render-ab)  # issue 34, a third session: the render's host read of the camera per frame (camera_views.CameraSizes:
-    # a batch's sizes read once); after view-cost-dunr on the same machine (it trains the model: its first default
-    # run). render_fps (a slice of one GPU batch per frame, as ns-render) with the package before (.baseline:
-    # `git archive e05d79e thermal_wild_ns | tar -x -C .baseline`) and after, alternated over 3 rounds, 1,000 frames;
-    # round 1 profiled; then the GPU parity tests of the render
+  render-ab|render-lean)  # issue 34, a third session. render-ab: the render's host read of the camera per frame
+    # (camera_views.CameraSizes: a batch's sizes read once); after view-cost-dunr on the same machine (it trains the
+    # model: its first default run). render-lean: the same and gsplat's CUDA functions called directly outside
+    # training (`_upstream.gsplat_render_one_view`), on a model it trains first (profile_arm, DUNR's carry).
+    # render_fps (`baked`: a slice of one GPU batch per frame, as ns-render; `baked_cameras_made`: the slices made
+    # before) with the package before (.baseline: `git archive e05d79e thermal_wild_ns | tar -x -C .baseline`) and
+    # after, alternated over 3 rounds, 1,000 frames; round 1 profiled; then the GPU parity tests of the render
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    [ "$plan" = render-lean ] && profile_arm default 1 "$PWD"
     config=$(ls /tmp/profile-default-1/runs/*/wild-thermal/run/config.yml | head -1)
     rm -rf .baseline/experiments && cp -r experiments .baseline/
     for round in 1 2 3; do

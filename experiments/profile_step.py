@@ -26,7 +26,7 @@ from typing import Dict, Optional, Tuple
 import torch
 import tyro
 
-from experiments import device_name, python_profile_markdown, synchronize, train_with_hooks
+from experiments import device_name, gpu_kernel_microseconds, python_profile_markdown, synchronize, train_with_hooks
 from experiments.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, trainer_config
 
 
@@ -58,20 +58,6 @@ def _device_time(event) -> float:
 
 def _inclusive_device_time(event) -> float:
     return float(getattr(event, "device_time_total", getattr(event, "cuda_time_total", 0.0)))
-
-
-def _kernel_microseconds(prof) -> float:
-    """Time the GPU spent in kernels and copies (not in the ranges named by record_function,
-    which the profiler also reports on the GPU timeline and which overlap the kernels)."""
-    from torch.autograd import DeviceType
-
-    return sum(
-        e.time_range.elapsed_us()
-        for e in prof.events()
-        if e.device_type == DeviceType.CUDA
-        and not getattr(e, "is_user_annotation", False)
-        and not e.name.startswith(("thermal/", "Optimizer.", "ProfilerStep"))
-    )
 
 
 class _Phases:
@@ -159,7 +145,7 @@ def profile(args: ProfileArgs) -> Dict:
     syncs = dict(sorted(phases.syncs.items(), key=lambda kv: -kv[1]))
     events = prof.key_averages()
     n = args.profile_steps
-    gpu_ms = _kernel_microseconds(prof) / 1000 / n
+    gpu_ms = gpu_kernel_microseconds(prof) / 1000 / n
     by_gpu = sorted(events, key=_device_time, reverse=True)[:25]
     by_cpu = sorted(events, key=lambda e: e.self_cpu_time_total, reverse=True)[:25]
     sections = sorted((e for e in events if e.key.startswith("thermal/")), key=lambda e: e.key)

@@ -2,8 +2,10 @@
 
 Loads a trained run from its config.yml (as ns-render and ns-viewer do) and renders its test
 cameras, in three ways:
-- `baked`: what ns-viewer and ns-render do: the model's own rendering (background MLP included)
-  with the emission MLP evaluated once for the fixed frame embedding and cached;
+- `baked`: what ns-render does: the model's own rendering (background MLP included) with the
+  emission MLP evaluated once for the fixed frame embedding and cached, of a camera sliced from the
+  path's batch on the GPU per frame (`cameras[i : i + 1]`, nerfstudio's host work);
+- `baked_cameras_made`: the same with the slices made before the timing: the model's render path alone;
 - `unbaked`: the same, with the emission MLP evaluated again for every frame;
 - `splat_only`: gsplat's rasterization of the same Gaussians and baked emission alone, no model
   code around it (the floor).
@@ -26,7 +28,7 @@ from typing import Callable, Dict
 import torch
 import tyro
 
-from experiments import device_name, python_profile_markdown, synchronize
+from experiments import device_name, gpu_kernel_microseconds, python_profile_markdown, synchronize
 
 
 @dataclass
@@ -74,15 +76,18 @@ def measure_fps(pipeline, frames: int) -> Dict:
     ours = hasattr(model, "gaussian_emission")
     has_mlp = ours and model.emission_mlp is not None
 
-    def baked(i: int) -> torch.Tensor:
-        outputs = model.get_outputs_for_camera(cameras(i))
+    def baked(i: int, camera=None) -> torch.Tensor:
+        outputs = model.get_outputs_for_camera(cameras(i) if camera is None else camera)
         return outputs["thermal"] if ours else outputs["rgb"]
+
+    made = [cameras(i) for i in range(count)]
+    model_path = lambda i: baked(i, made[i % count])
 
     def unbaked(i: int) -> torch.Tensor:
         model.baked.slots.pop("emission", None)  # forget the cached emission: the MLP runs again for this frame
         return baked(i)
 
-    ways: Dict[str, Callable[[int], torch.Tensor]] = {"baked": baked}
+    ways: Dict[str, Callable[[int], torch.Tensor]] = {"baked": baked, "baked_cameras_made": model_path}
     result: Dict = {"resolution": f"{width}x{height}", "gaussians": int(model.num_points), "frames": frames}
     with torch.no_grad():
         if has_mlp:
@@ -148,7 +153,9 @@ def profile_baked(pipeline, frames: int) -> str:
             for i in range(frames):
                 render(i)
             synchronize()
-    lines = ["Host syncs per baked frame:", ""] + [f"- {n / 5:.1f} x {k}" for k, n in syncs.most_common()]
+    gpu_ms = gpu_kernel_microseconds(prof) / 1000 / frames if torch.cuda.is_available() else 0.0
+    lines = [f"GPU kernels and copies: {gpu_ms:.3f} ms per baked frame", ""]
+    lines += ["Host syncs per baked frame:", ""] + [f"- {n / 5:.1f} x {k}" for k, n in syncs.most_common()]
     lines += ["", "| operator | calls/frame | self CPU ms/frame |", "| --- | --- | --- |"]
     events = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)[:30]
     lines += [f"| {e.key[:70]} | {e.count / frames:.1f} | {e.self_cpu_time_total / 1e3 / frames:.3f} |" for e in events]

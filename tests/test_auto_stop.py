@@ -72,8 +72,8 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
 ):
     """Through a run: a plateau at the budget doubles it and training goes on; a raise followed by a new
     best earns the next one at the next plateau; a raise with no new best ends the run. The raises are
-    recorded (auto_stop.json, decisions.json) and said to be the data's choice; a resumed run starts from
-    the budget reached."""
+    recorded (auto_stop.json, decisions.json) and said to be the data's choice; a model kept from before a
+    raise keeps the budget it trained under; a resumed run starts from the budget reached."""
     trainer = _trainer(tmp_path, demo_scene_dir, steps=40, check_every=4, patience=2, grow_budget=True)
     model = trainer.pipeline.model
     start = trainer.auto_stop.budget.start = model.num_points  # at its budget from the start
@@ -97,9 +97,12 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     assert all(isinstance(c["gaussians"], int) and c["gaussians"] > 0 for c in record["checks"])
     curve = f"{start:,}: 20.00 dB; {2 * start:,}: 25.00 dB; {4 * start:,}: 24.90 dB"
     assert budget["why"].endswith(f"best held-back PSNR per budget: {curve}")
-    # the view term came in with the raise past 3x the start (step 23), and stays with the budget reached
+    # the view term came in with the raise past 3x the start (step 23), after the model kept (step 15): the kept
+    # model's budget is the one it trained under, and its view term, all zeros, is in no render
+    assert model.gaussian_budget()[1] == 2 * start and budget["choice"].startswith(f"{2 * start:,} (")
     view = next(d for d in decisions if d["part"] == "view-dependent emission")
-    assert view["choice"] == "on" and f"the Gaussian budget {4 * start:,}" in view["why"]
+    assert view["choice"] == "off" and f"the Gaussian budget {2 * start:,}" in view["why"]
+    assert not model.renders_view_term() and not model.gauss_params["view_sh"].any()
     # a resumed run starts from the budget the run had reached, not from its config's
     config = trainer.config
     config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 36

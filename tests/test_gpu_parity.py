@@ -75,6 +75,42 @@ def test_torch_backend_matches_gsplat():
             assert norm_rel <= GRAD_RTOL, (s["seed"], name, max_rel, norm_rel)
 
 
+def test_a_view_rendered_through_gsplats_cuda_functions_equals_gsplats_rasterization():
+    """`render_one_view` (outside training, on gsplat: its CUDA functions called directly) gives gsplat's
+    `rasterization`'s render and alpha bit for bit, both rasterize modes, at two sizes."""
+    from thermal_wild_ns.rendering import render_one_view
+
+    for seed, (width, height) in enumerate([(128, 96), (640, 512), (97, 61)]):
+        means, quats, scales, opacities, colors, viewmat, K = random_scene(
+            3000, width, height, seed=seed, device="cuda"
+        )
+        for mode in ("classic", "antialiased"):
+            with torch.no_grad():
+                image, alpha, _ = rasterization(
+                    means,
+                    quats,
+                    scales,
+                    opacities,
+                    colors,
+                    viewmat,
+                    K,
+                    width,
+                    height,
+                    packed=False,
+                    near_plane=0.01,
+                    far_plane=1e10,
+                    render_mode="RGB+ED",
+                    rasterize_mode=mode,
+                    backend="gsplat",
+                )
+                ours = render_one_view(
+                    means, quats, scales, opacities, colors, viewmat, K, width, height, mode, "gsplat"
+                )
+            assert ours[0].shape == image.shape == (1, height, width, 2) and ours[1].shape == alpha.shape
+            assert torch.equal(ours[0], image) and torch.equal(ours[1], alpha), (seed, mode)
+            assert float(alpha.max()) > 0.5  # the scene is in view
+
+
 def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
     """Outside training the model replays the pieces around gsplat as CUDA graphs
     (`rendering/captured.py`): each render equals the same render run kernel by kernel, for

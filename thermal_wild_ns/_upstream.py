@@ -18,7 +18,7 @@ import os
 import shutil
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Dict, Optional
+from typing import Callable, Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -145,6 +145,60 @@ def fused_adam_step(optimizers, accepted: Optional[torch.Tensor] = None) -> None
             grad_scale=None,
             found_inf=found_inf,
         )
+
+
+# --------------------------------------------------------------------------- gsplat
+def gsplat_render_one_view(
+    means: torch.Tensor,  # [N, 3]
+    quats: torch.Tensor,  # [N, 4]
+    scales: torch.Tensor,  # [N, 3]
+    opacities: torch.Tensor,  # [N]
+    colors: torch.Tensor,  # [N, 1]
+    viewmat: torch.Tensor,  # [1, 4, 4]
+    K: torch.Tensor,  # [1, 3, 3]
+    width: int,
+    height: int,
+    antialiased: bool,
+) -> Tuple[torch.Tensor, torch.Tensor]:
+    """gsplat 1.4.0's `rasterization(means, quats, scales, opacities, colors, viewmat, K, width, height,
+    packed=False, near_plane=0.01, far_plane=1e10, render_mode="RGB+ED", sh_degree=None, rasterize_mode=
+    "antialiased" if antialiased else "classic")` of one camera, outside autograd: the four CUDA functions
+    it calls, in its order, on the same inputs, without its argument checks, its metadata, its autograd
+    wrappers and its copy of the opacities per camera. A render a user waits for (the viewer, ns-render)
+    spends most of its time on the host; these are the same kernels. Returns its render [1, H, W, 2]
+    (emission, expected depth) and alpha [1, H, W, 1]. Checked against gsplat 1.4.0 (`_wrapper.py`'s
+    `fully_fused_projection`, `isect_tiles`, `isect_offset_encode`, `rasterize_to_pixels`, `rendering.py`'s
+    `rasterization`); `tests/test_gpu_parity.py` compares the two on the GPU."""
+    from gsplat.cuda._wrapper import _make_lazy_cuda_func, _make_lazy_cuda_obj
+
+    tile_size = 16
+    radii, means2d, depths, conics, compensations = _make_lazy_cuda_func("fully_fused_projection_fwd")(
+        means.contiguous(),
+        None,  # covariances: from quats and scales
+        quats.contiguous(),
+        scales.contiguous(),
+        viewmat.contiguous(),
+        K.contiguous(),
+        width,
+        height,
+        0.3,  # eps2d
+        0.01,  # near plane
+        1e10,  # far plane
+        0.0,  # radius clip
+        antialiased,  # compensations
+        _make_lazy_cuda_obj("CameraModelType.PINHOLE"),
+    )  # [1, N], [1, N, 2], [1, N], [1, N, 3], [1, N]
+    opacities = opacities[None] * compensations if antialiased else opacities[None]  # [1, N]
+    colors = torch.cat((colors[None], depths[..., None]), dim=-1)  # [1, N, 2]
+    tile_width, tile_height = -(-width // tile_size), -(-height // tile_size)
+    _, isect_ids, flatten_ids = _make_lazy_cuda_func("isect_tiles")(
+        means2d, radii, depths, None, None, 1, tile_size, tile_width, tile_height, True, True
+    )  # sorted, with radix sort's double buffer, as gsplat's `isect_tiles`
+    offsets = _make_lazy_cuda_func("isect_offset_encode")(isect_ids, 1, tile_width, tile_height)  # [1, th, tw]
+    render, alpha, _ = _make_lazy_cuda_func("rasterize_to_pixels_fwd")(
+        means2d, conics, colors, opacities.contiguous(), None, None, width, height, tile_size, offsets, flatten_ids
+    )  # [1, H, W, 2], [1, H, W, 1]
+    return torch.cat((render[..., :-1], render[..., -1:] / alpha.clamp(min=1e-10)), dim=-1), alpha
 
 
 # --------------------------------------------------------------------------- command-line tools

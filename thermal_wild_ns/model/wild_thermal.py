@@ -52,7 +52,7 @@ from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.model.view_emission import radial_part, view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.rendering import Backend, rasterization, world_to_camera
+from thermal_wild_ns.rendering import Backend, rasterization, render_one_view, world_to_camera
 from thermal_wild_ns.rendering.captured import CapturedCalls
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
@@ -557,27 +557,41 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 if viewing
                 else self.activated_splats(ids)
             )  # [N, 3], [N]
-            render, alpha, self.info = rasterization(
-                means=crop(self.means),
-                quats=crop(self.quats),  # rasterization normalises internally
-                scales=activated[0],
-                opacities=activated[1],
-                colors=colors,
-                viewmats=viewmat,
-                Ks=view.K,
-                width=W,
-                height=H,
-                packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
-                near_plane=0.01,
-                far_plane=1e10,
-                render_mode=render_mode,
-                sh_degree=None,
-                sparse_grad=False,
-                absgrad=self.strategy.absgrad,
-                rasterize_mode=self.config.rasterize_mode,
-                distributed=split,
-                backend=self.config.rasterizer,
-            )  # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split in training: this rank's channel is kept), [1, H, W, 1]
+            if viewing:  # one camera, no autograd, every Gaussian
+                render, alpha = render_one_view(
+                    self.means,
+                    self.quats,
+                    *activated,
+                    colors,
+                    viewmat,
+                    view.K,
+                    W,
+                    H,
+                    self.config.rasterize_mode,
+                    self.config.rasterizer,
+                )  # [1, H, W, 2], [1, H, W, 1]
+            else:
+                render, alpha, self.info = rasterization(
+                    means=crop(self.means),
+                    quats=crop(self.quats),  # rasterization normalises internally
+                    scales=activated[0],
+                    opacities=activated[1],
+                    colors=colors,
+                    viewmats=viewmat,
+                    Ks=view.K,
+                    width=W,
+                    height=H,
+                    packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
+                    near_plane=0.01,
+                    far_plane=1e10,
+                    render_mode=render_mode,
+                    sh_degree=None,
+                    sparse_grad=False,
+                    absgrad=self.strategy.absgrad,
+                    rasterize_mode=self.config.rasterize_mode,
+                    distributed=split,
+                    backend=self.config.rasterizer,
+                )  # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split in training: this rank's channel is kept), [1, H, W, 1]
         if split and self.training:
             render = torch.cat(
                 [render[..., self.ranks.rank : self.ranks.rank + 1], render[..., self.ranks.world :]], -1
@@ -791,7 +805,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
         view = f"view_sh_degree {cfg.view_sh_degree}"
-        if cfg.view_sh_degree > 0 and cfg.view_term_above_budget is not None and not self._view_term_by_trial:
+        if self._follows_budget():
             budget_now = self.strategy.max_gaussians * self.ranks.world
             view += f"; view_term_above_budget {cfg.view_term_above_budget:,}, the Gaussian budget {budget_now:,}"
         on = cfg.view_sh_degree > 0 and not self._view_term_waits
@@ -853,11 +867,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         self._follow_budget()
 
+    def _follows_budget(self) -> bool:
+        """Whether the Gaussian budget decides the view term (`view_term_above_budget`, no trial)."""
+        return self.config.view_term_above_budget is not None and self.has_view_term() and not self._view_term_by_trial
+
     def _follow_budget(self) -> None:
         """The view term waits while the Gaussian budget (over every GPU) is at or below
         `view_term_above_budget`, and takes part once it passes it (said on the console during a run)."""
         threshold = self.config.view_term_above_budget
-        if threshold is None or not self.has_view_term() or self._view_term_by_trial:
+        if not self._follows_budget():
             return
         waits = self.strategy.max_gaussians * self.ranks.world <= threshold
         if self._view_term_waits and not waits and self.step > 0 and self.ranks.rank == 0:

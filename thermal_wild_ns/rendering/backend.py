@@ -8,6 +8,7 @@ import torch
 from gsplat.rendering import rasterization as gsplat_rasterization
 from torch import Tensor
 
+from thermal_wild_ns._upstream import gsplat_render_one_view
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization as torch_rasterization
 
 Backend = Literal["auto", "gsplat", "torch"]
@@ -32,6 +33,46 @@ def rasterization(*args, backend: Backend = "auto", **kwargs) -> Tuple[Tensor, T
         return gsplat_rasterization(*args, **kwargs)
 
     return torch_rasterization(*args, **kwargs)
+
+
+def render_one_view(
+    means: Tensor,  # [N, 3]
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, 1]
+    viewmat: Tensor,  # [1, 4, 4]
+    K: Tensor,  # [1, 3, 3]
+    width: int,
+    height: int,
+    rasterize_mode: Literal["classic", "antialiased"] = "classic",
+    backend: Backend = "auto",
+) -> Tuple[Tensor, Tensor]:
+    """A render outside autograd of one camera with its expected depth: `rasterization`'s render
+    [1, H, W, 2] and alpha [1, H, W, 1] (`render_mode="RGB+ED"`, `packed=False`, its near and far planes).
+    On gsplat, its CUDA functions called directly (`_upstream.gsplat_render_one_view`): the same kernels
+    with less host work, which is most of the time of a frame the viewer or ns-render waits for."""
+    if resolve_backend(backend, means.device) == "gsplat":
+        return gsplat_render_one_view(
+            means, quats, scales, opacities, colors, viewmat, K, width, height, rasterize_mode == "antialiased"
+        )
+    render, alpha, _ = torch_rasterization(
+        means=means,
+        quats=quats,
+        scales=scales,
+        opacities=opacities,
+        colors=colors,
+        viewmats=viewmat,
+        Ks=K,
+        width=width,
+        height=height,
+        packed=False,
+        near_plane=0.01,
+        far_plane=1e10,
+        render_mode="RGB+ED",
+        rasterize_mode=rasterize_mode,
+    )
+    return render, alpha
 
 
 def world_to_camera(camera_to_world: Tensor) -> Tensor:

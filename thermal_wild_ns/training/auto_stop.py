@@ -482,6 +482,9 @@ class AutoStopRun:
             restore(self.pipeline, self.optimizers, self._best)
             self.pipeline.model.step = step  # splatfacto's load_state_dict sets it to 30000
             kept = self._best["step"]
+            if self.budget is not None:  # the budget the kept model trained under: what the model reports and
+                # follows (a view term that came in with a later raise trained nothing in it: it renders none)
+                self.pipeline.model.start_budget(self.budget.budget_at(kept))
             CONSOLE.log(
                 f"[bold]kept the model of step {kept} ({self.progress.best:.2f} dB on the held-back frames, "
                 f"{final:.2f} at the end)"
