@@ -23,6 +23,7 @@ from typing import Callable, Dict, Optional, Tuple
 import numpy as np
 import torch
 import torchmetrics.image.lpip as lpip
+from gsplat.cuda._wrapper import _make_lazy_cuda_func, _make_lazy_cuda_obj
 from gsplat.strategy import DefaultStrategy
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, _undistort_image
@@ -169,8 +170,6 @@ def gsplat_render_one_view(
     (emission, expected depth) and alpha [1, H, W, 1]. Checked against gsplat 1.4.0 (`_wrapper.py`'s
     `fully_fused_projection`, `isect_tiles`, `isect_offset_encode`, `rasterize_to_pixels`, `rendering.py`'s
     `rasterization`); `tests/test_gpu_parity.py` compares the two on the GPU."""
-    from gsplat.cuda._wrapper import _make_lazy_cuda_func, _make_lazy_cuda_obj
-
     tile_size = 16
     radii, means2d, depths, conics, compensations = _make_lazy_cuda_func("fully_fused_projection_fwd")(
         means.contiguous(),
