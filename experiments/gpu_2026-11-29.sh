@@ -20,9 +20,10 @@
 #     ROUNDS=3 bash experiments/gpu_2026-11-29.sh speed-ab   # the same and .baseline (see the plan)
 #     bash experiments/gpu_2026-11-29.sh growth-far-raw-flight2   # flight2's carry (docs/results/growth)
 # A third session: view-cost-dunr then render-ab in one call (DUNR's carry and .baseline), view-rule-flight2
-# (flight2's carry), then render-lean (a fresh machine after the installs; DUNR's carry and .baseline).
+# (flight2's carry), then render-lean (a fresh machine after the installs; DUNR's carry and .baseline), then
+# growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -202,6 +203,22 @@ case "$plan" in
     done
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py 2>&1 \
       | grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" | head -20
+    ;;
+  growth-3dgs-fixed-flight2)  # issue 33, a third session: does the 3DGS variant's `novel` fall with its count or
+    # with its steps? growth-far-raw-flight2's 3DGS arm (camera model, degree-2 view term, threshold 0.0004, the
+    # stop's checks recorded, 8,000 steps of the 30k schedule, 3 seeds) with its budget held at 200k (its count at
+    # step 2,000 under 1M) against the same at 1M, in one call (6 runs side by side)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000
+      pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
+    for budget in 200000 1000000; do
+      PYTHONPATH=$PWD:/tmp/site timeout 540 python3 -m experiments.bench --output-dir "/tmp/fixed-$budget" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs --seeds 3 \
+        --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 8000 --schedule 30000 --eval-at 2000 5000 8000 \
+        --max-gaussians $budget --time-limit 500 --set "${settings[@]}" > "/tmp/fixed-$budget.log" 2>&1 &
+    done
+    wait
+    collect fixed-200000 fixed-1000000
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
