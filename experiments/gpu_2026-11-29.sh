@@ -21,9 +21,10 @@
 #     bash experiments/gpu_2026-11-29.sh growth-far-raw-flight2   # flight2's carry (docs/results/growth)
 # A third session: view-cost-dunr then render-ab in one call (DUNR's carry and .baseline), view-rule-flight2
 # (flight2's carry), then render-lean (a fresh machine after the installs; DUNR's carry and .baseline), then
-# growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry).
+# growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry). Not run yet: table-generated,
+# table-dunr, table-flight2 (issue 33's scene table, the full method's rows in one code state).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -219,6 +220,24 @@ case "$plan" in
     done
     wait
     collect fixed-200000 fixed-1000000
+    ;;
+  table-generated|table-dunr|table-flight2)  # issue 33, not run yet: the scene table's full-method rows in one code
+    # state (the ablations' rows, ../docs/results/ablations_grow_h200, are today's defaults for them; splatfacto's are
+    # ttq_h200x2's and generated_h200's): the generated scenes at issue 16's protocol (5,000 steps asked, the
+    # 1/2-resolution warm-up, the stop on; 18 runs side by side; nothing carried) or one real capture, the first
+    # 15,000 steps of the 30k schedule asked, the stop on (3 runs side by side; its carry as view-cost-dunr or
+    # view-rule-flight2); 3 seeds. Then `experiments.full_vs_ablations` as ablations_grow_h200's README does
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    if [ "$plan" = table-generated ]; then
+      scenes=(demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting)
+      protocol=(--steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --runs-per-gpu 18)
+    else
+      scenes=("$PWD/.data/${plan#table-}")
+      protocol=(--cache-dir "$PWD/.data/cache" --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3)
+    fi
+    PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$plan" --scenes "${scenes[@]}" \
+      --methods wild-thermal --seeds 3 --fps-frames 0 "${protocol[@]}" > "/tmp/$plan.log" 2>&1
+    collect "$plan"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
