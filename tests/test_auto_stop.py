@@ -100,6 +100,7 @@ def test_a_run_whose_held_back_frames_plateau_at_its_budget_grows_it_and_stops_w
     # the view term came in with the raise past 3x the start (step 23), after the model kept (step 15): the kept
     # model's budget is the one it trained under, and its view term, all zeros, is in no render
     assert model.gaussian_budget()[1] == 2 * start and budget["choice"].startswith(f"{2 * start:,} (")
+    assert f"the model kept (step 15) trained under {2 * start:,}" in budget["why"]
     view = next(d for d in decisions if d["part"] == "view-dependent emission")
     assert view["choice"] == "off" and f"the Gaussian budget {2 * start:,}" in view["why"]
     assert not model.renders_view_term() and not model.gauss_params["view_sh"].any()

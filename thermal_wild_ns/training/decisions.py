@@ -50,15 +50,17 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
     )
 
 
-def budget_decision(budget, count: int, now: int, history) -> Decision:
+def budget_decision(budget, count: int, now: int, history, kept: Optional[int] = None) -> Decision:
     """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's (`count`
     Gaussians in it), with the best held-back score under each budget so far (`history`: the checks' (step,
-    score))."""
+    score)); where the run kept the model of step `kept` from before its last raise, the budget it trained under."""
     curve = "; ".join(f"{b:,}: {psnr:.2f} dB" for b, psnr in budget.best_per_budget(history))
     scores = f"; best held-back PSNR per budget: {curve}" if curve else ""
     if budget.raises:
         steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
         why = f"raised where the held-back frames plateaued at the budget: {steps}"
+        if kept is not None and budget.budget_at(kept) != budget.raises[-1][1]:
+            why += f"; the model kept (step {kept:,}) trained under {budget.budget_at(kept):,}"
     else:
         why = (
             f"the held-back frames set it: not raised from its start ({budget.start:,}) so far "
@@ -105,7 +107,7 @@ class RunDecisions:
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
         if budget is not None:  # the data's budget replaces the config's fixed one
             entries = [d for d in entries if not (d.part == "Gaussians" and d.decided_by == "config")]
-            entries.append(budget_decision(budget, *model.gaussian_budget(), stop.progress.history))
+            entries.append(budget_decision(budget, *model.gaussian_budget(), stop.progress.history, stop.kept_step))
         return entries
 
     def start(self, trainer) -> None:
