@@ -818,6 +818,9 @@ def test_a_camera_batchs_sizes_are_read_once_for_all_its_slices_and_again_when_i
     assert sizes(batch[2:3])[2][0] == pytest.approx(2 * 120.3, rel=1e-6)
     lone = make_camera(0, width=93, height=61)
     assert sizes(lone) == camera_views.host_sizes(lone)
+    with torch.inference_mode():  # a camera made there has no version to keep it by: read as it is
+        made_there = make_camera(0, width=93, height=61)
+    assert sizes(made_there) == camera_views.host_sizes(made_there)
 
 
 def test_baked_background_map_matches_the_mlp_and_is_invalidated():

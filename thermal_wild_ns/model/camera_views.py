@@ -79,7 +79,7 @@ class CameraSizes:
 
     def __call__(self, camera: Cameras) -> Tuple[float, float, Tuple[float, float, float, float]]:
         fields = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
-        if any(field.numel() != 1 for field in fields):
+        if any(field.numel() != 1 or field.is_inference() for field in fields):  # inference tensors keep no version
             return host_sizes(camera)
         storages = [field.untyped_storage() for field in fields]
         key = tuple(storage.data_ptr() for storage in storages)
