@@ -1,7 +1,7 @@
 """`python -m experiments.render_fps`: how fast a trained model renders, baked vs unbaked emission.
 
 Loads a trained run from its config.yml (as ns-render and ns-viewer do) and renders its test
-cameras, in three ways:
+cameras, in four ways:
 - `baked`: what ns-render does: the model's own rendering (background MLP included) with the
   emission MLP evaluated once for the fixed frame embedding and cached, of a camera sliced from the
   path's batch on the GPU per frame (`cameras[i : i + 1]`, nerfstudio's host work);
@@ -53,17 +53,22 @@ def _fps(render: Callable[[int], torch.Tensor], frames: int) -> float:
     return frames / (time.perf_counter() - start)
 
 
-def test_cameras(pipeline) -> Callable[[int], object]:
-    """The pipeline's held-out cameras as ns-render hands them to the model: one batch moved to the
-    model's device once, frame `i` its slice `i % n` (a new camera object per frame, views of the batch)."""
-    batch = pipeline.datamanager.eval_dataset.cameras.to(pipeline.model.device)
-    n = len(batch)
-    return lambda i: batch[i % n : i % n + 1]
+def test_cameras(pipeline):
+    """The pipeline's held-out cameras as ns-render holds a camera path: one batch on the model's device,
+    from which it slices each frame's camera (`frame_camera`)."""
+    return pipeline.datamanager.eval_dataset.cameras.to(pipeline.model.device)
+
+
+def frame_camera(batch, i: int):
+    """Frame `i`'s camera as ns-render hands it to the model: a new camera object, slice `i % n` of `batch`."""
+    i %= len(batch)
+    return batch[i : i + 1]
 
 
 def measure_fps(pipeline, frames: int) -> Dict:
-    """Frames per second over the pipeline's test cameras: `baked`, `unbaked` and `splat_only` for
-    this plugin's models (the first only for others), and the largest baked/unbaked difference."""
+    """Frames per second over the pipeline's test cameras: `baked`, `baked_cameras_made`, `unbaked` and
+    `splat_only` for this plugin's models (the first two only for others), and the largest baked/unbaked
+    difference."""
 
     from thermal_wild_ns.model.camera_views import intrinsics
     from thermal_wild_ns.rendering import rasterization, world_to_camera
@@ -71,16 +76,16 @@ def measure_fps(pipeline, frames: int) -> Dict:
     model = pipeline.model
     pipeline.eval()
     cameras = test_cameras(pipeline)
-    count = len(pipeline.datamanager.eval_dataset.cameras)
-    width, height = int(cameras(0).width), int(cameras(0).height)
+    count = len(cameras)
+    width, height = int(cameras.width[0]), int(cameras.height[0])
     ours = hasattr(model, "gaussian_emission")
     has_mlp = ours and model.emission_mlp is not None
 
     def baked(i: int, camera=None) -> torch.Tensor:
-        outputs = model.get_outputs_for_camera(cameras(i) if camera is None else camera)
+        outputs = model.get_outputs_for_camera(frame_camera(cameras, i) if camera is None else camera)
         return outputs["thermal"] if ours else outputs["rgb"]
 
-    made = [cameras(i) for i in range(count)]
+    made = [frame_camera(cameras, i) for i in range(count)]
     model_path = lambda i: baked(i, made[i % count])
 
     def unbaked(i: int) -> torch.Tensor:
@@ -103,9 +108,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 opacities=torch.sigmoid(model.opacities).squeeze(-1),
                 colors=model.gaussian_emission(model.inference_embedding()),
             )
-            views = [
-                (world_to_camera(cameras(i).camera_to_worlds), intrinsics(cameras(i))) for i in range(count)
-            ]  # [1, 4, 4], [1, 3, 3]
+            views = [(world_to_camera(c.camera_to_worlds), intrinsics(c)) for c in made]  # [1, 4, 4], [1, 3, 3]
 
             def splat_only(i: int) -> torch.Tensor:
                 viewmat, K = views[i % len(views)]
@@ -133,7 +136,7 @@ def profile_baked(pipeline, frames: int) -> str:
 
     model = pipeline.model
     cameras = test_cameras(pipeline)
-    render = lambda i: model.get_outputs_for_camera(cameras(i))
+    render = lambda i: model.get_outputs_for_camera(frame_camera(cameras, i))
     syncs: Dict[str, int] = collections.Counter()
     with torch.no_grad():
         for i in range(5):

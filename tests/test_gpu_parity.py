@@ -78,7 +78,7 @@ def test_torch_backend_matches_gsplat():
 def test_a_view_rendered_through_gsplats_cuda_functions_equals_gsplats_rasterization():
     """`render_one_view` (outside training, on gsplat: its CUDA functions called directly) gives gsplat's
     `rasterization`'s render and alpha bit for bit, both rasterize modes, at two sizes."""
-    from thermal_wild_ns.rendering import render_one_view
+    from thermal_wild_ns.rendering import FAR_PLANE, NEAR_PLANE, render_one_view
 
     for seed, (width, height) in enumerate([(128, 96), (640, 512), (97, 61)]):
         means, quats, scales, opacities, colors, viewmat, K = random_scene(
@@ -97,8 +97,8 @@ def test_a_view_rendered_through_gsplats_cuda_functions_equals_gsplats_rasteriza
                     width,
                     height,
                     packed=False,
-                    near_plane=0.01,
-                    far_plane=1e10,
+                    near_plane=NEAR_PLANE,
+                    far_plane=FAR_PLANE,
                     render_mode="RGB+ED",
                     rasterize_mode=mode,
                     backend="gsplat",

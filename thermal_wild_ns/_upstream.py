@@ -159,10 +159,12 @@ def gsplat_render_one_view(
     K: torch.Tensor,  # [1, 3, 3]
     width: int,
     height: int,
+    near_plane: float,
+    far_plane: float,
     antialiased: bool,
 ) -> Tuple[torch.Tensor, torch.Tensor]:
     """gsplat 1.4.0's `rasterization(means, quats, scales, opacities, colors, viewmat, K, width, height,
-    packed=False, near_plane=0.01, far_plane=1e10, render_mode="RGB+ED", sh_degree=None, rasterize_mode=
+    near_plane, far_plane, packed=False, render_mode="RGB+ED", sh_degree=None, rasterize_mode=
     "antialiased" if antialiased else "classic")` of one camera, outside autograd: the four CUDA functions
     it calls, in its order, on the same inputs, without its argument checks, its metadata, its autograd
     wrappers and its copy of the opacities per camera. A render a user waits for (the viewer, ns-render)
@@ -180,10 +182,10 @@ def gsplat_render_one_view(
         K.contiguous(),
         width,
         height,
-        0.3,  # eps2d
-        0.01,  # near plane
-        1e10,  # far plane
-        0.0,  # radius clip
+        0.3,  # eps2d, gsplat's default
+        near_plane,
+        far_plane,
+        0.0,  # radius clip, gsplat's default
         antialiased,  # compensations
         _make_lazy_cuda_obj("CameraModelType.PINHOLE"),
     )  # [1, N], [1, N, 2], [1, N], [1, N, 3], [1, N]

@@ -52,7 +52,7 @@ from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.model.view_emission import radial_part, view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.rendering import Backend, rasterization, render_one_view, world_to_camera
+from thermal_wild_ns.rendering import FAR_PLANE, NEAR_PLANE, Backend, rasterization, render_one_view, world_to_camera
 from thermal_wild_ns.rendering.captured import CapturedCalls
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
@@ -582,8 +582,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                     width=W,
                     height=H,
                     packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
-                    near_plane=0.01,
-                    far_plane=1e10,
+                    near_plane=NEAR_PLANE,
+                    far_plane=FAR_PLANE,
                     render_mode=render_mode,
                     sh_degree=None,
                     sparse_grad=False,

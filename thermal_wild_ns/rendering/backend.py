@@ -12,6 +12,8 @@ from thermal_wild_ns._upstream import gsplat_render_one_view
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization as torch_rasterization
 
 Backend = Literal["auto", "gsplat", "torch"]
+NEAR_PLANE, FAR_PLANE = 0.01, 1e10
+"""Every render's clipping planes (splatfacto's), in training and outside it."""
 
 
 def resolve_backend(backend: Backend, device: torch.device) -> Literal["gsplat", "torch"]:
@@ -49,12 +51,13 @@ def render_one_view(
     backend: Backend = "auto",
 ) -> Tuple[Tensor, Tensor]:
     """A render outside autograd of one camera with its expected depth: `rasterization`'s render
-    [1, H, W, 2] and alpha [1, H, W, 1] (`render_mode="RGB+ED"`, `packed=False`, its near and far planes).
+    [1, H, W, 2] and alpha [1, H, W, 1] (`render_mode="RGB+ED"`, `packed=False`, `NEAR_PLANE`, `FAR_PLANE`).
     On gsplat, its CUDA functions called directly (`_upstream.gsplat_render_one_view`): the same kernels
     with less host work, which is most of the time of a frame the viewer or ns-render waits for."""
     if resolve_backend(backend, means.device) == "gsplat":
+        antialiased = rasterize_mode == "antialiased"
         return gsplat_render_one_view(
-            means, quats, scales, opacities, colors, viewmat, K, width, height, rasterize_mode == "antialiased"
+            means, quats, scales, opacities, colors, viewmat, K, width, height, NEAR_PLANE, FAR_PLANE, antialiased
         )
     render, alpha, _ = torch_rasterization(
         means=means,
@@ -67,8 +70,8 @@ def render_one_view(
         width=width,
         height=height,
         packed=False,
-        near_plane=0.01,
-        far_plane=1e10,
+        near_plane=NEAR_PLANE,
+        far_plane=FAR_PLANE,
         render_mode="RGB+ED",
         rasterize_mode=rasterize_mode,
     )
