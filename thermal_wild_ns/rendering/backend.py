@@ -54,21 +54,11 @@ def render_one_view(
     [1, H, W, 2] and alpha [1, H, W, 1] (`render_mode="RGB+ED"`, `packed=False`, `NEAR_PLANE`, `FAR_PLANE`).
     On gsplat, its CUDA functions called directly (`_upstream.gsplat_render_one_view`): the same kernels
     with less host work, which is most of the time of a frame the viewer or ns-render waits for."""
+    inputs = (means, quats, scales, opacities, colors, viewmat, K, width, height)  # gsplat's, in its order
     if resolve_backend(backend, means.device) == "gsplat":
-        antialiased = rasterize_mode == "antialiased"
-        return gsplat_render_one_view(
-            means, quats, scales, opacities, colors, viewmat, K, width, height, NEAR_PLANE, FAR_PLANE, antialiased
-        )
+        return gsplat_render_one_view(*inputs, NEAR_PLANE, FAR_PLANE, rasterize_mode == "antialiased")
     render, alpha, _ = torch_rasterization(
-        means=means,
-        quats=quats,
-        scales=scales,
-        opacities=opacities,
-        colors=colors,
-        viewmats=viewmat,
-        Ks=K,
-        width=width,
-        height=height,
+        *inputs,
         packed=False,
         near_plane=NEAR_PLANE,
         far_plane=FAR_PLANE,
