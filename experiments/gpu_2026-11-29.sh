@@ -24,7 +24,7 @@
 # growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry). Not run yet: table-generated,
 # table-dunr, table-flight2 (issue 33's scene table, the full method's rows in one code state).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -238,6 +238,28 @@ case "$plan" in
     PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$plan" --scenes "${scenes[@]}" \
       --methods wild-thermal --seeds 3 --fps-frames 0 "${protocol[@]}" > "/tmp/$plan.log" 2>&1
     collect "$plan"
+    ;;
+  canonical-background)  # issue 33, a fourth session: does the canonical state lose drift's `aligned` because its fit
+    # leaves the background out? The full method on stress-drift, stress-ffc and the demo (issue 16's protocol, 3 seeds,
+    # three benches of 3 runs side by side; nothing carried), then each run scored at `typical` and at a typical
+    # state fitted on the background too (`experiments.canonical_background`), the three scenes side by side
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for scene in stress:drift stress:ffc demo; do
+      PYTHONPATH=$PWD:/tmp/site timeout 300 python3 -m experiments.bench --output-dir "/tmp/cb-${scene#*:}" --scenes $scene \
+        --methods wild-thermal --seeds 3 --fps-frames 0 --steps 5000 --num-downscales 1 --eval-at 1000 5000 \
+        --runs-per-gpu 3 > "/tmp/cb-${scene#*:}.log" 2>&1 &
+    done
+    wait
+    for scene in drift ffc demo; do
+      PYTHONPATH=$PWD:/tmp/site timeout 250 python3 -m experiments.canonical_background "/tmp/cb-$scene" \
+        > "/tmp/cb-$scene-score.log" 2>&1 &
+    done
+    wait
+    for scene in drift ffc demo; do
+      tail -4 "/tmp/cb-$scene-score.log"; cp "/tmp/cb-$scene/bench.json" "/tmp/collect-cb-$scene-bench.json"
+      cp "/tmp/cb-$scene/canonical_background.jsonl" "/tmp/collect-cb-$scene.jsonl"
+    done
+    (cd /tmp && tar czf "$OUT/$plan.tgz" collect-cb-*)
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
