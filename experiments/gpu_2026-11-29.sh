@@ -24,7 +24,7 @@
 # growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry). Not run yet: table-generated,
 # table-dunr, table-flight2 (issue 33's scene table, the full method's rows in one code state).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -205,16 +205,19 @@ case "$plan" in
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py 2>&1 \
       | grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" | head -20
     ;;
-  growth-3dgs-fixed-flight2)  # issue 33, a third session: does the 3DGS variant's `novel` fall with its count or
+  growth-3dgs-fixed-flight2|growth-3dgs-stab-flight2)  # growth-3dgs-stab-flight2 (a fourth session): the same with
+    # the frames stabilised and equalised (wild-thermal-3dgs-stab-bbhe): is the stateless variant's fall the frames'
+    # level changes that it must absorb with Gaussians? growth-3dgs-fixed-flight2 (issue 33, a third session): does the 3DGS variant's `novel` fall with its count or
     # with its steps? growth-far-raw-flight2's 3DGS arm (camera model, degree-2 view term, threshold 0.0004, the
     # stop's checks recorded, 8,000 steps of the 30k schedule, 3 seeds) with its budget held at 200k (its count at
     # step 2,000 under 1M) against the same at 1M, in one call (6 runs side by side)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000
       pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
+    method=wild-thermal-3dgs; [ "$plan" = growth-3dgs-stab-flight2 ] && method=wild-thermal-3dgs-stab-bbhe
     for budget in 200000 1000000; do
       PYTHONPATH=$PWD:/tmp/site timeout 540 python3 -m experiments.bench --output-dir "/tmp/fixed-$budget" \
-        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs --seeds 3 \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods $method --seeds 3 \
         --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 8000 --schedule 30000 --eval-at 2000 5000 8000 \
         --max-gaussians $budget --time-limit 500 --set "${settings[@]}" > "/tmp/fixed-$budget.log" 2>&1 &
     done
@@ -260,6 +263,20 @@ case "$plan" in
       cp "/tmp/cb-$scene/canonical_background.jsonl" "/tmp/collect-cb-$scene.jsonl"
     done
     (cd /tmp && tar czf "$OUT/$plan.tgz" collect-cb-*)
+    ;;
+  affine-generated)  # issue 33, a fourth session: the background's frame coupling 'affine' (a gain and offset of a
+    # direction-only map) against the default 'mlp', on the GPU (../docs/results/background_affine_cpu: drift
+    # `aligned` +0.73 and `time` -1.38 on the CPU): stress-drift, stress-ffc and the demo, issue 16's protocol, 3
+    # seeds, two benches of 9 runs side by side (nothing carried)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for arm in mlp affine; do
+      PYTHONPATH=$PWD:/tmp/site timeout 500 python3 -m experiments.bench --output-dir "/tmp/coupling-$arm" \
+        --scenes stress:drift stress:ffc demo --methods wild-thermal --seeds 3 --fps-frames 0 --steps 5000 \
+        --num-downscales 1 --eval-at 1000 5000 --runs-per-gpu 9 --set pipeline.model.background_frame_coupling=$arm \
+        > "/tmp/coupling-$arm.log" 2>&1 &
+    done
+    wait
+    collect coupling-mlp coupling-affine
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
