@@ -24,7 +24,7 @@
 # growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry). Not run yet: table-generated,
 # table-dunr, table-flight2 (issue 33's scene table, the full method's rows in one code state).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -277,6 +277,14 @@ case "$plan" in
     done
     wait
     collect coupling-mlp coupling-affine
+    ;;
+  affine-dunr)  # issue 33, a fourth session, the last minutes of its device time: the two couplings on DUNR side by
+    # side, the 5,000-step shortened schedule (`bench`, as floor-real), 3 seeds each (DUNR's carry)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    bench dunr-coupling-mlp 0 "$PWD/.data/dunr" -- pipeline.model.background_frame_coupling=mlp
+    bench dunr-coupling-affine 0 "$PWD/.data/dunr" -- pipeline.model.background_frame_coupling=affine
+    wait
+    collect dunr-coupling-mlp dunr-coupling-affine
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
