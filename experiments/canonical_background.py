@@ -126,7 +126,9 @@ def main() -> None:
     for run in runs:
         for state in STATES:
             rows.append({"scene": run["scene"], "seed": run["seed"], "canonical": state, **score(run["config"], state)})
-            print(f"{run['scene']} seed {run['seed']} {state}: aligned {rows[-1]['psnr_aligned']:.2f} dB", file=sys.stderr)
+            print(
+                f"{run['scene']} seed {run['seed']} {state}: aligned {rows[-1]['psnr_aligned']:.2f} dB", file=sys.stderr
+            )
     (args.bench_dir / "canonical_background.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     markdown = table(rows)
     (args.bench_dir / "canonical_background.md").write_text(markdown)
