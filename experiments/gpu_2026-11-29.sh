@@ -21,10 +21,12 @@
 #     bash experiments/gpu_2026-11-29.sh growth-far-raw-flight2   # flight2's carry (docs/results/growth)
 # A third session: view-cost-dunr then render-ab in one call (DUNR's carry and .baseline), view-rule-flight2
 # (flight2's carry), then render-lean (a fresh machine after the installs; DUNR's carry and .baseline), then
-# growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry). Not run yet: table-generated,
-# table-dunr, table-flight2 (issue 33's scene table, the full method's rows in one code state).
+# growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry), then table-dunr. A fourth
+# session: table-generated, table-flight2, canonical-background, growth-3dgs-stab-flight2 (install-extra in its own
+# call: its wheels and flight2's carry exceed 64 MiB together), affine-generated, affine-dunr. Not run yet:
+# affine-table-dunr, affine-table-flight2 (the background's affine coupling on the real captures).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -285,6 +287,21 @@ case "$plan" in
     bench dunr-coupling-affine 0 "$PWD/.data/dunr" -- pipeline.model.background_frame_coupling=affine
     wait
     collect dunr-coupling-mlp dunr-coupling-affine
+    ;;
+  affine-table-dunr|affine-table-flight2)  # issue 33, not run yet: the two background couplings on one real capture
+    # at the scene table's protocol (the first 15,000 steps of the 30k schedule asked, the stop on), side by side,
+    # 3 seeds each (6 runs; its carry as table-dunr or table-flight2). Then, here: experiments.variant_table on the
+    # two bench.json files, as ../docs/results/background_affine_h200/README.md does
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${plan#affine-table-}
+    for arm in mlp affine; do
+      PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$scene-coupling-$arm" \
+        --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
+        --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 \
+        --set pipeline.model.background_frame_coupling=$arm > "/tmp/$scene-coupling-$arm.log" 2>&1 &
+    done
+    wait
+    collect "$scene-coupling-mlp" "$scene-coupling-affine"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
