@@ -211,8 +211,9 @@ case "$plan" in
     # the frames stabilised and equalised (wild-thermal-3dgs-stab-bbhe): is the stateless variant's fall the frames'
     # level changes that it must absorb with Gaussians? growth-3dgs-fixed-flight2 (issue 33, a third session): does
     # the 3DGS variant's `novel` fall with its count or with its steps? growth-far-raw-flight2's 3DGS arm (camera
-    # model, degree-2 view term, threshold 0.0004, the stop's checks recorded, 8,000 steps of the 30k schedule, 3 seeds) with its budget held at 200k (its count at
-    # step 2,000 under 1M) against the same at 1M, in one call (6 runs side by side)
+    # model, degree-2 view term, threshold 0.0004, the stop's checks recorded, 8,000 steps of the 30k schedule, 3
+    # seeds) with its budget held at 200k (its count at step 2,000 under 1M) against the same at 1M, in one call (6
+    # runs side by side)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000
       pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
