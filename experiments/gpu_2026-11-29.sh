@@ -24,9 +24,10 @@
 # growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry), then table-dunr. A fourth
 # session: table-generated, table-flight2, canonical-background, growth-3dgs-stab-flight2 (install-extra in its own
 # call: its wheels and flight2's carry exceed 64 MiB together), affine-generated, affine-dunr. Not run yet:
-# affine-table-dunr, affine-table-flight2 (the background's affine coupling on the real captures).
+# affine-table-dunr, affine-table-flight2 (the background's affine coupling on the real captures), embed-dims-dunr,
+# embed-dims-flight2 (the embeddings' sizes, never measured on a capture).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -303,6 +304,22 @@ case "$plan" in
     done
     wait
     collect "$scene-coupling-mlp" "$scene-coupling-affine"
+    ;;
+  embed-dims-dunr|embed-dims-flight2)  # issue 33, not run yet: the per-Gaussian and per-frame embeddings' sizes
+    # (16 each, set with the first model and never measured) at 8 and 32 against 16, one real capture at the scene
+    # table's protocol (as affine-table-*), 3 seeds each, 9 runs side by side (its carry as table-dunr or
+    # table-flight2). Then, here: experiments.variant_table with the 16 file first
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${plan#embed-dims-}
+    for dim in 8 16 32; do
+      PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$scene-embed-$dim" \
+        --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
+        --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 \
+        --set pipeline.model.gaussian_embed_dim=$dim pipeline.model.frame_embed_dim=$dim \
+        > "/tmp/$scene-embed-$dim.log" 2>&1 &
+    done
+    wait
+    collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
