@@ -61,6 +61,17 @@ def held_out_views(config: Path):
         yield pipeline, camera, batch, index, int(frames[index])
 
 
+def json_from_module(module: str, *args: str) -> dict:
+    """The JSON object `python -m module args` prints on its last line, run in a process of its own (each
+    checkpoint scored in a fresh process, so no state of one run's model reaches the next)."""
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", module, *args], check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def score_checkpoints(description: str, score_run: Callable[[Path], dict], line: Callable[[dict], str]) -> List[dict]:
     """The command line of a script that scores trained runs one by one: `score_run(config.yml)` per run
     given, `line(result)` printed for each, every result written to `--output` (JSON) if asked."""

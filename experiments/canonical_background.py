@@ -17,18 +17,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 from typing import Dict, List
 
 import torch
 
-from experiments import mean_range
+from experiments import json_from_module, mean_range
 
 PROTOCOLS = ("novel", "aligned")
 STATES = ("typical", "typical+background")
-STRIDE = 4  # the background's grid (`background_stride`'s default)
 
 
 def background_samples(pipeline, count_per_gaussian_sample: int, generator: torch.Generator):
@@ -38,15 +36,16 @@ def background_samples(pipeline, count_per_gaussian_sample: int, generator: torc
 
     model = pipeline.model
     cameras = pipeline.datamanager.train_dataset.cameras.to(model.device)
+    stride = model.config.background_stride  # the background's grid
     dirs, weights = [], []
     with torch.no_grad():
         for i in range(len(cameras)):
             camera = cameras[i : i + 1]
             alpha = model.get_outputs(camera)["accumulation"][..., 0]  # [H, W]
             H, W = alpha.shape
-            pooled = torch.nn.functional.avg_pool2d(alpha[None, None], STRIDE, ceil_mode=True)[0, 0]  # [h, w]
+            pooled = torch.nn.functional.avg_pool2d(alpha[None, None], stride, ceil_mode=True)[0, 0]  # [h, w]
             K = camera.get_intrinsics_matrices()[0].to(model.device)
-            d = ray_directions(K, camera.camera_to_worlds[0], W, H, STRIDE)  # [h, w, 3]
+            d = ray_directions(K, camera.camera_to_worlds[0], W, H, stride)  # [h, w, 3]
             dirs.append(d.reshape(-1, 3))
             weights.append((1.0 - pooled).clamp(min=0).reshape(-1))
     dirs, weights = torch.cat(dirs), torch.cat(weights)
@@ -59,13 +58,7 @@ def background_samples(pipeline, count_per_gaussian_sample: int, generator: torc
 
 
 def score(config: str, state: str) -> Dict:
-    out = subprocess.run(
-        [sys.executable, "-m", "experiments.canonical_background", "--one", config, state],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout
-    return json.loads(out.strip().splitlines()[-1])
+    return json_from_module("experiments.canonical_background", "--one", config, state)
 
 
 def score_one(config: Path, state: str) -> None:

@@ -12,24 +12,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 from typing import Dict, List
 
-from experiments import mean_range
+from experiments import json_from_module, mean_range
 
 PROTOCOLS = ("novel", "time", "aligned")
 
 
 def score(config: str, state: str) -> Dict:
-    out = subprocess.run(
-        [sys.executable, "-m", "experiments.score_checkpoint", config, "--canonical", state],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout
-    return json.loads(out.strip().splitlines()[-1])
+    return json_from_module("experiments.score_checkpoint", config, "--canonical", state)
 
 
 def table(rows: List[Dict], states: List[str]) -> str:

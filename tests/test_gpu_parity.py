@@ -77,7 +77,7 @@ def test_torch_backend_matches_gsplat():
 
 def test_a_view_rendered_through_gsplats_cuda_functions_equals_gsplats_rasterization():
     """`render_one_view` (outside training, on gsplat: its CUDA functions called directly) gives gsplat's
-    `rasterization`'s render and alpha bit for bit, both rasterize modes, at two sizes."""
+    `rasterization`'s render and alpha bit for bit, both rasterize modes, at three sizes."""
     from thermal_wild_ns.rendering import FAR_PLANE, NEAR_PLANE, render_one_view
 
     for seed, (width, height) in enumerate([(128, 96), (640, 512), (97, 61)]):

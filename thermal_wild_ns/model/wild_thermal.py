@@ -805,7 +805,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
         view = f"view_sh_degree {cfg.view_sh_degree}"
-        if self._follows_budget():
+        if self._view_term_follows_budget():
             budget_now = self.strategy.max_gaussians * self.ranks.world
             view += f"; view_term_above_budget {cfg.view_term_above_budget:,}, the Gaussian budget {budget_now:,}"
         on = cfg.view_sh_degree > 0 and not self._view_term_waits
@@ -867,7 +867,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         self._follow_budget()
 
-    def _follows_budget(self) -> bool:
+    def _view_term_follows_budget(self) -> bool:
         """Whether the Gaussian budget decides the view term (`view_term_above_budget`, no trial)."""
         return self.config.view_term_above_budget is not None and self.has_view_term() and not self._view_term_by_trial
 
@@ -875,7 +875,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """The view term waits while the Gaussian budget (over every GPU) is at or below
         `view_term_above_budget`, and takes part once it passes it (said on the console during a run)."""
         threshold = self.config.view_term_above_budget
-        if not self._follows_budget():
+        if not self._view_term_follows_budget():
             return
         waits = self.strategy.max_gaussians * self.ranks.world <= threshold
         if self._view_term_waits and not waits and self.step > 0 and self.ranks.rank == 0:

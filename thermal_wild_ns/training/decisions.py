@@ -59,8 +59,9 @@ def budget_decision(budget, count: int, now: int, history, kept: Optional[int] =
     if budget.raises:
         steps = ", ".join(f"{b:,} at step {s:,}" for s, b in budget.raises)
         why = f"raised where the held-back frames plateaued at the budget: {steps}"
-        if kept is not None and budget.budget_at(kept) != budget.raises[-1][1]:
-            why += f"; the model kept (step {kept:,}) trained under {budget.budget_at(kept):,}"
+        trained_under = None if kept is None else budget.budget_at(kept)
+        if trained_under is not None and trained_under != budget.raises[-1][1]:
+            why += f"; the model kept (step {kept:,}) trained under {trained_under:,}"
     else:
         why = (
             f"the held-back frames set it: not raised from its start ({budget.start:,}) so far "
