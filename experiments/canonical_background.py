@@ -91,16 +91,18 @@ def score_one(config: Path, state: str) -> None:
 
 def table(rows: List[Dict]) -> str:
     lines = [
-        "| scene | canonical state | seeds | `novel` PSNR | `aligned` PSNR (a fit) | Δ `aligned` (paired) |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| scene | canonical state | seeds | `novel` PSNR | `aligned` PSNR (a fit) | Δ `novel` (paired, per seed) "
+        "| Δ `aligned` (paired) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for scene in dict.fromkeys(r["scene"] for r in rows):
         base = {r["seed"]: r for r in rows if r["scene"] == scene and r["canonical"] == STATES[0]}
         for state in STATES:
             runs = [r for r in rows if r["scene"] == scene and r["canonical"] == state]
+            novel = ", ".join(f"{r['psnr_novel'] - base[r['seed']]['psnr_novel']:+.2f}" for r in runs)
             delta = mean_range([r["psnr_aligned"] - base[r["seed"]]["psnr_aligned"] for r in runs])
             cells = [mean_range([r[f"psnr_{p}"] for r in runs]) for p in PROTOCOLS]
-            lines.append(f"| {scene} | {state} | {len(runs)} | " + " | ".join(cells) + f" | {delta} |")
+            lines.append(f"| {scene} | {state} | {len(runs)} | " + " | ".join(cells) + f" | {novel} | {delta} |")
     return "\n".join(lines) + "\n"
 
 
