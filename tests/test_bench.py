@@ -495,7 +495,7 @@ def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scen
 
 
 def test_variant_table_marks_a_change_bold_only_where_the_seeds_ranges_are_apart(tmp_path):
-    from experiments.variant_table import table
+    from experiments.variant_table import baseline_rows, table
 
     def bench(name, runs):
         path = tmp_path / name
@@ -507,10 +507,17 @@ def test_variant_table_marks_a_change_bold_only_where_the_seeds_ranges_are_apart
     # c: no baseline, left out
     variant_runs = [("a", 32.0, 33.0), ("a", 33.0, 33.0), ("b", 21.5, 25.0), ("b", 21.9, 25.0), ("c", 1.0, 2.0)]
     variant = bench("variant.json", variant_runs)
-    rows = table(base, variant, ["time", "gap"]).splitlines()
+    rows = table([base], variant, ["time", "gap"]).splitlines()
     assert rows[2] == "| a | 32.50 (32.00–33.00) | **+2.00** | 0.50 (0.00–1.00) | -1.00 |"
     assert rows[3] == "| b | 21.70 (21.50–21.90) | +0.70 | 3.30 (3.10–3.50) | -0.70 |"
     assert len(rows) == 4
+    # the baseline pooled with another call's runs of it: a's seeds now reach 32.5, so the ranges overlap
+    more = bench("more.json", [("a", 32.5, 33.0)])
+    pooled = table([base, more], variant, ["time"]).splitlines()
+    assert pooled[2] == "| a | 32.50 (32.00–33.00) | +1.33 |"
+    own = baseline_rows([base, more], ["time"]).splitlines()
+    assert own[0] == "| a (baseline, 3 runs) | 31.17 (30.00–32.50) |  |"
+    assert own[1] == "| b (baseline, 2 runs) | 21.00 (20.00–22.00) |  |" and len(own) == 2
 
 
 def test_budget_curve_gives_each_budgets_best_held_back_score_and_the_kept_models_budget(tmp_path):
