@@ -23,9 +23,10 @@
 # (flight2's carry), then render-lean (a fresh machine after the installs; DUNR's carry and .baseline), then
 # growth-3dgs-fixed-flight2 (a fresh machine after the installs; flight2's carry), then table-dunr. A fourth
 # session: table-generated, table-flight2, canonical-background, growth-3dgs-stab-flight2 (install-extra in its own
-# call: its wheels and flight2's carry exceed 64 MiB together), affine-generated, affine-dunr. Not run yet:
-# affine-table-dunr, affine-table-flight2 (the background's affine coupling on the real captures), embed-dims-dunr,
-# embed-dims-flight2 (the embeddings' sizes, never measured on a capture).
+# call: its wheels and flight2's carry exceed 64 MiB together), affine-generated, affine-dunr. A fifth session, one
+# warm machine after the two installs: affine-table-dunr, affine-table-flight2 (docs/results/background_affine_real_h200;
+# `affine` the default since), embed-dims-flight2, embed-dims-dunr (docs/results/embed_dims_h200; run with `mlp`, the
+# default then). Not run yet under the `affine` default: table-generated (stress-clean, -outlier, -vignetting).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2}
 OUT=${OUT:-/tmp/out}
@@ -290,7 +291,7 @@ case "$plan" in
     wait
     collect dunr-coupling-mlp dunr-coupling-affine
     ;;
-  affine-table-dunr|affine-table-flight2)  # issue 33, not run yet: the two background couplings on one real capture
+  affine-table-dunr|affine-table-flight2)  # issue 33, run 2026-11-29: the two background couplings on one real capture
     # at the scene table's protocol (the first 15,000 steps of the 30k schedule asked, the stop on), side by side,
     # 3 seeds each (6 runs; its carry as table-dunr or table-flight2). Then, here: experiments.variant_table on the
     # two bench.json files, as ../docs/results/background_affine_h200/README.md does
@@ -305,7 +306,8 @@ case "$plan" in
     wait
     collect "$scene-coupling-mlp" "$scene-coupling-affine"
     ;;
-  embed-dims-dunr|embed-dims-flight2)  # issue 33, not run yet: the per-Gaussian and per-frame embeddings' sizes
+  embed-dims-dunr|embed-dims-flight2)  # issue 33, run 2026-11-29 (with `mlp`, then the background coupling's default;
+    # now `affine`): the per-Gaussian and per-frame embeddings' sizes
     # (16 each, set with the first model and never measured) at 8 and 32 against 16, one real capture at the scene
     # table's protocol (as affine-table-*), 3 seeds each, 9 runs side by side (its carry as table-dunr or
     # table-flight2). Then, here: experiments.variant_table with the 16 file first

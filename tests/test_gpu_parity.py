@@ -197,7 +197,8 @@ def test_the_loss_replayed_as_cuda_graphs_equals_the_loss_run_kernel_by_kernel()
     assert len(graphed.graphed.graphs) == 2 and all(graphs is not None for graphs in graphed.graphed.graphs.values())
 
 
-def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel():
+@pytest.mark.parametrize("coupling", ["affine", "mlp"])
+def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel(coupling):
     """Training renders' background through `GraphedCalls` (`graphed_background`): the same background
     and the same gradients of the MLP's parameters and of the frame embedding as kernel by kernel,
     for frames of two sizes in turn, with the parameters changed in place between steps (as Adam
@@ -207,10 +208,10 @@ def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kern
     from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 
     torch.manual_seed(0)
-    mlp = BackgroundMLP(frame_dim=8).cuda()
+    mlp = BackgroundMLP(frame_dim=8, frame_coupling=coupling).cuda()
     for parameter in mlp.parameters():  # the zero-initialised output layer would give zero gradients upstream
         parameter.data.normal_(0.0, 0.3)
-    twin = BackgroundMLP(frame_dim=8).cuda()
+    twin = BackgroundMLP(frame_dim=8, frame_coupling=coupling).cuda()
     twin.load_state_dict(mlp.state_dict())
     graphed = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=True))
     eager = ThermalBackground(twin, WildThermalModelConfig(graphed_background=False))

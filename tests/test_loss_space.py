@@ -86,7 +86,8 @@ def test_the_loss_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
     assert losses[1].graphed is None
 
 
-def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
+@pytest.mark.parametrize("coupling", ["affine", "mlp"])
+def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu(coupling):
     """`graphed_background` on a CPU: the training background and its gradients as without it, no
     graph recorded."""
     from thermal_wild_ns.model.background import ThermalBackground
@@ -94,7 +95,7 @@ def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu():
     from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 
     torch.manual_seed(0)
-    mlp = BackgroundMLP(frame_dim=4)
+    mlp = BackgroundMLP(frame_dim=4, frame_coupling=coupling)
     for parameter in mlp.parameters():
         parameter.data.normal_(0.0, 0.3)
     K, pose = torch.tensor([[50.0, 0, 20], [0, 50.0, 16], [0, 0, 1]]), torch.eye(4)[:3]

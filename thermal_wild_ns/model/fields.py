@@ -51,10 +51,10 @@ class BackgroundMLP(nn.Module):
     def __init__(
         self,
         frame_dim: int,
+        frame_coupling: str,
         width: int = 64,
         hidden_layers: int = 2,
         init_value: float = 0.0,
-        frame_coupling: str = "mlp",
     ):
         super().__init__()
         if frame_coupling not in ("mlp", "affine"):

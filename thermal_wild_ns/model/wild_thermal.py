@@ -100,10 +100,12 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     use_background_mlp: bool = True
     """Fill the residual transmittance with a background MLP b(view direction, frame embedding).
     Off: a constant background of `background_value`."""
-    background_frame_coupling: Literal["mlp", "affine"] = "mlp"
-    """How the frame embedding enters the background MLP: 'mlp', as an input beside the view direction
-    (the paper's b(d, e_t)); 'affine', as a gain and an offset of a direction-only map (a frame's state
-    changes the whole background alike, as a sensor's drift or flat-field step does)."""
+    background_frame_coupling: Literal["mlp", "affine"] = "affine"
+    """How the frame embedding enters the background MLP: 'affine', as a gain and an offset of a
+    direction-only map (a frame's state changes the whole background alike, as a sensor's drift or
+    flat-field step does; chosen on both real captures and the drifting scenes, docs/results.md's
+    defaults table); 'mlp', as an input beside the view direction (the paper's b(d, e_t), free to
+    change the background's shape from frame to frame)."""
     background_value: float = 0.0
     """Constant background (normalised intensity) when the background MLP is off; the background
     MLP's initial value when it is on."""
