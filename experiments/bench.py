@@ -718,7 +718,8 @@ def _write(
         "torch": torch_version or torch.__version__,
         "runs": runs,
     }
-    (args.output_dir / "bench.json").write_text(json.dumps(result, indent=1))
+    # compact: benches are committed under docs/results, and the tree travels to the GPU machine beside the data
+    (args.output_dir / "bench.json").write_text(json.dumps(result, separators=(",", ":")))
     (args.output_dir / "bench.md").write_text(markdown(runs, scenes))
     if scenes:  # nothing to chart when every run was skipped (e.g. only splatfacto, on a CPU)
         chart(runs, scenes, args.output_dir / "speed_accuracy.png")
