@@ -26,9 +26,10 @@
 # call: its wheels and flight2's carry exceed 64 MiB together), affine-generated, affine-dunr. A fifth session, one
 # warm machine after the two installs: affine-table-dunr, affine-table-flight2 (docs/results/background_affine_real_h200;
 # `affine` the default since), embed-dims-flight2, embed-dims-dunr (docs/results/embed_dims_h200; run with `mlp`, the
-# default then). Not run yet under the `affine` default: table-generated (stress-clean, -outlier, -vignetting).
+# default then). Not run yet under the `affine` default: table-generated (stress-clean, -outlier, -vignetting);
+# bg-size-dunr, bg-size-flight2 (the background MLP's width, never measured; each after the two installs).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -43,6 +44,17 @@ bench() {  # NAME SEED SCENE... -- SETTING...: the full method, 3 seeds from SEE
   PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/$name" \
     --scenes "${scenes[@]}" --cache-dir "$PWD/.data/cache" --methods wild-thermal --seeds 3 --seed "$seed" \
     --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 5000 --eval-at 1000 2000 5000 "${set_args[@]}" \
+    > "/tmp/$name.log" 2>&1 &
+}
+
+table_arm() {  # NAME SCENE SETTING...: the full method on one real capture at the scene table's protocol (the first
+  # 15,000 steps of the 30k schedule asked, the stop on), 3 seeds side by side, with SETTINGs, in the background;
+  # its bench and logs to /tmp/NAME
+  local name=$1 scene=$2
+  shift 2
+  PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$name" \
+    --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
+    --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 --set "$@" \
     > "/tmp/$name.log" 2>&1 &
 }
 
@@ -298,10 +310,7 @@ case "$plan" in
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${plan#affine-table-}
     for arm in mlp affine; do
-      PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$scene-coupling-$arm" \
-        --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
-        --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 \
-        --set pipeline.model.background_frame_coupling=$arm > "/tmp/$scene-coupling-$arm.log" 2>&1 &
+      table_arm "$scene-coupling-$arm" "$scene" pipeline.model.background_frame_coupling=$arm
     done
     wait
     collect "$scene-coupling-mlp" "$scene-coupling-affine"
@@ -314,14 +323,23 @@ case "$plan" in
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${plan#embed-dims-}
     for dim in 8 16 32; do
-      PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$scene-embed-$dim" \
-        --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
-        --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 \
-        --set pipeline.model.gaussian_embed_dim=$dim pipeline.model.frame_embed_dim=$dim \
-        > "/tmp/$scene-embed-$dim.log" 2>&1 &
+      table_arm "$scene-embed-$dim" "$scene" pipeline.model.gaussian_embed_dim=$dim pipeline.model.frame_embed_dim=$dim
     done
     wait
     collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
+    ;;
+  bg-size-dunr|bg-size-flight2)  # issue 33, not run yet: the background MLP's width (64, set with the first model and
+    # never measured) at 32 and 128 against 64, 2 hidden layers, the `affine` coupling (the default since
+    # 2026-11-29), one real capture at the scene table's protocol, 3 seeds each, 9 runs side by side (as embed-dims-*,
+    # its carry as table-dunr or table-flight2; about 480 s). Then, here: experiments.variant_table with the 64 file
+    # first, --pool-baseline with ../docs/results/background_affine_real_h200's affine file of the capture
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${plan#bg-size-}
+    for width in 32 64 128; do
+      table_arm "$scene-bg-$width" "$scene" pipeline.model.background_mlp_width=$width
+    done
+    wait
+    collect "$scene-bg-32" "$scene-bg-64" "$scene-bg-128"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

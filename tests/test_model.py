@@ -524,6 +524,20 @@ def test_a_render_outside_training_equals_the_general_path():
             assert float(viewing["accumulation"].max()) > 0.1  # Gaussians in view: a render, not only background
 
 
+def test_the_background_mlps_size_and_coupling_come_from_the_config():
+    """`background_mlp_width`, `background_mlp_layers` and `background_frame_coupling` build the background
+    MLP the model trains (what a size sweep varies), and the default couples the frame as a gain and offset."""
+    linears = lambda model: [m for m in model.background_mlp.net if isinstance(m, torch.nn.Linear)]
+    default = make_model()
+    assert [layer.out_features for layer in linears(default)] == [64, 64, 1]
+    assert default.background_mlp.frame_affine is not None  # 'affine' by default
+    small = make_model(background_mlp_width=16, background_mlp_layers=1, background_frame_coupling="mlp")
+    assert [layer.out_features for layer in linears(small)] == [16, 1]
+    assert small.background_mlp.frame_affine is None
+    # 'mlp' feeds the frame embedding (16) beside the directions' encoding (16); 'affine' the encoding only
+    assert linears(small)[0].in_features == 32 and linears(default)[0].in_features == 16
+
+
 def test_an_affine_background_changes_every_direction_alike_from_frame_to_frame():
     """`background_frame_coupling` 'affine': the frame embedding sets a gain and an offset of a direction-only
     map, so one frame's background is an affine map of another's over every direction; 'mlp' (the frame

@@ -106,6 +106,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     flat-field step does; chosen on both real captures and the drifting scenes, docs/results.md's
     defaults table); 'mlp', as an input beside the view direction (the paper's b(d, e_t), free to
     change the background's shape from frame to frame)."""
+    background_mlp_width: int = 64
+    """Width of the background MLP's hidden layers."""
+    background_mlp_layers: int = 2
+    """Number of hidden layers (ReLU) of the background MLP."""
     background_value: float = 0.0
     """Constant background (normalised intensity) when the background MLP is off; the background
     MLP's initial value when it is on."""
@@ -303,7 +307,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self.background_mlp = (
             BackgroundMLP(
-                cfg.frame_embed_dim, init_value=cfg.background_value, frame_coupling=cfg.background_frame_coupling
+                cfg.frame_embed_dim,
+                cfg.background_frame_coupling,
+                width=cfg.background_mlp_width,
+                hidden_layers=cfg.background_mlp_layers,
+                init_value=cfg.background_value,
             )
             if cfg.use_background_mlp
             else None
