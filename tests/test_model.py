@@ -576,6 +576,28 @@ def test_mismatched_checkpoints_are_refused_with_the_reason():
     make_model().load_state_dict(dict(state))  # a matching one loads
 
 
+def test_a_checkpoint_of_the_other_background_coupling_renders_as_trained_and_is_refused_for_a_resume():
+    """A run from before `affine` became the default has no coupling in its config.yml, so it loads under
+    `affine`: to render, the model takes the checkpoint's `mlp` background and renders what it trained; to resume
+    (training mode), the optimizers already hold the other background's parameters: refused, naming the flag."""
+    torch.manual_seed(0)
+    old = make_model(background_frame_coupling="mlp")
+    perturb_output_layers(old)
+    old.eval()
+    state = old.state_dict()
+    camera = make_camera(1, width=40, height=32)
+    with torch.no_grad():
+        expected = old.get_outputs_for_camera(camera)["thermal"]
+    with pytest.raises(ValueError, match="--pipeline.model.background-frame-coupling mlp"):
+        make_model().load_state_dict(dict(state))  # a fresh model trains: a resume
+    loaded = make_model()
+    loaded.eval()
+    loaded.load_state_dict(dict(state))
+    assert loaded.config.background_frame_coupling == "mlp" and loaded.background_mlp.frame_affine is None
+    with torch.no_grad():
+        assert torch.equal(loaded.get_outputs_for_camera(camera)["thermal"], expected)
+
+
 def test_background_is_cached_per_training_camera_and_smooth_enough_for_its_grid():
     model = make_model()
     perturb_output_layers(model)

@@ -305,18 +305,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.graphed_emission = GraphedCalls("emission MLP", latest_only=True) if graphs else None
         if cfg.random_background and cfg.use_background_mlp:
             raise InputError("random_background needs use_background_mlp False: the background MLP models it")
-        self.background_mlp = (
-            BackgroundMLP(
-                cfg.frame_embed_dim,
-                cfg.background_frame_coupling,
-                width=cfg.background_mlp_width,
-                hidden_layers=cfg.background_mlp_layers,
-                init_value=cfg.background_value,
-            )
-            if cfg.use_background_mlp
-            else None
-        )
-        self.background_field = ThermalBackground(self.background_mlp, cfg)
+        self._build_background(cfg.background_frame_coupling)
         # row 0 the gain's polynomial, row 1 the offset's (`camera_falloff.respond`); zero: no fall-off
         self.camera_falloff = Parameter(torch.zeros(2, FALLOFF_ORDER)) if cfg.camera_falloff else None
         self.falloff_why = "camera_falloff"
@@ -349,6 +338,23 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self._follow_budget()  # the fixed budget's: a run whose held-back frames set it says so at its start
         self.viewer_controls = ThermalViewerControls(self.frame_times, cfg.colormap)
         """What the viewer's user chose (colormap, photometric state): read, never set, by the model."""
+
+    def _build_background(self, coupling: str) -> None:
+        """The background MLP (None where `use_background_mlp` is off) with the frame `coupling`, and the field that
+        renders it."""
+        cfg = self.config
+        self.background_mlp = (
+            BackgroundMLP(
+                cfg.frame_embed_dim,
+                coupling,
+                width=cfg.background_mlp_width,
+                hidden_layers=cfg.background_mlp_layers,
+                init_value=cfg.background_value,
+            )
+            if cfg.use_background_mlp
+            else None
+        )
+        self.background_field = ThermalBackground(self.background_mlp, cfg)
 
     def _map_left_by_motion(self) -> bool:
         """Whether the content-motion rule (not the config) left the flat-field map out."""
@@ -921,6 +927,21 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.camera_falloff, self.graphed_camera = None, None
             self.falloff_why = "the checkpoint's: trained when the content-motion rule decided the whole camera model"
             CONSOLE.log(f"camera fall-off off: {self.falloff_why}")
+        trained_coupling = "affine" if "background_mlp.frame_affine.weight" in state_dict else "mlp"
+        if self.background_mlp is not None and any(k.startswith("background_mlp.") for k in state_dict):
+            if trained_coupling != self.config.background_frame_coupling:
+                if self.training:  # a resume: the optimizers already hold this config's background parameters
+                    raise ValueError(
+                        f"checkpoint's background MLP couples the frame as {trained_coupling!r}, this config as "
+                        f"{self.config.background_frame_coupling!r}: resume it with "
+                        f"--pipeline.model.background-frame-coupling {trained_coupling}"
+                    )
+                # to render: a run from before 'affine' became the default, whose config.yml does not name the
+                # coupling (the field did not exist), renders with the background it trained
+                self.config.background_frame_coupling = trained_coupling
+                self._build_background(trained_coupling)
+                self.background_mlp.to(self.frame_embed.weight.device)
+                CONSOLE.log(f"background frame coupling {trained_coupling!r}: the checkpoint's")
         has_parts = (self.emission_mlp is not None, self.background_mlp is not None, self.camera_falloff is not None)
         has_parts += (self.camera_flat_field is not None,)
         refuse_mismatched_checkpoint(state_dict, *has_parts, tuple(self.frame_embed.weight.shape))
