@@ -27,9 +27,10 @@
 # warm machine after the two installs: affine-table-dunr, affine-table-flight2 (docs/results/background_affine_real_h200;
 # `affine` the default since), embed-dims-flight2, embed-dims-dunr (docs/results/embed_dims_h200; run with `mlp`, the
 # default then). Not run yet under the `affine` default: table-generated (stress-clean, -outlier, -vignetting);
-# bg-size-dunr, bg-size-flight2 (the background MLP's width, never measured; each after the two installs).
+# bg-size-dunr, bg-size-flight2 (the background MLP's width, never measured; each after the two installs);
+# emission-size-dunr, emission-size-flight2 (the emission MLP's width, the paper's 128, never measured here).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -340,6 +341,17 @@ case "$plan" in
     done
     wait
     collect "$scene-bg-32" "$scene-bg-64" "$scene-bg-128"
+    ;;
+  emission-size-dunr|emission-size-flight2)  # issue 33, not run yet: the emission MLP's width (128, the paper's, never
+    # measured here) at 64 and 256 against 128, 3 hidden layers, as bg-size-* (9 runs side by side, its carry as
+    # table-dunr or table-flight2). Then, here: experiments.variant_table with the 128 file first, as bg-size-*
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${plan#emission-size-}
+    for width in 64 128 256; do
+      table_arm "$scene-emission-$width" "$scene" pipeline.model.emission_mlp_width=$width
+    done
+    wait
+    collect "$scene-emission-64" "$scene-emission-128" "$scene-emission-256"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
