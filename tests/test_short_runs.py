@@ -6,6 +6,7 @@ resolution training is at. Once, every such run died at its end (a full-resoluti
 from __future__ import annotations
 
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -53,3 +54,19 @@ def test_a_three_step_run_on_dunr_ends_with_its_checkpoint_and_ns_eval_scores_it
     ns_train([*run_args(out, 3, *scale), layout, "--data", str(copy), "--cache-dir", str(tmp_path / "seeds")])
     results = check_run_end_to_end(out / "x" / "wild-thermal" / "run", tmp_path, steps=3)
     assert results["views"] == 6  # every 8th of DUNR's 45 frames
+
+
+@pytest.mark.slow
+def test_a_run_whose_config_predates_the_background_coupling_still_scores_and_renders(tmp_path, demo_scene_dir):
+    """Runs of a release before `affine` became the default trained the paper's coupling, and their config.yml
+    does not name it (the field did not exist): loaded today it reads `affine`. `ns-eval` and the render command
+    must still load such a run, with the background it trained (the model takes the checkpoint's coupling)."""
+    out = tmp_path / "out"
+    older = ["--pipeline.model.background-frame-coupling", "mlp"]
+    ns_train([*run_args(out, 3, *older), "thermal-demo-data", "--data", str(demo_scene_dir)])
+    run = out / "x" / "wild-thermal" / "run"
+    text = (run / "config.yml").read_text()
+    assert "background_frame_coupling: mlp" in text
+    (run / "config.yml").write_text(re.sub(r"\n *background_frame_coupling: mlp", "", text))
+    results = check_run_end_to_end(run, tmp_path, steps=3)
+    assert results["views"] >= 1
