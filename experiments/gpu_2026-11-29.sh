@@ -329,29 +329,26 @@ case "$plan" in
     wait
     collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
     ;;
-  bg-size-dunr|bg-size-flight2)  # issue 33, not run yet: the background MLP's width (64, set with the first model and
-    # never measured) at 32 and 128 against 64, 2 hidden layers, the `affine` coupling (the default since
-    # 2026-11-29), one real capture at the scene table's protocol, 3 seeds each, 9 runs side by side (as embed-dims-*,
-    # its carry as table-dunr or table-flight2; about 480 s). Then, here: experiments.variant_table with the 64 file
-    # first, --pool-baseline with ../docs/results/background_affine_real_h200's affine file of the capture
+  bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2)  # issue 33, not run yet: an MLP's width,
+    # set with the first model (the background MLP's 64) or the paper's (the emission MLP's 128) and never measured
+    # here, at half and double against it (the hidden layers' count kept), the `affine` background coupling (the
+    # default since 2026-11-29); one real capture at the scene table's protocol, 3 seeds each, 9 runs side by side (as
+    # embed-dims-*; its carry as table-dunr or table-flight2; about 480 s). Then, here: experiments.variant_table with
+    # the default width's file first (bg-size-*: --pool-baseline with ../docs/results/background_affine_real_h200's
+    # affine file of the capture)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
-    scene=${plan#bg-size-}
-    for width in 32 64 128; do
-      table_arm "$scene-bg-$width" "$scene" pipeline.model.background_mlp_width=$width
+    scene=${plan##*-}
+    case "$plan" in
+      bg-size-*) part=bg field=background_mlp_width widths=(32 64 128) ;;
+      *) part=emission field=emission_mlp_width widths=(64 128 256) ;;
+    esac
+    names=()
+    for width in "${widths[@]}"; do
+      table_arm "$scene-$part-$width" "$scene" pipeline.model.$field=$width
+      names+=("$scene-$part-$width")
     done
     wait
-    collect "$scene-bg-32" "$scene-bg-64" "$scene-bg-128"
-    ;;
-  emission-size-dunr|emission-size-flight2)  # issue 33, not run yet: the emission MLP's width (128, the paper's, never
-    # measured here) at 64 and 256 against 128, 3 hidden layers, as bg-size-* (9 runs side by side, its carry as
-    # table-dunr or table-flight2). Then, here: experiments.variant_table with the 128 file first, as bg-size-*
-    test -d /tmp/site/tensorly || { echo cold; exit 3; }
-    scene=${plan#emission-size-}
-    for width in 64 128 256; do
-      table_arm "$scene-emission-$width" "$scene" pipeline.model.emission_mlp_width=$width
-    done
-    wait
-    collect "$scene-emission-64" "$scene-emission-128" "$scene-emission-256"
+    collect "${names[@]}"
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac
