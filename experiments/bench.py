@@ -381,7 +381,7 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
                 np.save(
                     strips / f"{name}.npy", np.concatenate([frames[k] for k in STRIP_FRAMES], axis=1).astype(np.float16)
                 )
-    fps = measure_fps(pipeline, args.fps_frames)["fps"] if args.fps_frames > 0 else None
+    rendered = measure_fps(pipeline, args.fps_frames) if args.fps_frames > 0 else {}
     seconds = recorder.trained_seconds  # to the last step trained, checkpoint or not
     steps = trainer.step + 1  # fewer than asked where the automatic stop ended the run
     record = config.get_base_dir() / "auto_stop.json"
@@ -403,7 +403,9 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
         "gaussians": int(pipeline.model.num_points),
         "negative_emission": negative_emission(pipeline.model),
         "model_mb": round(_model_megabytes(pipeline.model), 2),
-        "render_fps": fps,
+        "render_fps": rendered.get("fps"),
+        # wild-thermal-render's cheap camera slices against nerfstudio's: 0.0, the same renders
+        "render_fast_slices_difference": rendered.get("max_abs_difference_fast_slices"),
         "curve": recorder.curve,
         **{key: value for key, value in final.items() if key.startswith(SCORE_PREFIXES)},
         "per_view": final["per_view"],

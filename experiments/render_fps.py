@@ -1,10 +1,12 @@
 """`python -m experiments.render_fps`: how fast a trained model renders, baked vs unbaked emission.
 
 Loads a trained run from its config.yml (as ns-render and ns-viewer do) and renders its test
-cameras, in four ways:
+cameras, in five ways:
 - `baked`: what ns-render does: the model's own rendering (background MLP included) with the
   emission MLP evaluated once for the fixed frame embedding and cached, of a camera sliced from the
   path's batch on the GPU per frame (`cameras[i : i + 1]`, nerfstudio's host work);
+- `baked_fast_slices`: the same as `wild-thermal-render` slices (`_upstream.camera_unit_slice`: no
+  per-frame rebuild of the camera dataclass);
 - `baked_cameras_made`: the same with the slices made before the timing: the model's render path alone;
 - `unbaked`: the same, with the emission MLP evaluated again for every frame;
 - `splat_only`: gsplat's rasterization of the same Gaussians and baked emission alone, no model
@@ -66,10 +68,11 @@ def frame_camera(batch, i: int):
 
 
 def measure_fps(pipeline, frames: int) -> Dict:
-    """Frames per second over the pipeline's test cameras: `baked`, `baked_cameras_made`, `unbaked` and
-    `splat_only` for this plugin's models (the first two only for others), and the largest baked/unbaked
-    difference."""
+    """Frames per second over the pipeline's test cameras: `baked`, `baked_fast_slices`, `baked_cameras_made`,
+    `unbaked` and `splat_only` for this plugin's models (the first three only for others), and the largest
+    baked/unbaked difference."""
 
+    from thermal_wild_ns._upstream import camera_unit_slice
     from thermal_wild_ns.model.camera_views import intrinsics
     from thermal_wild_ns.rendering import rasterization, world_to_camera
 
@@ -92,9 +95,18 @@ def measure_fps(pipeline, frames: int) -> Dict:
         model.baked.slots.pop("emission", None)  # forget the cached emission: the MLP runs again for this frame
         return baked(i)
 
-    ways: Dict[str, Callable[[int], torch.Tensor]] = {"baked": baked, "baked_cameras_made": model_path}
+    fast_slices = lambda i: baked(i, camera_unit_slice(cameras, i % count))
+    ways: Dict[str, Callable[[int], torch.Tensor]] = {
+        "baked": baked,
+        "baked_fast_slices": fast_slices,
+        "baked_cameras_made": model_path,
+    }
     result: Dict = {"resolution": f"{width}x{height}", "gaussians": int(model.num_points), "frames": frames}
     with torch.no_grad():
+        # the cheap slices render what nerfstudio's slices do (0.0 expected: the same camera)
+        result["max_abs_difference_fast_slices"] = max(
+            float((fast_slices(i) - baked(i)).abs().max()) for i in range(count)
+        )
         if has_mlp:
             ways["unbaked"] = unbaked
             result["max_abs_difference_baked_unbaked"] = max(

@@ -47,9 +47,11 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     # seeds make different runs
     assert result["runs"][0]["psnr_novel"] != result["runs"][1]["psnr_novel"]
     # render speed: baked vs unbaked only where there is an emission MLP to bake
-    assert set(result["runs"][0]["render_fps"]) == {"baked", "baked_cameras_made", "splat_only"}
-    assert set(result["runs"][2]["render_fps"]) == {"baked", "baked_cameras_made", "unbaked", "splat_only"}
+    made = {"baked", "baked_fast_slices", "baked_cameras_made"}
+    assert set(result["runs"][0]["render_fps"]) == made | {"splat_only"}
+    assert set(result["runs"][2]["render_fps"]) == made | {"unbaked", "splat_only"}
     assert all(v > 0 for v in result["runs"][2]["render_fps"].values())
+    assert all(r["render_fast_slices_difference"] == 0.0 for r in result["runs"])  # the same renders
     table = (out / "bench.md").read_text()
     runs = result["runs"]
     mean = np.mean([r["psnr_aligned"] for r in runs[2:]])

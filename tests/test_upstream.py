@@ -12,7 +12,7 @@ UPSTREAM_INTERNALS = re.compile(
     r"def "
     r"(_grow_gs|_update_state|_setup|_load_images|_load_checkpoint)\b|train_unseen_cameras|optimizer_scaler_step_some"
     r"|LearnedPerceptualImagePatchSimilarity|add_safe_globals|_render_trajectory_video|\.write_ply\s*=|ns_export\.eval_setup\s*="
-    r"|torch\.library\.Library|sys\.meta_path"
+    r"|torch\.library\.Library|sys\.meta_path|Cameras\.__getitem__\s*="
 )
 SHIM = ROOT / "thermal_wild_ns/install/torchvision_shim.py"
 """The CPU torchvision trap's handling: apart from `_upstream.py` because it runs at interpreter start."""
@@ -161,6 +161,61 @@ def test_fused_adam_step_is_adams_step(device):
         assert torch.equal(p, q)
         assert o.state[p].keys() == r.state[q].keys()
         assert all(torch.equal(o.state[p][key], r.state[q][key]) for key in o.state[p])
+
+
+def test_a_camera_paths_unit_slices_are_nerfstudios_without_the_rebuild():
+    """`camera_unit_slice` (and `fast_camera_path_slices`, as ns-render's loop slices): for every frame of a path's
+    batch, the same fields as nerfstudio's `cameras[i : i + 1]`: values, shapes, dtypes, and views of the same
+    storage at the same offset (what `camera_views.CameraSizes` reads by); batches it does not handle go
+    nerfstudio's way; the patch is gone after the context."""
+    import dataclasses
+
+    from nerfstudio.cameras.cameras import Cameras
+    from nerfstudio.utils.tensor_dataclass import TensorDataclass
+
+    from thermal_wild_ns._upstream import camera_unit_slice, fast_camera_path_slices
+
+    n = 5
+    g = torch.Generator().manual_seed(0)
+    path = Cameras(
+        camera_to_worlds=torch.rand(n, 3, 4, generator=g),
+        fx=torch.rand(n, 1, generator=g) * 500,
+        fy=torch.rand(n, 1, generator=g) * 500,
+        cx=torch.full((n, 1), 320.0),
+        cy=torch.full((n, 1), 256.0),
+        width=torch.full((n, 1), 640),
+        height=torch.full((n, 1), 512),
+        distortion_params=torch.rand(n, 6, generator=g),
+        times=torch.linspace(0, 1, n)[:, None],
+        metadata={"label": "path"},
+    )
+
+    def same(ours, theirs):
+        assert type(ours) is type(theirs) and ours.shape == theirs.shape
+        assert ours.metadata == theirs.metadata and ours.metadata is not path.metadata
+        for field in dataclasses.fields(theirs):
+            a, b = getattr(ours, field.name), getattr(theirs, field.name)
+            if isinstance(b, torch.Tensor):
+                assert a.shape == b.shape and a.dtype == b.dtype and torch.equal(a, b), field.name
+                assert a.untyped_storage().data_ptr() == b.untyped_storage().data_ptr(), field.name
+                assert a.storage_offset() == b.storage_offset(), field.name
+            else:
+                assert a == b, field.name
+
+    for i in range(n):
+        same(camera_unit_slice(path, i), path[i : i + 1])
+    with fast_camera_path_slices():
+        assert path[2:3].camera_to_worlds.storage_offset() == 2 * 12
+        same(path[3:4], TensorDataclass.__getitem__(path, slice(3, 4)))
+        assert path[1:3].shape == (2,)  # not a unit slice: nerfstudio's
+        tensors_inside = Cameras(
+            **{
+                **{f.name: getattr(path, f.name) for f in dataclasses.fields(path)},
+                "metadata": {"cam_idx": torch.arange(n)[:, None]},
+            }
+        )
+        assert tensors_inside[4:5].metadata["cam_idx"].tolist() == [[4]]  # nerfstudio's way
+    assert "__getitem__" not in Cameras.__dict__
 
 
 def test_the_startup_file_loads_the_shim_alone():

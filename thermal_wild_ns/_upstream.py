@@ -14,6 +14,8 @@ imports torchvision (and so before this module could).
 from __future__ import annotations
 
 import contextlib
+import copy
+import dataclasses
 import os
 import shutil
 from importlib import metadata
@@ -29,6 +31,7 @@ from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, _undistort_image
 from nerfstudio.engine.trainer import Trainer
 from nerfstudio.utils import writer
+from nerfstudio.utils.tensor_dataclass import TensorDataclass
 from nerfstudio.viewer.viewer_elements import ViewerControl
 
 from thermal_wild_ns.errors import EXPLAINERS, raised_reading_yaml
@@ -585,6 +588,49 @@ def trajectory_render_hooks(per_trajectory: Callable):
         yield
     finally:
         ns_render._render_trajectory_video = original
+
+
+def camera_unit_slice(cameras: Cameras, i: int) -> Cameras:
+    """`cameras[i : i + 1]` of a 1-D batch without nerfstudio 1.1.5's `TensorDataclass.__getitem__`, which builds
+    the slice through `Cameras.__init__` (its field conversions, checks and broadcasts: host time in every frame of
+    a camera path) to the same tensors: each tensor field is the view `field[i : i + 1]` (the same storage, offset
+    and values), metadata without tensors deep-copied as there. Other batches and metadata holding tensors take
+    nerfstudio's way (`tests/test_upstream.py` compares the two field by field)."""
+    metadata = cameras.metadata
+    simple = metadata is None or not any(isinstance(v, (torch.Tensor, dict)) for v in metadata.values())
+    if len(cameras.shape) != 1 or not 0 <= i < cameras.shape[0] or not simple:
+        return TensorDataclass.__getitem__(cameras, slice(i, i + 1))
+    sliced = copy.copy(cameras)
+    for field in dataclasses.fields(cameras):
+        value = getattr(cameras, field.name)
+        if isinstance(value, torch.Tensor):
+            object.__setattr__(sliced, field.name, value[i : i + 1])
+    object.__setattr__(sliced, "metadata", copy.deepcopy(metadata))
+    object.__setattr__(sliced, "_shape", torch.Size([1]))
+    return sliced
+
+
+@contextlib.contextmanager
+def fast_camera_path_slices():
+    """nerfstudio 1.1.5's ns-render loop (`_render_trajectory_video`) hands the model `cameras[i : i + 1]` of the
+    path's batch for every frame. While this context is open, that unit slice of a `Cameras` batch is
+    `camera_unit_slice`'s: the same camera, without the dataclass rebuilt per frame."""
+
+    def getitem(self, indices):
+        if isinstance(indices, slice) and indices.step is None and isinstance(indices.start, int):
+            if indices.stop == indices.start + 1:
+                return camera_unit_slice(self, indices.start)
+        return TensorDataclass.__getitem__(self, indices)
+
+    previous = Cameras.__dict__.get("__getitem__")  # none: Cameras inherits TensorDataclass's
+    Cameras.__getitem__ = getitem
+    try:
+        yield
+    finally:
+        if previous is None:
+            del Cameras.__getitem__
+        else:
+            Cameras.__getitem__ = previous
 
 
 EXPLAINERS.append(explain_config_load_error)  # a damaged run config, as nerfstudio's loader meets it

@@ -30,7 +30,11 @@ import tyro
 from nerfstudio.scripts import render as ns_render
 from typing_extensions import Annotated
 
-from thermal_wild_ns._upstream import interpolation_over_one_pose, trajectory_render_hooks
+from thermal_wild_ns._upstream import (
+    fast_camera_path_slices,
+    interpolation_over_one_pose,
+    trajectory_render_hooks,
+)
 from thermal_wild_ns.errors import report_input_errors_briefly
 from thermal_wild_ns.pipeline.photometric_state import parse_state, resolve_state, to_original
 from thermal_wild_ns.pipeline.run_check import check_trained_run
@@ -105,7 +109,8 @@ class RadiometricFrameWriter:
 def _radiometric_too(options: RadiometricOptions, output_path: Path):
     """While ns-render's command runs, every trajectory is rendered at the chosen photometric state
     (its frame embedding passed to each render) and, unless `--radiometric none`, every frame it
-    renders also goes to a RadiometricFrameWriter."""
+    renders also goes to a RadiometricFrameWriter; each frame's camera is sliced from the path's batch
+    without nerfstudio's per-frame rebuild (`fast_camera_path_slices`)."""
 
     parse_state(options.photometric_state)  # a bad name fails before the model loads
     check_trained_run(options.load_config)
@@ -122,7 +127,7 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
         if frames is not None:
             frames.close()
 
-    with trajectory_render_hooks(per_trajectory):
+    with trajectory_render_hooks(per_trajectory), fast_camera_path_slices():  # each frame's camera, sliced cheaply
         yield
 
 
