@@ -597,7 +597,8 @@ def camera_unit_slice(cameras: Cameras, i: int) -> Cameras:
     and values), metadata without tensors deep-copied as there. Other batches and metadata holding tensors take
     nerfstudio's way (`tests/test_upstream.py` compares the two field by field)."""
     metadata = cameras.metadata
-    simple = metadata is None or not any(isinstance(v, (torch.Tensor, dict)) for v in metadata.values())
+    sliced_inside = (torch.Tensor, dict, TensorDataclass)  # metadata values nerfstudio slices, not copies
+    simple = metadata is None or not any(isinstance(v, sliced_inside) for v in metadata.values())
     if len(cameras.shape) != 1 or not 0 <= i < cameras.shape[0] or not simple:
         return TensorDataclass.__getitem__(cameras, slice(i, i + 1))
     sliced = copy.copy(cameras)
