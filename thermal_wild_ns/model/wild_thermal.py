@@ -927,8 +927,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.camera_falloff, self.graphed_camera = None, None
             self.falloff_why = "the checkpoint's: trained when the content-motion rule decided the whole camera model"
             CONSOLE.log(f"camera fall-off off: {self.falloff_why}")
-        trained_coupling = "affine" if "background_mlp.frame_affine.weight" in state_dict else "mlp"
         if self.background_mlp is not None and any(k.startswith("background_mlp.") for k in state_dict):
+            trained_coupling = "affine" if "background_mlp.frame_affine.weight" in state_dict else "mlp"
             if trained_coupling != self.config.background_frame_coupling:
                 if self.training:  # a resume: the optimizers already hold this config's background parameters
                     raise ValueError(
