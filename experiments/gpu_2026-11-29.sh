@@ -26,9 +26,10 @@
 # call: its wheels and flight2's carry exceed 64 MiB together), affine-generated, affine-dunr. A fifth session, one
 # warm machine after the two installs: affine-table-dunr, affine-table-flight2 (docs/results/background_affine_real_h200;
 # `affine` the default since), embed-dims-flight2, embed-dims-dunr (docs/results/embed_dims_h200; run with `mlp`, the
-# default then). Not run yet under the `affine` default: table-generated (stress-clean, -outlier, -vignetting);
-# bg-size-dunr, bg-size-flight2 (the background MLP's width, never measured; each after the two installs);
-# emission-size-dunr, emission-size-flight2 (the emission MLP's width, the paper's 128, never measured here).
+# default then). A sixth session (2026-12-01), one warm machine after the two installs: table-generated with the GPU
+# parity tests (docs/results/table_generated_affine_h200), bg-size-flight2, bg-size-dunr (docs/results/bg_size_h200),
+# emission-size-flight2 (docs/results/emission_size_h200). Not run yet: emission-size-dunr (the emission MLP's width,
+# the paper's 128, on DUNR; DUNR's carry).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2}
 OUT=${OUT:-/tmp/out}
@@ -242,7 +243,8 @@ case "$plan" in
     wait
     collect fixed-200000 fixed-1000000
     ;;
-  table-generated|table-dunr|table-flight2)  # issue 33, not run yet: the scene table's full-method rows in one code
+  table-generated|table-dunr|table-flight2)  # issue 33 (table-generated last run 2026-12-01, under `affine`): the
+    # scene table's full-method rows in one code
     # state (the ablations' rows, ../docs/results/ablations_grow_h200, are today's defaults for them; splatfacto's are
     # ttq_h200x2's and generated_h200's): the generated scenes at issue 16's protocol (5,000 steps asked, the
     # 1/2-resolution warm-up, the stop on; 18 runs side by side; nothing carried) or one real capture, the first
@@ -329,7 +331,8 @@ case "$plan" in
     wait
     collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
     ;;
-  bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2)  # issue 33, not run yet: an MLP's width,
+  bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2)  # issue 33 (all but emission-size-dunr run
+    # 2026-12-01): an MLP's width,
     # set with the first model (the background MLP's 64) or the paper's (the emission MLP's 128) and never measured
     # here, at half and double against it (the hidden layers' count kept), the `affine` background coupling (the
     # default since 2026-11-29); one real capture at the scene table's protocol, 3 seeds each, 9 runs side by side (as
