@@ -29,9 +29,9 @@
 # default then). A sixth session (2026-12-01), one warm machine after the two installs: table-generated with the GPU
 # parity tests (docs/results/table_generated_affine_h200), bg-size-flight2, bg-size-dunr (docs/results/bg_size_h200),
 # emission-size-flight2 (docs/results/emission_size_h200). Not run yet: emission-size-dunr (the emission MLP's width,
-# the paper's 128, on DUNR; DUNR's carry).
+# the paper's 128, on DUNR; DUNR's carry), bg-layers-dunr, bg-layers-flight2 (the background MLP's hidden layers).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -331,8 +331,9 @@ case "$plan" in
     wait
     collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
     ;;
-  bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2)  # issue 33 (all but emission-size-dunr run
-    # 2026-12-01): an MLP's width,
+  bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2|bg-layers-dunr|bg-layers-flight2)  # issue 33
+    # (bg-size-*, emission-size-flight2 run 2026-12-01; emission-size-dunr, bg-layers-* not yet: the background MLP's
+    # hidden layers, 1/2/3 against its 2, set with the first model, the width 64 kept): an MLP's width,
     # set with the first model (the background MLP's 64) or the paper's (the emission MLP's 128) and never measured
     # here, at half and double against it (the hidden layers' count kept), the `affine` background coupling (the
     # default since 2026-11-29); one real capture at the scene table's protocol, 3 seeds each, 9 runs side by side (as
@@ -343,6 +344,7 @@ case "$plan" in
     scene=${plan##*-}
     case "$plan" in
       bg-size-*) part=bg field=background_mlp_width widths=(32 64 128) ;;
+      bg-layers-*) part=bg-layers field=background_mlp_layers widths=(1 2 3) ;;
       *) part=emission field=emission_mlp_width widths=(64 128 256) ;;
     esac
     names=()
