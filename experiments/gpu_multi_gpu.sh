@@ -75,7 +75,7 @@ case "$plan" in
       --gaussians 4000000 --steps 5 --train-at $count --train-steps 600 --score-every 200 \
       --output-dir /tmp/mgl > "$OUT/large-two.log" 2>&1
     cp /tmp/mgl/multi_gpu_train_2.json "$OUT/"; tail -n 30 "$OUT/large-two.log"
-    CUDA_VISIBLE_DEVICES=0 timeout 150 python3 -m experiments.score_checkpoint /tmp/mgl/runs/unnamed/wild-thermal/cost/config.yml \
+    CUDA_VISIBLE_DEVICES=0 timeout 150 python3 -m experiments.score_checkpoint /tmp/mgl/runs/survey_1000/wild-thermal/cost/config.yml \
       > "$OUT/score-large-one-gpu.json" 2> "$OUT/score-large-one-gpu.log"
     cat "$OUT/score-large-one-gpu.json"; nvidia-smi --query-gpu=name,memory.total --format=csv > "$OUT/gpus.csv"
     ;;

@@ -294,3 +294,28 @@ def test_the_pipeline_switches_to_training_only_the_modules_that_are_not(tmp_pat
     assert switched and all(module.training for module in pipeline.modules())
     pipeline.eval()
     assert not any(module.training for module in pipeline.modules())
+
+
+def test_a_run_is_named_after_its_data_folder(tmp_path, monkeypatch):
+    """`ns-train wild-thermal thermal --data X` (the README's form) puts the run under `outputs/X/...`, not
+    nerfstudio's 'unnamed' (every survey's runs in one folder); `--data` before the dataparser, a file given
+    as the data and `--experiment-name` keep their meaning. Parsed as ns-train parses, nothing trained."""
+    import tyro
+    from nerfstudio.configs.method_configs import AnnotatedBaseConfigUnion
+
+    flight = tmp_path / "flight_0412"
+    flight.mkdir()
+    (flight / "transforms.json").write_text("{}")
+    monkeypatch.chdir(flight)
+
+    def name(*args: str) -> str:
+        config = tyro.cli(AnnotatedBaseConfigUnion, args=["wild-thermal", *args])
+        if config.data is not None:  # nerfstudio's train main: the `--data` alias goes to the datamanager
+            config.pipeline.datamanager.data = config.data
+        return config.get_base_dir().parent.parent.name
+
+    assert name("thermal", "--data", str(flight)) == "flight_0412"
+    assert name("metashape-data", "--data", str(flight / "transforms.json")) == "flight_0412"  # a file: its folder
+    assert name("thermal", "--data", ".") == "flight_0412"  # relative to where ns-train runs
+    assert name("--data", str(tmp_path), "thermal", "--data", str(flight)) == tmp_path.name  # nerfstudio's alias
+    assert name("--experiment-name", "roof", "thermal", "--data", str(flight)) == "roof"

@@ -22,6 +22,7 @@ model without it (stock splatfacto) trains without those checks.
 from __future__ import annotations
 
 import dataclasses
+import os
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,6 +82,17 @@ class GuardedTrainerConfig(TrainerConfig):
                 f"{len(missing)} settings are missing, the last saved first: {', '.join(missing[-3:])}"
             )
         self.__dict__.update(state)
+
+    def set_experiment_name(self) -> None:
+        """A run is named after its data folder (`outputs/NAME/METHOD/TIMESTAMP`). nerfstudio names it after
+        `--data` given before the dataparser (`ns-train M --data X`) and calls it 'unnamed' otherwise, which
+        is this plugin's usual form (`ns-train M thermal --data X`): every survey's runs would share one
+        folder. Here the dataparser's folder names it where nerfstudio's alias was not given."""
+        data = getattr(self.pipeline.datamanager.dataparser, "data", None)
+        if self.experiment_name is None and self.pipeline.datamanager.data is None and data is not None:
+            folder = Path(os.path.abspath(data))  # '.' and '..' named, a link by its own name
+            self.experiment_name = (folder.parent if folder.is_file() else folder).name or None
+        super().set_experiment_name()
 
     def save_config(self) -> None:
         """nerfstudio's `save_config` (config.yml beside the run), written atomically."""
