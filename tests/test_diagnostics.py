@@ -103,7 +103,8 @@ def test_diagnose_command_on_the_demo_scene(demo_scene_dir, tmp_path):
         written["error_amplification"]["rms"] > 0 and written["preprocessing"]["equalization_strength"] == 0.5
     )  # the default
     # the demo's frames drift by level offsets, with gains within a few percent: the full method trains raw
-    assert written["advice"].startswith("the frames differ by level offsets") and "raw frames" in written["advice"]
+    assert written["advice"].startswith("`wild-thermal` trains on the raw frames")
+    assert "would still train on its raw frames: the frames differ by level offsets" in written["advice"]
 
 
 def test_diagnose_finds_a_stable_capture_that_the_full_method_trains_raw(tmp_path):
@@ -118,11 +119,30 @@ def test_diagnose_finds_a_stable_capture_that_the_full_method_trains_raw(tmp_pat
         DiagnoseArgs(data=scene, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4)
     )
     assert result["after"]["std_delta_i"] > result["before"]["std_delta_i"]
-    assert result["advice"].startswith("the capture is stable") and "still trains on its raw frames" in result["advice"]
+    assert result["advice"].startswith("`wild-thermal` trains on the raw frames")
+    assert "would still train on its raw frames: the capture is stable" in result["advice"]
     assert result["degenerate_frames"] == [Path(frame).name] and result["frames"] == 39  # listed, left out
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))
         assert image is not None and image.shape[0] > 100
+
+
+FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
+
+
+def test_diagnose_never_advises_the_preprocessing_a_drone_survey_loses_by(tmp_path):
+    """flight2's frames vary in level and contrast, so the contrast rule would preprocess them if asked; the full
+    method trains them raw, which scored higher on both real captures: the line says the default first and the
+    rule's answer as what happens if asked, not as advice to ask."""
+    from thermal_wild_ns.analysis.diagnose import DiagnoseArgs, diagnose
+
+    if not FLIGHT2.is_dir():
+        pytest.skip(f"flight2 not found at {FLIGHT2} (it sits in ../shared beside the checkout)")
+    result = diagnose(
+        DiagnoseArgs(data=FLIGHT2, output_dir=tmp_path / "out", cache_dir=tmp_path / "cache", spectrum_frames=4)
+    )
+    assert result["advice"].startswith("`wild-thermal` trains on the raw frames")
+    assert "would preprocess this capture: the frames' levels and contrast vary" in result["advice"]
 
 
 def test_preprocessing_stage_names_a_frame_with_nans(tmp_path):

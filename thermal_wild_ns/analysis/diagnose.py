@@ -90,11 +90,18 @@ def summary_line(name: str, before: Dict, after: Dict) -> str:
 
 
 def preprocessing_advice(sequence: PreprocessedSequence) -> str:
-    """What the contrast rule (`PreprocessedSequence.decision`, `PhotometricConfig.skip_when_stable`) decides
-    for this capture where preprocessing is asked for; `wild-thermal` itself trains on the raw frames."""
+    """What training does with this capture's frames: `wild-thermal` trains on the raw frames by default
+    (said first: with its camera model and per-frame state, preprocessing cost both real captures, even
+    where the contrast rule would apply it, docs/results/preprocessing_camera_h200), then what the contrast
+    rule (`PreprocessedSequence.decision`, `PhotometricConfig.skip_when_stable`) decides where
+    preprocessing is asked for, and why. Never a recommendation to preprocess that the evidence contradicts."""
     decision = sequence.decision()
-    what = "preprocesses this capture" if decision.pays else "still trains on its raw frames"
-    return f"{decision.reason}: `wild-thermal` with {PREPROCESSING_FLAG} stab+bbhe {what}"
+    what = "preprocess this capture" if decision.pays else "still train on its raw frames"
+    return (
+        "`wild-thermal` trains on the raw frames (its default: its camera model and per-frame state follow "
+        f"the frames' changes); asked for ({PREPROCESSING_FLAG} stab+bbhe), the contrast rule would {what}: "
+        f"{decision.reason}"
+    )
 
 
 def _plot(result: Dict, path: Path, title: str) -> None:
@@ -211,7 +218,7 @@ def diagnose(args: DiagnoseArgs) -> Dict:
     print(result["summary"])
     if parser.degenerate_frames:
         print(f"frames with no contrast (left out): {', '.join(parser.degenerate_frames)}")
-    print(f"advice: {result['advice']}")
+    print(f"preprocessing: {result['advice']}")
     print(
         f"written: {args.output_dir / 'diagnostics.json'}, {args.output_dir / 'diagnostics.png'}, "
         f"{args.output_dir / 'frames.png'}"
