@@ -380,6 +380,45 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
     assert second["psnr_half"] < first["psnr_half"] - 3.0
 
 
+def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_model_as_it_was(tmp_path, demo_scene_dir):
+    """`fit_embedding` (the `half` and `oracle` protocols) holds the model's parameters constant: the same Adam
+    steps as with every parameter in the graph give the same embedding (the embedding's gradient does not
+    depend on the geometry getting one), no gradient lands in the model, and every parameter is trainable
+    again after the fit, also after a fit that fails."""
+    from thermal_wild_ns.pipeline.evaluation import as_recorded, fit_embedding, thermal_output
+
+    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
+    model = pipeline.model
+    model.eval()
+    camera = pipeline.datamanager.eval_dataset.cameras[0:1].to(model.device)
+    target = torch.full((int(camera.height), int(camera.width)), 0.3)
+    start = model.inference_embedding() + 0.1
+    trainable = [name for name, parameter in model.named_parameters() if parameter.requires_grad]
+
+    embedding = start.detach().clone().requires_grad_(True)  # the fit with the whole graph, as before
+    optimizer = torch.optim.Adam([embedding], lr=1e-2)
+    with torch.enable_grad():
+        for _ in range(3):
+            optimizer.zero_grad()
+            pred = as_recorded(model, thermal_output(model.get_outputs(camera, frame_embedding=embedding)), camera)
+            (pred[..., 0] - target).abs().mean().backward()
+            optimizer.step()
+    model.zero_grad(set_to_none=True)
+
+    fitted = fit_embedding(model, camera, target, slice(None), start, 3, 1e-2)
+    assert not torch.equal(fitted, start) and torch.allclose(fitted, embedding.detach(), atol=1e-6)
+    assert all(parameter.grad is None for parameter in model.parameters())
+    assert [name for name, parameter in model.named_parameters() if parameter.requires_grad] == trainable
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("a render that fails")
+
+    model.get_outputs = broken
+    with pytest.raises(RuntimeError, match="a render that fails"):
+        fit_embedding(model, camera, target, slice(None), start, 3, 1e-2)
+    assert [name for name, parameter in model.named_parameters() if parameter.requires_grad] == trainable
+
+
 @pytest.mark.parametrize("preprocessed", [False, True])
 def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(
     tmp_path, demo_scene_dir, monkeypatch, preprocessed

@@ -33,8 +33,9 @@ and `oracle` renders are the same image.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
-from typing import Callable, Dict, Optional, Tuple
+from typing import Callable, Dict, Iterator, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -115,24 +116,37 @@ def scores(pred: np.ndarray, gt: np.ndarray, to_celsius: Optional[Callable] = No
     return result
 
 
+@contextlib.contextmanager
+def parameters_frozen(model: torch.nn.Module) -> Iterator[None]:
+    """`model`'s trainable parameters as constants (`requires_grad` off) within the block, trainable again
+    after it, however it ends."""
+    trainable = [parameter for parameter in model.parameters() if parameter.requires_grad]
+    for parameter in trainable:
+        parameter.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for parameter in trainable:
+            parameter.requires_grad_(True)
+
+
 def fit_embedding(
     model, camera, target: torch.Tensor, columns: slice, start: torch.Tensor, steps: int, lr: float
 ) -> torch.Tensor:
     """The frame embedding that best explains `target` ([H, W] training space) within `columns`,
-    by Adam on the L1 loss from `start`. Only those columns of the render enter the loss."""
+    by Adam on the L1 loss from `start`. Only those columns of the render enter the loss. The model's
+    parameters are constants meanwhile (`parameters_frozen`): the render records no graph for the
+    geometry and backward computes the embedding's gradient alone (on a CPU a fraction of the time),
+    leaving training's gradients alone."""
     embedding = start.detach().clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
     optimizer = torch.optim.Adam([embedding], lr=lr)
-    try:
-        with torch.enable_grad():
-            for _ in range(steps):
-                optimizer.zero_grad()
-                rendered = thermal_output(model.get_outputs(camera, frame_embedding=embedding))  # [H, W, 1]
-                pred = as_recorded(model, rendered, camera)[..., 0]  # compared with the recorded frame
-                loss = (pred[:, columns] - target[:, columns]).abs().mean()
-                loss.backward()
-                optimizer.step()
-    finally:
-        model.zero_grad(set_to_none=True)  # the Gaussians' gradients from these steps are not training's
+    with torch.enable_grad(), parameters_frozen(model):
+        for _ in range(steps):
+            rendered = thermal_output(model.get_outputs(camera, frame_embedding=embedding))  # [H, W, 1]
+            pred = as_recorded(model, rendered, camera)[..., 0]  # compared with the recorded frame
+            loss = (pred[:, columns] - target[:, columns]).abs().mean()
+            (embedding.grad,) = torch.autograd.grad(loss, embedding)
+            optimizer.step()
     return embedding.detach()
 
 
