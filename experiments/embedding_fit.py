@@ -1,7 +1,7 @@
 """`python -m experiments.embedding_fit`: the time of one step of the `half` and `oracle` protocols' embedding fit
-(`pipeline.evaluation.fit_embedding`, 100 steps per held-out view and protocol in `ns-eval`) on a trained run's
-first held-out view, with the package on the path (this tree, or another commit's unpacked in `.baseline/`: run
-from there to time it), and the embedding it ends at (to compare the two).
+(`pipeline.evaluation.fit_embedding`, `eval_fit_steps` of them per held-out view and protocol in `ns-eval`) on a
+trained run's first held-out view, with the package on the path (this tree, or another commit's unpacked in
+`.baseline/`: run from there to time it), and the embedding it ends at (to compare the two).
 
     python -m experiments.embedding_fit --load-config RUN/config.yml --output-path fit.json [--steps 5 --rounds 3]
 

@@ -6,6 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from real_data import FLIGHT2
 
 from thermal_wild_ns.analysis.diagnostics import (
     high_frequency_ratio,
@@ -125,9 +126,6 @@ def test_diagnose_finds_a_stable_capture_that_the_full_method_trains_raw(tmp_pat
     for png in ("diagnostics.png", "frames.png"):
         image = cv2.imread(str(tmp_path / "out" / png))
         assert image is not None and image.shape[0] > 100
-
-
-FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
 
 
 def test_diagnose_never_advises_the_preprocessing_a_drone_survey_loses_by(tmp_path):

@@ -10,16 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from real_data import FLIGHT2, RJPEG_SAMPLES
 
 from thermal_wild_ns.data import layouts
 from thermal_wild_ns.data.exif_sfm import focal_length_px, gimbal_rotation, read_frame_prior
 from thermal_wild_ns.data.rjpeg import radiometric_raw
 from thermal_wild_ns.errors import InputError
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-FLIGHT2 = SHARED / "flight2"
 needs_flight2 = pytest.mark.skipif(not FLIGHT2.is_dir(), reason="../shared/data/flight2 is not here")
-needs_samples = pytest.mark.skipif(not (SHARED / "rjpeg_samples").is_dir(), reason="no rjpeg_samples")
+needs_samples = pytest.mark.skipif(not RJPEG_SAMPLES.is_dir(), reason="no rjpeg_samples")
 
 
 def test_gimbal_angles_turn_into_a_camera_pose_as_drones_report_them():
@@ -56,7 +55,7 @@ def test_a_frames_own_metadata_gives_its_position_and_gimbal():
     ],
 )
 def test_the_focal_length_comes_from_what_the_file_records(name, expected, source):
-    path = SHARED / "rjpeg_samples" / name
+    path = RJPEG_SAMPLES / name
     height, width = radiometric_raw(path).shape
     focal, found_in = focal_length_px(path, width, height)
     assert focal == pytest.approx(expected, rel=1e-4) and found_in == source

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import layout_fixtures as fx
 import pytest
 from ns_runs import STEPS, check_run_end_to_end, ns_train, run_args
+from real_data import FLIGHT2
 
 pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
@@ -25,7 +25,6 @@ FRAMES = 26
 """Enough frames for the automatic stop to hold two training frames back (it needs 20)."""
 
 SCALE = {"msx-data": 0.125, "ye-thermal-data": 0.25, "metashape-data": 0.125, "exif-gps-data": 0.125}
-FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
 
 # registered parser -> (fixture writer, folder name); 'thermal' detects the layout itself
 PARSERS = {

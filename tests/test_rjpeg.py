@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from real_data import FLIGHT2, RJPEG_SAMPLES
 
 from thermal_wild_ns.data.rjpeg import (
     DJI_CONVERTER_ENV,
@@ -24,10 +25,7 @@ from thermal_wild_ns.data.rjpeg import (
 )
 from thermal_wild_ns.errors import InputError
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-SAMPLES = SHARED / "rjpeg_samples"
-FLIGHT2 = SHARED / "flight2"
-needs_shared = pytest.mark.skipif(not SAMPLES.is_dir(), reason="../shared/data is not here")
+needs_shared = pytest.mark.skipif(not RJPEG_SAMPLES.is_dir(), reason="../shared/data is not here")
 
 
 def _exiftool(sample: Path) -> dict:
@@ -43,13 +41,13 @@ def _number(text: str) -> float:
     return float(re.match(r"-?[0-9.]+", text).group(0))
 
 
-SAMPLE_FILES = sorted(p.name for p in SAMPLES.glob("*.jpg")) if SAMPLES.is_dir() else []
+SAMPLE_FILES = sorted(p.name for p in RJPEG_SAMPLES.glob("*.jpg")) if RJPEG_SAMPLES.is_dir() else []
 
 
 @needs_shared
 @pytest.mark.parametrize("name", SAMPLE_FILES)
 def test_every_camera_gives_its_raw_raster_and_celsius_or_says_what_to_install(name, monkeypatch):
-    sample = SAMPLES / name
+    sample = RJPEG_SAMPLES / name
     dump = _exiftool(sample)
     thermal = read_rjpeg(sample)
     assert is_radiometric_jpeg(sample)
@@ -79,8 +77,8 @@ def test_every_camera_gives_its_raw_raster_and_celsius_or_says_what_to_install(n
 @needs_shared
 @pytest.mark.parametrize("name", [n for n in SAMPLE_FILES if not re.search(r"_R\.jpg$", n)])
 def test_the_flir_calibration_equals_exiftools(name):
-    sample = SAMPLES / name
-    dump, cal = _exiftool(sample), read_rjpeg(SAMPLES / name).calibration
+    sample = RJPEG_SAMPLES / name
+    dump, cal = _exiftool(sample), read_rjpeg(RJPEG_SAMPLES / name).calibration
     for tag, value in (
         ("Planck R1", cal.planck_r1),
         ("Planck R2", cal.planck_r2),
@@ -195,11 +193,11 @@ def test_dji_files_read_in_celsius_through_djis_converter_where_it_is_installed(
     from thermal_wild_ns.data.thermal_io import RadiometricRange
 
     _fake_converter(tmp_path, monkeypatch)
-    sample = read_rjpeg(SAMPLES / "M3T_DJI_0002_R.jpg")
+    sample = read_rjpeg(RJPEG_SAMPLES / "M3T_DJI_0002_R.jpg")
     assert np.allclose(sample.celsius(), sample.raw * 0.01 - 150.0, atol=1e-3)
     # a survey's frames: one table over all of them, which a dataset's range turns into °C
-    frames = [SAMPLES / "M3T_DJI_0002_R.jpg", SAMPLES / "M3TD_DJI_0001_R.jpg"]
-    table = _one_calibration({path: None for path in frames}, SAMPLES)
+    frames = [RJPEG_SAMPLES / "M3T_DJI_0002_R.jpg", RJPEG_SAMPLES / "M3TD_DJI_0001_R.jpg"]
+    table = _one_calibration({path: None for path in frames}, RJPEG_SAMPLES)
     assert isinstance(table, DjiCalibration) and "2 file(s)" in table.source
     raws = np.concatenate([read_rjpeg(p).raw.ravel() for p in frames])
     assert table.raw[0] == raws.min() and table.raw[-1] == raws.max()
@@ -212,7 +210,7 @@ def test_dji_files_read_in_celsius_through_djis_converter_where_it_is_installed(
     # without the converter: raw counts, and the log says how to have °C
     monkeypatch.setenv(DJI_CONVERTER_ENV, "/nonexistent/dji-thermal-cli")
     with pytest.warns(UserWarning, match="without °C.*pipx install"):
-        assert _one_calibration({path: None for path in frames}, SAMPLES) is None
+        assert _one_calibration({path: None for path in frames}, RJPEG_SAMPLES) is None
 
 
 @needs_shared
@@ -223,9 +221,9 @@ def test_djis_own_converter_gives_plausible_celsius_for_every_dji_camera(tmp_pat
     survey holds), our °C is its °C exactly, and warmer counts are warmer."""
     import subprocess
 
-    samples = sorted(SAMPLES.glob("*_R.jpg"))
+    samples = sorted(RJPEG_SAMPLES.glob("*_R.jpg"))
     subprocess.run(
-        [dji_converter(), "process", "--input-dir", str(SAMPLES), "--output-dir", str(tmp_path)]
+        [dji_converter(), "process", "--input-dir", str(RJPEG_SAMPLES), "--output-dir", str(tmp_path)]
         + ["--output", "temp_c:tiff,raw:tiff", "--distance", "embedded", "--quiet"],
         check=True,
         capture_output=True,

@@ -5,11 +5,11 @@ JPEGs, cameras landing where the GPS put them) and OpenDroneMap / OpenSfM (a pro
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from real_data import FLIGHT2
 
 from thermal_wild_ns.data import layouts
 from thermal_wild_ns.data.capture import validate
@@ -17,7 +17,6 @@ from thermal_wild_ns.data.georeference import datum_to_wgs84, ecef_to_geodetic
 from thermal_wild_ns.data.rjpeg import NotRadiometric
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 
-FLIGHT2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "flight2"
 needs_flight2 = pytest.mark.skipif(not FLIGHT2.is_dir(), reason="../shared/data/flight2 is not here")
 
 

@@ -5,12 +5,12 @@ import json
 import os
 import re
 import threading
-from pathlib import Path
 
 import cv2
 import layout_fixtures as fx
 import numpy as np
 import pytest
+from real_data import RGBT_FRAMES
 
 from thermal_wild_ns.data import thermal_io
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
@@ -289,9 +289,6 @@ def test_stale_work_folders_of_dead_processes_are_removed_live_ones_kept(tmp_pat
         assert work.is_dir() and work.name.startswith(f".preprocessing-{os.getpid()}-")
     finally:
         live.kill()
-
-
-RGBT_FRAMES = Path(__file__).resolve().parents[2] / "shared" / "data" / "rgbt_frames"
 
 
 @pytest.mark.skipif(not RGBT_FRAMES.is_dir(), reason=f"{RGBT_FRAMES} (real RGBT-Scenes frames) is not here")

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from real_data import DUNR
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.pipeline.evaluation import evaluate
@@ -171,17 +172,15 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
 
 
 def test_dunr_loads_with_dataset_level_normalisation():
-    from pathlib import Path
 
     import pytest
 
     from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig
     from thermal_wild_ns.pipeline.datamanager import ThermalDataset
 
-    dunr = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dunr"
-    if not dunr.is_dir():
-        pytest.skip(f"real DUNR scene not found at {dunr} (it sits in ../shared beside the checkout)")
-    parser = ThermalDataParserConfig(data=dunr, seed_points="random", num_random_points=100).setup()
+    if not DUNR.is_dir():
+        pytest.skip(f"real DUNR scene not found at {DUNR} (it sits in ../shared beside the checkout)")
+    parser = ThermalDataParserConfig(data=DUNR, seed_points="random", num_random_points=100).setup()
     train = parser.get_dataparser_outputs("train")
     test = parser.get_dataparser_outputs("test")
     assert len(train.image_filenames) + len(test.image_filenames) == 45

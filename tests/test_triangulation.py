@@ -3,16 +3,14 @@ the cache is reused and never left half-written, and captures with nothing to tr
 back to random points inside the cameras' view volume."""
 
 import json
-from pathlib import Path
 
 import layout_fixtures as fx
 import numpy as np
 import pytest
+from real_data import DUNR
 
 from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, random_view_volume_points
 from thermal_wild_ns.data.layouts import detect_layout
-
-DUNR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "dunr"
 
 
 @pytest.fixture(scope="module")
