@@ -28,8 +28,9 @@
 # `affine` the default since), embed-dims-flight2, embed-dims-dunr (docs/results/embed_dims_h200; run with `mlp`, the
 # default then). A sixth session (2026-12-01), one warm machine after the two installs: table-generated with the GPU
 # parity tests (docs/results/table_generated_affine_h200), bg-size-flight2, bg-size-dunr (docs/results/bg_size_h200),
-# emission-size-flight2 (docs/results/emission_size_h200). Not run yet: emission-size-dunr (the emission MLP's width,
-# the paper's 128, on DUNR; DUNR's carry), bg-layers-dunr, bg-layers-flight2 (the background MLP's hidden layers).
+# emission-size-flight2 (docs/results/emission_size_h200). A seventh (2026-12-01), one warm machine after the two
+# installs: emission-size-dunr (docs/results/emission_size_h200), bg-layers-flight2, bg-layers-dunr
+# (docs/results/bg_layers_h200).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2}
 OUT=${OUT:-/tmp/out}
@@ -332,8 +333,8 @@ case "$plan" in
     collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
     ;;
   bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2|bg-layers-dunr|bg-layers-flight2)  # issue 33
-    # (bg-size-*, emission-size-flight2 run 2026-12-01; emission-size-dunr, bg-layers-* not yet: the background MLP's
-    # hidden layers, 1/2/3 against its 2, set with the first model, the width 64 kept): an MLP's width,
+    # (all six run 2026-12-01; bg-layers-*: the background MLP's hidden layers, 1/2/3 against its 2, set with the
+    # first model, the width 64 kept): an MLP's width,
     # set with the first model (the background MLP's 64) or the paper's (the emission MLP's 128) and never measured
     # here, at half and double against it (the hidden layers' count kept), the `affine` background coupling (the
     # default since 2026-11-29); one real capture at the scene table's protocol, 3 seeds each, 9 runs side by side (as
