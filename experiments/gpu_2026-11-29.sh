@@ -30,9 +30,10 @@
 # parity tests (docs/results/table_generated_affine_h200), bg-size-flight2, bg-size-dunr (docs/results/bg_size_h200),
 # emission-size-flight2 (docs/results/emission_size_h200). A seventh (2026-12-01), one warm machine after the two
 # installs: emission-size-dunr (docs/results/emission_size_h200), bg-layers-flight2, bg-layers-dunr
-# (docs/results/bg_layers_h200).
+# (docs/results/bg_layers_h200); then, a fresh machine after the two installs, render-slices
+# (docs/results/render_slices_h200).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -331,6 +332,21 @@ case "$plan" in
     done
     wait
     collect "$scene-embed-8" "$scene-embed-16" "$scene-embed-32"
+    ;;
+  render-slices)  # issue 34, a seventh session's last device minutes: frames per second through each way a render
+    # outside training takes (experiments.render_fps: `baked` as ns-render slices its cameras, `baked_fast_slices` as
+    # wild-thermal-render does since 6927623, `baked_cameras_made`, `unbaked`, gsplat alone) on the DUNR model that
+    # profile_arm trains (step 3,000, about 96k Gaussians, as render-lean's), ROUNDS rounds (3) of 1,000 frames, each
+    # round's line to $OUT/fps_rounds.jsonl as it ends (DUNR's carry)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    profile_arm default 1 "$PWD"
+    config=$(ls /tmp/profile-default-1/runs/*/wild-thermal/run/config.yml | head -1)
+    for round in $(seq ${ROUNDS:-3}); do
+      PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
+        --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
+      python3 -c "import json,sys; r=json.load(open(sys.argv[1])); r['round']=int(sys.argv[2]); print(json.dumps(r))" \
+        "/tmp/render-$round/fps.json" "$round" | tee -a "$OUT/fps_rounds.jsonl"
+    done
     ;;
   bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2|bg-layers-dunr|bg-layers-flight2)  # issue 33
     # (all six run 2026-12-01; bg-layers-*: the background MLP's hidden layers, 1/2/3 against its 2, set with the
