@@ -33,7 +33,7 @@
 # (docs/results/bg_layers_h200); then, a fresh machine after the two installs, render-slices
 # (docs/results/render_slices_h200).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -225,7 +225,10 @@ case "$plan" in
     PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py 2>&1 \
       | grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" | head -20
     ;;
-  growth-3dgs-fixed-flight2|growth-3dgs-stab-flight2)  # growth-3dgs-stab-flight2 (a fourth session): the same with
+  growth-3dgs-fixed-flight2|growth-3dgs-stab-flight2|few-view-3dgs-flight2)  # few-view-3dgs-flight2 (not run yet):
+    # growth-3dgs-fixed-flight2 again, then experiments.few_view_gaussians on each run's final model: does growth add
+    # Gaussians that only one to three training frames see, where a stateless model can keep a frame's own level?
+    # growth-3dgs-stab-flight2 (a fourth session): the same with
     # the frames stabilised and equalised (wild-thermal-3dgs-stab-bbhe): is the stateless variant's fall the frames'
     # level changes that it must absorb with Gaussians? growth-3dgs-fixed-flight2 (issue 33, a third session): does
     # the 3DGS variant's `novel` fall with its count or with its steps? growth-far-raw-flight2's 3DGS arm (camera
@@ -244,6 +247,11 @@ case "$plan" in
     done
     wait
     collect fixed-200000 fixed-1000000
+    if [ "$plan" = few-view-3dgs-flight2 ]; then
+      PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m experiments.few_view_gaussians \
+        $(ls /tmp/fixed-{200000,1000000}/gpu0/*/runs/*/*/wild-thermal-3dgs/run/config.yml) \
+        --output "$OUT/few_view.json" --score-without 3 2>&1 | grep '^{'
+    fi
     ;;
   table-generated|table-dunr|table-flight2)  # issue 33 (table-generated last run 2026-12-01, under `affine`): the
     # scene table's full-method rows in one code

@@ -634,3 +634,48 @@ def test_state_bound_finds_the_unpredictable_frames_of_a_generated_scene(tmp_pat
     data_only = np.mean([-10 * np.log10(1e-4 + e) for e in state_error.values()])
     assert data_share == pytest.approx(40.0 - data_only, abs=0.01)
     assert model_share == pytest.approx(data_only - 35.0, abs=0.01)
+
+
+def test_few_view_gaussians_counts_the_frames_whose_image_holds_each_centre():
+    from nerfstudio.cameras.cameras import Cameras
+
+    from experiments.few_view_gaussians import frames_seeing, summary
+
+    # two cameras 2 apart on x at z=0, looking down -z (OpenGL axes), 100x100 px, focal 100: each sees |x - cx| < z/2
+    c2w = torch.eye(4)[:3].repeat(2, 1, 1)
+    c2w[1, 0, 3] = 2.0
+    cameras = Cameras(camera_to_worlds=c2w, fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
+    means = torch.tensor(
+        [
+            [1.0, 0.0, -10.0],  # in front of both
+            [0.0, 0.0, -1.0],  # in front of camera 0 only (camera 1 sees |x - 2| < 0.5 at this depth)
+            [0.0, 0.0, 1.0],  # behind both
+            [0.0, 3.0, -1.0],  # in front of camera 0, outside its image (|y| < 0.5)
+        ]
+    )
+    seen = frames_seeing(means, cameras, chunk=3)  # two chunks
+    assert seen["count"].tolist() == [2, 1, 0, 0]
+    assert torch.allclose(seen["nearest"], torch.tensor([101.0, 1.0, 1.0, 10.0]).sqrt())
+    out = summary(seen["count"], seen["nearest"], torch.tensor([1.0, 0.5, 0.25, 0.25]), frames=2)
+    assert out["share_seen_by_at_most_1"] == 0.75 and out["opacity_share_seen_by_at_most_1"] == 0.5
+    assert out["share_seen_by_at_most_3"] == 1.0 and "nearest_camera_seen_by_more_over_median" not in out
+
+
+def test_few_view_gaussians_takes_the_same_gaussians_out_of_every_parameter():
+    from experiments.few_view_gaussians import keep_gaussians
+
+    class Model(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.gauss_params = torch.nn.ParameterDict(
+                {
+                    "means": torch.nn.Parameter(torch.arange(12.0).view(4, 3)),
+                    "opacities": torch.nn.Parameter(torch.arange(4.0)[:, None]),
+                }
+            )
+
+    model = Model()
+    keep_gaussians(model, torch.tensor([True, False, True, False]))
+    assert model.gauss_params["means"].tolist() == [[0.0, 1.0, 2.0], [6.0, 7.0, 8.0]]
+    assert model.gauss_params["opacities"].view(-1).tolist() == [0.0, 2.0]
+    assert isinstance(model.gauss_params["means"], torch.nn.Parameter)
