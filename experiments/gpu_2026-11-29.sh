@@ -74,6 +74,12 @@ profile_arm() {  # ARM ROUND DIR [SETTING...]: profile_step on DUNR at step 3,00
   echo "$arm $round: $(grep -E 'ms/step' "$OUT/profile-$arm-$round.md" | head -1) $(grep -E 'syncs per step' "$OUT/profile-$arm-$round.md")"
 }
 
+fps_line() {  # FPS_JSON ROUND [ARM]: experiments.render_fps's result with its round (and arm) added, as one line of
+  # $OUT/fps_rounds.jsonl (and on the console)
+  python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); \
+r.update({'arm': a for a in sys.argv[3:]}); print(json.dumps(r))" "$@" | tee -a "$OUT/fps_rounds.jsonl"
+}
+
 collect() {  # NAME...: each bench's json, log and the runs' decisions.json into one archive in $OUT
   local name
   for name in "$@"; do
@@ -217,8 +223,7 @@ case "$plan" in
         (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout 150 python3 -m experiments.render_fps --load-config "$config" \
           --frames 1000 --output-dir "/tmp/render-$arm-$round" "${profiled[@]}" > "/tmp/render-$arm-$round.log" 2>&1) \
           || tail -20 "/tmp/render-$arm-$round.log"
-        python3 -c "import json,sys; r=json.load(open(sys.argv[1])); r['arm'],r['round']=sys.argv[2],int(sys.argv[3]); print(json.dumps(r))" \
-          "/tmp/render-$arm-$round/fps.json" $arm $round | tee -a "$OUT/fps_rounds.jsonl"
+        fps_line "/tmp/render-$arm-$round/fps.json" "$round" "$arm"
         [ $round = 1 ] && cp "/tmp/render-$arm-$round/render_profile.md" "$OUT/render_profile-$arm.md"
       done
     done
@@ -227,7 +232,8 @@ case "$plan" in
     ;;
   growth-3dgs-fixed-flight2|growth-3dgs-stab-flight2|few-view-3dgs-flight2)  # few-view-3dgs-flight2 (not run yet):
     # growth-3dgs-fixed-flight2 again, then experiments.few_view_gaussians on each run's final model: does growth add
-    # Gaussians that only one to three training frames see, where a stateless model can keep a frame's own level?
+    # Gaussians that only one to three training frames may draw, where a stateless model can keep a frame's own
+    # level, and do the held-out views lose without them? (docs/results/few_view_cpu: not on a generated orbit)
     # growth-3dgs-stab-flight2 (a fourth session): the same with
     # the frames stabilised and equalised (wild-thermal-3dgs-stab-bbhe): is the stateless variant's fall the frames'
     # level changes that it must absorb with Gaussians? growth-3dgs-fixed-flight2 (issue 33, a third session): does
@@ -248,9 +254,10 @@ case "$plan" in
     wait
     collect fixed-200000 fixed-1000000
     if [ "$plan" = few-view-3dgs-flight2 ]; then
-      PYTHONPATH=$PWD:/tmp/site timeout 120 python3 -m experiments.few_view_gaussians \
+      PYTHONPATH=$PWD:/tmp/site timeout 300 python3 -m experiments.few_view_gaussians \
         $(ls /tmp/fixed-{200000,1000000}/gpu0/*/runs/*/*/wild-thermal-3dgs/run/config.yml) \
-        --output "$OUT/few_view.json" --score-without 3 2>&1 | grep '^{'
+        --output "$OUT/few_view.json" > /tmp/few_view.log 2>&1 || tail -20 /tmp/few_view.log
+      grep 'config.yml:' /tmp/few_view.log
     fi
     ;;
   table-generated|table-dunr|table-flight2)  # issue 33 (table-generated last run 2026-12-01, under `affine`): the
@@ -352,8 +359,7 @@ case "$plan" in
     for round in $(seq ${ROUNDS:-3}); do
       PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
         --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
-      python3 -c "import json,sys; r=json.load(open(sys.argv[1])); r['round']=int(sys.argv[2]); print(json.dumps(r))" \
-        "/tmp/render-$round/fps.json" "$round" | tee -a "$OUT/fps_rounds.jsonl"
+      fps_line "/tmp/render-$round/fps.json" "$round"
     done
     ;;
   bg-size-dunr|bg-size-flight2|emission-size-dunr|emission-size-flight2|bg-layers-dunr|bg-layers-flight2)  # issue 33

@@ -636,12 +636,13 @@ def test_state_bound_finds_the_unpredictable_frames_of_a_generated_scene(tmp_pat
     assert model_share == pytest.approx(data_only - 35.0, abs=0.01)
 
 
-def test_few_view_gaussians_counts_the_frames_whose_image_holds_each_centre():
+def test_few_view_gaussians_counts_the_frames_that_may_draw_each_gaussian():
     from nerfstudio.cameras.cameras import Cameras
 
     from experiments.few_view_gaussians import frames_seeing, summary
 
-    # two cameras 2 apart on x at z=0, looking down -z (OpenGL axes), 100x100 px, focal 100: each sees |x - cx| < z/2
+    # two cameras 2 apart on x at z=0, looking down -z (OpenGL axes), 100x100 px, focal 100: at depth d each sees
+    # |x - cx| < d/2 (and |y| < d/2), a Gaussian's projected extent widening that
     c2w = torch.eye(4)[:3].repeat(2, 1, 1)
     c2w[1, 0, 3] = 2.0
     cameras = Cameras(camera_to_worlds=c2w, fx=100.0, fy=100.0, cx=50.0, cy=50.0, width=100, height=100)
@@ -650,13 +651,17 @@ def test_few_view_gaussians_counts_the_frames_whose_image_holds_each_centre():
             [1.0, 0.0, -10.0],  # in front of both
             [0.0, 0.0, -1.0],  # in front of camera 0 only (camera 1 sees |x - 2| < 0.5 at this depth)
             [0.0, 0.0, 1.0],  # behind both
-            [0.0, 3.0, -1.0],  # in front of camera 0, outside its image (|y| < 0.5)
+            [0.0, 3.0, -1.0],  # in front of camera 0, far outside its image
+            [0.0, 0.6, -1.0],  # its centre just outside camera 0's image, its extent reaching in
         ]
     )
-    seen = frames_seeing(means, cameras, chunk=3)  # two chunks
-    assert seen["count"].tolist() == [2, 1, 0, 0]
-    assert torch.allclose(seen["nearest"], torch.tensor([101.0, 1.0, 1.0, 10.0]).sqrt())
-    out = summary(seen["count"], seen["nearest"], torch.tensor([1.0, 0.5, 0.25, 0.25]), frames=2)
+    log_scales = torch.full((5, 3), -7.0)  # about a thousandth: the centre decides
+    log_scales[4] = -2.3  # a tenth: 3 sigma covers 0.3 at depth 1
+    assert frames_seeing(means, log_scales, cameras).tolist() == [2, 1, 0, 0, 1]
+    small = torch.full((5, 3), -7.0)
+    assert frames_seeing(means, small, cameras).tolist() == [2, 1, 0, 0, 0]
+    nearest = torch.tensor([101.0, 1.0, 1.0, 10.0]).sqrt()
+    out = summary(torch.tensor([2, 1, 0, 0]), nearest, torch.tensor([1.0, 0.5, 0.25, 0.25]), frames=2)
     assert out["share_seen_by_at_most_1"] == 0.75 and out["opacity_share_seen_by_at_most_1"] == 0.5
     assert out["share_seen_by_at_most_3"] == 1.0 and "nearest_camera_seen_by_more_over_median" not in out
 
