@@ -24,7 +24,7 @@ import torch
 
 from experiments import score_checkpoints
 from thermal_wild_ns.model.camera_views import intrinsics
-from thermal_wild_ns.model.in_view import in_view
+from thermal_wild_ns.model.in_view import frames_seeing as count_frames
 from thermal_wild_ns.rendering import world_to_camera
 
 FEW = (1, 2, 3)
@@ -34,14 +34,12 @@ SCORED = ("novel", "time", "aligned")
 
 def frames_seeing(means: torch.Tensor, log_scales: torch.Tensor, cameras) -> torch.Tensor:
     """How many of `cameras` (nerfstudio's) may draw each Gaussian at `means` [N, 3] with `log_scales` [N, 3]
-    (`in_view`, the test the model uses to skip the emission of Gaussians a render does not draw) -> [N]."""
+    (the package's `in_view.frames_seeing`, the test the model uses to skip the emission of Gaussians a render
+    does not draw, and its few-view prune) -> [N]."""
     viewmats = world_to_camera(cameras.camera_to_worlds.to(means))  # [F, 4, 4]
     Ks = intrinsics(cameras).to(means)  # [F, 3, 3]
     sizes = torch.cat([cameras.width.reshape(-1, 1), cameras.height.reshape(-1, 1)], dim=1).tolist()  # [F, 2]
-    count = torch.zeros(means.shape[0], dtype=torch.long, device=means.device)
-    for viewmat, K, (width, height) in zip(viewmats, Ks, sizes):
-        count += in_view(means, log_scales, viewmat, K, width, height)
-    return count
+    return count_frames(means, log_scales, viewmats, Ks, sizes)
 
 
 def summary(count: torch.Tensor, nearest: torch.Tensor, opacity: torch.Tensor, frames: int) -> Dict:

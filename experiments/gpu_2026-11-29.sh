@@ -33,7 +33,7 @@
 # (docs/results/bg_layers_h200); then, a fresh machine after the two installs, render-slices
 # (docs/results/render_slices_h200).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, full-prune-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -385,6 +385,40 @@ case "$plan" in
     done
     wait
     collect "${names[@]}"
+    ;;
+  few-view-prune-flight2)  # issue 33 (2026-12-02): few-view-3dgs-flight2 found that 24-46 % of the 3DGS variant's
+    # Gaussians on flight2 may be drawn by 3 training frames or fewer, nearer a camera than the rest, and that its
+    # held-out views gain without them on 5 runs of 6: does pruning them while training
+    # (`few_view_prune_frames`) hold the variant as it grows? growth-3dgs-fixed-flight2's 1M arm (camera model,
+    # degree-2 view term, threshold 0.0004, the stop's checks recorded, never stopping, 8,000 steps of the 30k
+    # schedule, 3 seeds) three ways side by side (9 runs): no prune, the prune of those near a camera
+    # (`few_view_prune_nearer` 0.5, the default when it ran), the prune at any distance (0, the default since);
+    # flight2's carry; run 2026-12-02 (docs/results/growth)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000
+      pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
+    for arm in none near any; do
+      extra=()
+      [ $arm = near ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.5)
+      [ $arm = any ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.0)
+      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/prune-$arm" \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs --seeds 3 \
+        --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 8000 --schedule 30000 --eval-at 2000 5000 8000 \
+        --max-gaussians 1000000 --time-limit 520 --set "${settings[@]}" "${extra[@]}" > "/tmp/prune-$arm.log" 2>&1 &
+    done
+    wait
+    collect prune-none prune-near prune-any
+    ;;
+  full-prune-flight2)  # issue 33 (2026-12-02, run inline in the session's last device minutes, as here): the full
+    # method at the scene table's protocol on flight2 with the few-view prune at any distance, 3 seeds side by side,
+    # against its default runs of earlier calls (docs/results/growth; flight2's carry)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    PYTHONPATH=$PWD:/tmp/site timeout 375 python3 -m experiments.bench --output-dir /tmp/full-prune-any \
+      --scenes "$PWD/.data/flight2" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
+      --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 --time-limit 260 \
+      --set pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.0 > /tmp/full-prune-any.log 2>&1
+    cp /tmp/full-prune-any/bench.json "$OUT/flight2-full-prune-any-bench.json"; cp /tmp/full-prune-any.log "$OUT/"
+    (cd /tmp/full-prune-any && find . -name decisions.json | tar czf "$OUT/flight2-full-prune-any-decisions.tgz" -T -)
     ;;
   *) echo "unknown plan $plan" >&2; exit 2 ;;
 esac

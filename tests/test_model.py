@@ -1154,3 +1154,98 @@ def test_the_view_term_waits_until_the_gaussian_budget_passes_its_threshold():
     loaded.eval()
     assert loaded.renders_view_term()
     assert not zeroed.renders_view_term()  # one whose term never took part has nothing to render
+
+
+def survey_cameras(xs=(-1.5, -0.75, 0.0, 0.75, 1.5), width=48, height=32):
+    """Cameras in a row along x, 3 units above the origin, looking down -z (OpenGL): a strip survey."""
+    c2w = torch.eye(4)[None, :3].repeat(len(xs), 1, 1)
+    c2w[:, 0, 3] = torch.tensor(xs)
+    c2w[:, 2, 3] = 3.0
+    n = len(xs)
+    return Cameras(
+        camera_to_worlds=c2w,
+        fx=torch.full((n, 1), 50.0),
+        fy=torch.full((n, 1), 50.0),
+        cx=torch.full((n, 1), width / 2),
+        cy=torch.full((n, 1), height / 2),
+        width=width,
+        height=height,
+    )
+
+
+def test_few_view_floaters_are_near_a_camera_and_the_coverages_edge_is_not_one():
+    """Of three Gaussians that one camera alone may draw, the one in front of it is a floater; the ground at the
+    edge of the strip, seen by one camera from the usual distance, is one only where distance is not asked."""
+    from thermal_wild_ns.model.in_view import few_view_floaters, frames_seeing
+    from thermal_wild_ns.rendering import world_to_camera
+
+    cameras = survey_cameras()
+    ground = torch.stack([torch.linspace(-1.0, 1.0, 21), torch.zeros(21), torch.zeros(21)], dim=1)
+    floater = torch.tensor([[1.5, 0.0, 2.5]])  # 0.5 in front of the last camera
+    edge = torch.tensor([[2.7, 0.0, 0.0]])  # ground beyond the strip's end
+    means = torch.cat([ground, floater, edge])  # [23, 3]
+    log_scales = torch.full_like(means, float(np.log(0.01)))
+    viewmats = world_to_camera(cameras.camera_to_worlds)
+    Ks = torch.tensor([[[50.0, 0, 24], [0, 50.0, 16], [0, 0, 1]]]).repeat(5, 1, 1)
+    sizes = [(48, 32)] * 5
+    counts = frames_seeing(means, log_scales, viewmats, Ks, sizes)
+    assert counts[-2] == 1 and counts[-1] == 1 and bool((counts[:-2] >= 2).all())
+    centres = cameras.camera_to_worlds[:, :, 3]
+    near_only = few_view_floaters(means, log_scales, viewmats, Ks, sizes, centres, frames=1, nearer=0.5)
+    assert near_only.nonzero().flatten().tolist() == [21]
+    anywhere = few_view_floaters(means, log_scales, viewmats, Ks, sizes, centres, frames=1, nearer=0.0)
+    assert anywhere.nonzero().flatten().tolist() == [21, 22]
+
+
+def train_on_a_strip(monkeypatch, floater, **overrides):
+    """12 training steps of a model over `survey_cameras` with a small Gaussian at `floater` [3] and the rest where
+    every camera sees them; the model, the steps gsplat grew at and those the few-view prune ran at."""
+    from types import SimpleNamespace
+
+    torch.manual_seed(0)  # gsplat's splits draw their new positions
+    cameras = survey_cameras()
+    model = make_model(n=300, refine_every=2, warmup_length=1, stop_split_at=100, reset_alpha_every=100, **overrides)
+    with torch.no_grad():
+        model.gauss_params["means"].mul_(0.3)
+        model.gauss_params["means"][0] = floater
+        model.gauss_params["scales"][0] = float(np.log(0.01))
+        model.gauss_params["opacities"].fill_(2.0)  # well above the opacity prune's threshold
+    grown, pruned = [], []
+    grow, prune_few = model.strategy._grow_gs, model._prune_few_view
+    monkeypatch.setattr(model.strategy, "_grow_gs", lambda *a, **k: grown.append(a[-1]) or grow(*a, **k))
+    monkeypatch.setattr(model, "_prune_few_view", lambda step: pruned.append(step) or prune_few(step))
+    model.train()
+    optimizers = {name: torch.optim.Adam(p, lr=1e-4) for name, p in model.get_param_groups().items() if p}
+    model.get_training_callbacks(SimpleNamespace(optimizers=SimpleNamespace(optimizers=optimizers)))
+    model.optimizers = optimizers
+    for step in range(12):
+        model.step = step
+        camera = cameras[step % 5 : step % 5 + 1]
+        camera.metadata = {"cam_idx": step % 5}
+        outputs = model.get_outputs(camera)
+        losses = model.get_loss_dict(outputs, {"image": torch.rand(32, 48, 1), "image_idx": step % 5})
+        sum(losses.values()).backward()
+        model.step_post_backward(step)
+        for optimizer in optimizers.values():
+            optimizer.step()
+        model.zero_grad(set_to_none=True)
+    return model, grown, pruned
+
+
+def test_the_few_view_prune_removes_a_floater_at_the_rounds_gsplat_refines_and_says_so(monkeypatch):
+    """With `few_view_prune_frames` a Gaussian in front of one training camera goes at densification rounds (the
+    steps gsplat grows at, no others), the scene seen by every camera stays, and the run's decisions count it;
+    without it the floater stays."""
+    floater = torch.tensor([1.5, 0.0, 2.5])  # 0.5 in front of the strip's last camera
+    for frames in (0, 1):
+        model, grown, pruned = train_on_a_strip(monkeypatch, floater, few_view_prune_frames=frames)
+        near_floater = (model.means.detach() - floater).norm(dim=1) < 0.2
+        assert grown == [8, 10]  # this schedule's rounds (the pause after the start spares the first ones)
+        decided = {d.part: d.choice for d in model.decisions()}
+        if frames:
+            assert pruned == grown and not bool(near_floater.any())
+            assert model.num_points > 250 and int(decided["few-view prune"].split()[1]) >= 1
+        else:
+            assert pruned == [] and bool(near_floater.any()) and "few-view prune" not in decided
+    with pytest.raises(InputError, match="few_view_prune_frames -1"):
+        make_model(few_view_prune_frames=-1)

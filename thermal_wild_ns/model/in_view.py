@@ -33,3 +33,32 @@ def in_view(means: Tensor, log_scales: Tensor, viewmat: Tensor, K: Tensor, width
         r = MARGIN * extent * torch.maximum(K[0, 0], K[1, 1]) / safe_z + MARGIN_PX  # [N], pixels
         # gsplat culls a Gaussian whose centre is not beyond the near plane, whatever its extent
         return (z > NEAR) & (u + r > 0) & (u - r < width) & (v + r > 0) & (v - r < height)
+
+
+def frames_seeing(means: Tensor, log_scales: Tensor, viewmats: Tensor, Ks: Tensor, sizes) -> Tensor:
+    """How many of the cameras with world-to-camera `viewmats` [F, 4, 4], intrinsics `Ks` [F, 3, 3] and image
+    `sizes` (F pairs of width, height) may draw each Gaussian at `means` [N, 3] with `log_scales` [N, 3]
+    (`in_view`; occlusion ignored, so each count is an upper bound) -> [N] long."""
+    count = torch.zeros(means.shape[0], dtype=torch.long, device=means.device)
+    for viewmat, K, (width, height) in zip(viewmats, Ks, sizes):
+        count += in_view(means, log_scales, viewmat, K, int(width), int(height))
+    return count
+
+
+def few_view_floaters(
+    means: Tensor, log_scales: Tensor, viewmats: Tensor, Ks: Tensor, sizes, centres: Tensor, frames: int, nearer: float
+) -> Tensor:
+    """Gaussians (`means` [N, 3], `log_scales` [N, 3]) that `frames` or fewer of the cameras (`frames_seeing`'s
+    `viewmats`, `Ks`, `sizes`; camera centres `centres` [F, 3]) may draw and, where `nearer` > 0, whose nearest
+    camera is nearer than `nearer` times the median Gaussian's nearest camera -> [N] bool.
+
+    Such a Gaussian is fitted by one to a few frames only, so it may take those frames' own level or noise, and a
+    view from elsewhere sees it at the wrong level; near a camera it is a floater in front of that frame. The ground
+    at the edge of a survey's coverage is also seen by few frames, but at the survey's usual distance: `nearer`
+    keeps it."""
+    with torch.no_grad():
+        few = frames_seeing(means, log_scales, viewmats, Ks, sizes) <= frames  # [N]
+        if nearer > 0:
+            nearest = torch.cdist(means, centres.to(means)).amin(dim=1)  # [N]
+            few &= nearest < nearer * nearest.median()
+        return few

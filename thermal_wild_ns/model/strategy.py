@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Callable, Optional
 
 import torch
+from gsplat.strategy.ops import remove
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns._upstream import DefaultStrategyWithHooks
@@ -130,6 +131,23 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
             state["grad2d"] = torch.where(keep, state["grad2d"], torch.zeros_like(state["grad2d"]))
             if uses_radii:
                 state["radii"] = torch.where(keep, state["radii"], torch.zeros_like(state["radii"]))
+
+    def refines_at(self, step: int) -> bool:
+        """Whether `step_post_backward` grows and prunes at `step` (gsplat 1.4.0's own condition)."""
+        return (
+            self.refine_start_iter < step < self.refine_stop_iter
+            and step % self.refine_every == 0
+            and step % self.reset_every >= self.pause_refine_after_reset
+        )
+
+    def prune_where(self, params, optimizers, state, mask, step) -> int:
+        """Remove the Gaussians where `mask` [N] holds, with their optimizer moments and running statistics, as
+        gsplat's own pruning does (and where its copies fit: `prune_allowed`); how many went."""
+        n = int(mask.sum())
+        if n == 0 or not self.prune_allowed(params, step):
+            return 0
+        remove(params=params, optimizers=optimizers, state=state, mask=mask)
+        return n
 
     def prune_allowed(self, params, step) -> bool:
         n = params["means"].shape[0]

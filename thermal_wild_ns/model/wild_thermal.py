@@ -46,7 +46,7 @@ from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
 from thermal_wild_ns.model.graphed import GraphedCalls
-from thermal_wild_ns.model.in_view import in_view
+from thermal_wild_ns.model.in_view import few_view_floaters, in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
@@ -250,6 +250,17 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """Densification never grows the model past this many Gaussians where the automatic stop does not
     set the budget from the held-back frames (`--auto-stop.grow-budget False`, or the stop off). The
     default is the knee of a budget sweep on DUNR (docs/results.md)."""
+    few_view_prune_frames: int = 0
+    """At each densification round, remove the Gaussians that this many training frames or fewer may draw (the
+    `in_view` test, occlusion ignored; with `few_view_prune_nearer`, only those near a camera): fitted by a frame
+    or two, such a Gaussian can take those frames' own level, which a view from elsewhere then sees. A model
+    without a per-frame state (`wild-thermal-3dgs`) that grows on a drone survey puts the frames' level changes
+    there (docs/results/growth). 0: no such pruning."""
+    few_view_prune_nearer: float = 0.0
+    """With `few_view_prune_frames`: only Gaussians whose nearest training camera is nearer than this times the
+    median Gaussian's nearest camera are removed (floaters in front of a frame), so that the ground at the edge
+    of a survey's coverage, seen by few frames from the usual distance, stays. 0: at any distance (on flight2
+    the near-only prune at 0.5 held out less of the fall: docs/results/growth)."""
     emission_in_view_above: int = 1_000_000
     """Above this many Gaussians, training evaluates the emission MLP (and the view term) only for the
     Gaussians the camera can see (`in_view.py`): the same render, with memory and time that follow the
@@ -280,6 +291,17 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 "training across GPUs needs --pipeline.model.use-absgrad False (gsplat's distributed "
                 "rasterization has no absgrad) and --pipeline.model.camera-optimizer.mode off"
             )
+        if self.ranks.split and cfg.few_view_prune_frames > 0:
+            raise InputError(
+                "training across GPUs needs --pipeline.model.few-view-prune-frames 0 (each GPU holds a share of "
+                "the Gaussians and renders every frame with the others: the prune's counts are not kept per share)"
+            )
+        if cfg.few_view_prune_frames < 0 or cfg.few_view_prune_nearer < 0:
+            raise InputError(
+                f"few_view_prune_frames {cfg.few_view_prune_frames}, few_view_prune_nearer "
+                f"{cfg.few_view_prune_nearer:g}: each must be 0 (off; at any distance) or more"
+            )
+        self.few_view_pruned = 0  # Gaussians the few-view prune removed (`_prune_few_view`), for `decisions`
         params = self.ranks.own_rows(initial_gaussians(self.seed_points, cfg, self.k_nearest_sklearn))
         self.gauss_params = nn.ParameterDict({k: Parameter(v) for k, v in params.items()})
 
@@ -820,6 +842,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("alpha regulariser", cfg.alpha_lambda > 0, f"alpha_lambda {cfg.alpha_lambda:g}"),
         )
         entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
+        if cfg.few_view_prune_frames > 0:
+            nearer = (
+                f", nearer than {cfg.few_view_prune_nearer:g} x the median" if cfg.few_view_prune_nearer > 0 else ""
+            )
+            why = f"few_view_prune_frames {cfg.few_view_prune_frames}{nearer}"
+            entries.append(Decision("few-view prune", f"on: {self.few_view_pruned:,} removed so far", why, "config"))
         view = f"view_sh_degree {cfg.view_sh_degree}"
         if self._view_term_follows_budget():
             budget_now = self.strategy.max_gaussians * self.ranks.world
@@ -984,6 +1012,34 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 info=info,
                 packed=self.ranks.split,
             )
+            if self.config.few_view_prune_frames > 0 and self.strategy.refines_at(step):
+                self._prune_few_view(step)
+
+    def _prune_few_view(self, step: int) -> None:
+        """Remove the few-view floaters (`few_view_floaters`) among the training frames rendered so far, each at the
+        scale it last rendered (the test is in the view's own pixels)."""
+        views = {cam: view for (cam, _), view in self.training_views.kept.items()}
+        if len(views) <= self.config.few_view_prune_frames:
+            return  # too few frames rendered yet to tell a few-view Gaussian from any other
+        poses = torch.cat([v.camera_to_world for v in views.values()])  # [F, 3, 4]
+        viewmats = torch.cat(
+            [world_to_camera(v.camera_to_world) if v.viewmat is None else v.viewmat for v in views.values()]
+        )
+        Ks = torch.cat([v.K for v in views.values()])  # [F, 3, 3]
+        sizes = [(v.width, v.height) for v in views.values()]
+        mask = few_view_floaters(
+            self.means.detach(),
+            self.scales.detach(),
+            viewmats,
+            Ks,
+            sizes,
+            poses[:, :, 3],
+            self.config.few_view_prune_frames,
+            self.config.few_view_prune_nearer,
+        )
+        self.few_view_pruned += self.strategy.prune_where(
+            self.gauss_params, self.optimizers, self.strategy_state, mask, step
+        )
 
     @property
     def settled_step(self) -> int:
