@@ -393,21 +393,23 @@ case "$plan" in
     # degree-2 view term, threshold 0.0004, the stop's checks recorded, never stopping, 8,000 steps of the 30k
     # schedule, 3 seeds) three ways side by side (9 runs): no prune, the prune of those near a camera
     # (`few_view_prune_nearer` 0.5, the default when it ran), the prune at any distance (0, the default since);
-    # flight2's carry; run 2026-12-02 (docs/results/growth)
+    # flight2's carry; run 2026-12-02 (docs/results/growth). STEPS (8000) and ARMS ("none near any") change the
+    # length and the arms: STEPS=10000 ARMS="none any" takes the pruned variant past splatfacto's 536k
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000
       pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
-    for arm in none near any; do
+    for arm in ${ARMS:-none near any}; do
       extra=()
       [ $arm = near ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.5)
       [ $arm = any ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.0)
       PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/prune-$arm" \
         --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs --seeds 3 \
-        --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps 8000 --schedule 30000 --eval-at 2000 5000 8000 \
-        --max-gaussians 1000000 --time-limit 520 --set "${settings[@]}" "${extra[@]}" > "/tmp/prune-$arm.log" 2>&1 &
+        --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps "${STEPS:-8000}" --schedule 30000 \
+        --eval-at 2000 5000 "${STEPS:-8000}" --max-gaussians 1000000 --time-limit 520 --set "${settings[@]}" \
+        "${extra[@]}" > "/tmp/prune-$arm.log" 2>&1 &
     done
     wait
-    collect prune-none prune-near prune-any
+    collect $(for arm in ${ARMS:-none near any}; do echo "prune-$arm"; done)
     ;;
   full-prune-flight2)  # issue 33 (2026-12-02, run inline in the session's last device minutes, as here): the full
     # method at the scene table's protocol on flight2 with the few-view prune at any distance, 3 seeds side by side,

@@ -1249,3 +1249,23 @@ def test_the_few_view_prune_removes_a_floater_at_the_rounds_gsplat_refines_and_s
             assert pruned == [] and bool(near_floater.any()) and "few-view prune" not in decided
     with pytest.raises(InputError, match="few_view_prune_frames -1"):
         make_model(few_view_prune_frames=-1)
+
+
+def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(monkeypatch):
+    """`frames_seeing` tests the cameras a chunk at a time, each chunk's image sizes its own: the counts are those of
+    one camera at a time, however the cameras are chunked."""
+    from thermal_wild_ns.model import in_view as module
+    from thermal_wild_ns.rendering import world_to_camera
+
+    g = torch.Generator().manual_seed(3)
+    means = torch.randn(500, 3, generator=g)
+    log_scales = torch.randn(500, 3, generator=g) * 0.5 - 3.0
+    cameras = survey_cameras(xs=(-1.2, -0.6, 0.0, 0.4, 0.9, 1.3, 2.0))
+    viewmats = world_to_camera(cameras.camera_to_worlds)
+    sizes = [(48, 32), (64, 48), (32, 24), (48, 32), (80, 40), (48, 64), (40, 40)]
+    Ks = torch.stack([torch.tensor([[50.0, 0, w / 2], [0, 50.0, h / 2], [0, 0, 1]]) for w, h in sizes])
+    alone = sum(module.in_view(means, log_scales, viewmats[i], Ks[i], w, h).long() for i, (w, h) in enumerate(sizes))
+    assert 0 < int((alone > 0).sum()) < 500 and len(set(alone.tolist())) > 3  # the cameras see different parts
+    for elements in (10**9, 1000, 1):  # one chunk, chunks of two cameras, one camera at a time
+        monkeypatch.setattr(module, "CAMERA_CHUNK_ELEMENTS", elements)
+        assert torch.equal(module.frames_seeing(means, log_scales, viewmats, Ks, sizes), alone)

@@ -20,28 +20,44 @@ MARGIN = 2.0
 MARGIN_PX = 4.0
 
 
-def in_view(means: Tensor, log_scales: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:
-    """Gaussians at `means` [N, 3] with `log_scales` [N, 3] that may cover a pixel of the camera with
-    gsplat's world-to-camera `viewmat` [4, 4] and intrinsics `K` [3, 3] -> [N] bool."""
+def in_views(means: Tensor, log_scales: Tensor, viewmats: Tensor, Ks: Tensor, widths, heights) -> Tensor:
+    """Gaussians at `means` [N, 3] with `log_scales` [N, 3] that may cover a pixel of each camera with gsplat's
+    world-to-camera `viewmats` [C, 4, 4], intrinsics `Ks` [C, 3, 3] and image `widths`, `heights` (numbers, or
+    [C, 1] tensors) -> [C, N] bool."""
     with torch.no_grad():
-        p = means @ viewmat[:3, :3].T + viewmat[:3, 3]  # [N, 3], camera (OpenCV) axes
-        z = p[:, 2]
+        p = means @ viewmats[:, :3, :3].transpose(1, 2) + viewmats[:, None, :3, 3]  # [C, N, 3], camera (OpenCV) axes
+        z = p[..., 2]
         safe_z = z.clamp_min(NEAR)
-        u = K[0, 0] * p[:, 0] / safe_z + K[0, 2]
-        v = K[1, 1] * p[:, 1] / safe_z + K[1, 2]
+        fx, fy, cx, cy = Ks[:, 0, 0, None], Ks[:, 1, 1, None], Ks[:, 0, 2, None], Ks[:, 1, 2, None]  # [C, 1] each
+        u = fx * p[..., 0] / safe_z + cx
+        v = fy * p[..., 1] / safe_z + cy
         extent = 3.0 * torch.exp(log_scales.max(dim=-1).values)  # [N], world units
-        r = MARGIN * extent * torch.maximum(K[0, 0], K[1, 1]) / safe_z + MARGIN_PX  # [N], pixels
+        r = MARGIN * extent * torch.maximum(fx, fy) / safe_z + MARGIN_PX  # [C, N], pixels
         # gsplat culls a Gaussian whose centre is not beyond the near plane, whatever its extent
-        return (z > NEAR) & (u + r > 0) & (u - r < width) & (v + r > 0) & (v - r < height)
+        return (z > NEAR) & (u + r > 0) & (u - r < widths) & (v + r > 0) & (v - r < heights)
+
+
+def in_view(means: Tensor, log_scales: Tensor, viewmat: Tensor, K: Tensor, width: int, height: int) -> Tensor:
+    """`in_views` for one camera (`viewmat` [4, 4], `K` [3, 3], `width` x `height`) -> [N] bool."""
+    return in_views(means, log_scales, viewmat[None], K[None], width, height)[0]
+
+
+CAMERA_CHUNK_ELEMENTS = 2**23
+"""`frames_seeing` tests this many (camera, Gaussian) pairs at once: a few [C, N] temporaries of this size."""
 
 
 def frames_seeing(means: Tensor, log_scales: Tensor, viewmats: Tensor, Ks: Tensor, sizes) -> Tensor:
     """How many of the cameras with world-to-camera `viewmats` [F, 4, 4], intrinsics `Ks` [F, 3, 3] and image
     `sizes` (F pairs of width, height) may draw each Gaussian at `means` [N, 3] with `log_scales` [N, 3]
-    (`in_view`; occlusion ignored, so each count is an upper bound) -> [N] long."""
+    (`in_views`, cameras in chunks; occlusion ignored, so each count is an upper bound) -> [N] long."""
     count = torch.zeros(means.shape[0], dtype=torch.long, device=means.device)
-    for viewmat, K, (width, height) in zip(viewmats, Ks, sizes):
-        count += in_view(means, log_scales, viewmat, K, int(width), int(height))
+    chunk = max(1, CAMERA_CHUNK_ELEMENTS // max(means.shape[0], 1))
+    for start in range(0, len(sizes), chunk):
+        wh = torch.tensor(sizes[start : start + chunk], dtype=means.dtype, device=means.device)  # [C, 2]
+        seen = in_views(
+            means, log_scales, viewmats[start : start + chunk], Ks[start : start + chunk], wh[:, :1], wh[:, 1:]
+        )
+        count += seen.sum(dim=0)
     return count
 
 
