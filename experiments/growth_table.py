@@ -2,6 +2,8 @@
 checkpoint of its runs against the Gaussians it held there, from the *-bench.json files of a folder.
 
 python -m experiments.growth_table docs/results/growth      # prints the table, writes novel_vs_gaussians.png
+python -m experiments.growth_table docs/results/growth flight2-3dgs-prune   # only the bench files whose name holds
+                                                           # it: novel_vs_gaussians-flight2-3dgs-prune.png
 """
 
 from __future__ import annotations
@@ -76,11 +78,11 @@ def chart(found: Dict[str, dict], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def main(folder: Path) -> None:
-    found = curves(folder)
+def main(folder: Path, only: str = "") -> None:
+    found = {name: bench for name, bench in curves(folder).items() if only in name}
     print(table(found))
-    chart(found, folder / "novel_vs_gaussians.png")
+    chart(found, folder / (f"novel_vs_gaussians-{only}.png" if only else "novel_vs_gaussians.png"))
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(Path(sys.argv[1]), *sys.argv[2:3])
