@@ -1245,6 +1245,9 @@ def test_the_few_view_prune_removes_a_floater_at_the_rounds_gsplat_refines_and_s
         if frames:
             assert pruned == grown and not bool(near_floater.any())
             assert model.num_points > 250 and int(decided["few-view prune"].split()[1]) >= 1
+            resumed = make_model(n=model.num_points, few_view_prune_frames=frames)
+            resumed.set_extra_state(model.get_extra_state())  # as a checkpoint's load: the count goes on
+            assert resumed.few_view_pruned == model.few_view_pruned >= 1
         else:
             assert pruned == [] and bool(near_floater.any()) and "few-view prune" not in decided
     with pytest.raises(InputError, match="few_view_prune_frames -1"):

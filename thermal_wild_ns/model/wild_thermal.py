@@ -980,10 +980,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self._view_term_waits = False
         return loaded
 
-    # densification statistics and torch's RNG (gsplat's splits draw from it) are saved: a resume continues the run
+    # densification statistics, torch's RNG (gsplat's splits draw from it) and the few-view prune's count are saved:
+    # a resume continues the run, and its decisions count what the whole run pruned
     def get_extra_state(self) -> dict:
         state = {k: v for k, v in self.strategy_state.items() if v is not None}
-        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state()}
+        return {
+            "strategy_state": state,
+            "torch_rng_state": torch.get_rng_state(),
+            "few_view_pruned": self.few_view_pruned,
+        }
 
     def set_extra_state(self, state: dict) -> None:
         if not state:
@@ -992,6 +997,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.strategy_state[key] = value.to(self.device) if isinstance(value, Tensor) else value
         if "torch_rng_state" in state:
             torch.set_rng_state(state["torch_rng_state"])
+        self.few_view_pruned = state.get("few_view_pruned", 0)  # 0: a checkpoint from before the prune was counted
 
     def step_post_backward(self, step):
         accepted, self._step_accepted = self._step_accepted, None
