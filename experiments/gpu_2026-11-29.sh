@@ -31,7 +31,9 @@
 # emission-size-flight2 (docs/results/emission_size_h200). A seventh (2026-12-01), one warm machine after the two
 # installs: emission-size-dunr (docs/results/emission_size_h200), bg-layers-flight2, bg-layers-dunr
 # (docs/results/bg_layers_h200); then, a fresh machine after the two installs, render-slices
-# (docs/results/render_slices_h200).
+# (docs/results/render_slices_h200). An eighth (2026-12-02): one warm machine after the two installs,
+# few-view-3dgs-flight2 (docs/results/growth), bg-layers-flight2 (docs/results/bg_layers_h200, the retest); a fresh one
+# after the two installs, few-view-prune-flight2; another, full-prune-flight2 (both docs/results/growth).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, full-prune-flight2}
 OUT=${OUT:-/tmp/out}
@@ -394,16 +396,20 @@ case "$plan" in
     # schedule, 3 seeds) three ways side by side (9 runs): no prune, the prune of those near a camera
     # (`few_view_prune_nearer` 0.5, the default when it ran), the prune at any distance (0, the default since);
     # flight2's carry; run 2026-12-02 (docs/results/growth). STEPS (8000) and ARMS ("none near any") change the
-    # length and the arms: STEPS=10000 ARMS="none any" takes the pruned variant past splatfacto's 536k
+    # length and the arms: STEPS=10000 ARMS="none any" takes the pruned variant past splatfacto's 536k;
+    # METHOD=wild-thermal asks the same of the full method grown large (growth-far-raw-flight2's full arm: its own
+    # camera model, the view term), not run yet
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
-    settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000
-      pipeline.model.camera_falloff=True pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
+    method=${METHOD:-wild-thermal-3dgs}
+    settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000)
+    [ "$method" = wild-thermal-3dgs ] && settings+=(pipeline.model.camera_falloff=True
+      pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
     for arm in ${ARMS:-none near any}; do
       extra=()
       [ $arm = near ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.5)
       [ $arm = any ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.0)
       PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/prune-$arm" \
-        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods wild-thermal-3dgs --seeds 3 \
+        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods "$method" --seeds 3 \
         --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps "${STEPS:-8000}" --schedule 30000 \
         --eval-at 2000 5000 "${STEPS:-8000}" --max-gaussians 1000000 --time-limit 520 --set "${settings[@]}" \
         "${extra[@]}" > "/tmp/prune-$arm.log" 2>&1 &
