@@ -1173,10 +1173,10 @@ def survey_cameras(xs=(-1.5, -0.75, 0.0, 0.75, 1.5), width=48, height=32):
     )
 
 
-def test_few_view_floaters_are_near_a_camera_and_the_coverages_edge_is_not_one():
+def test_few_view_mask_are_near_a_camera_and_the_coverages_edge_is_not_one():
     """Of three Gaussians that one camera alone may draw, the one in front of it is a floater; the ground at the
     edge of the strip, seen by one camera from the usual distance, is one only where distance is not asked."""
-    from thermal_wild_ns.model.in_view import few_view_floaters, frames_seeing
+    from thermal_wild_ns.model.in_view import few_view_mask, frames_seeing
     from thermal_wild_ns.rendering import world_to_camera
 
     cameras = survey_cameras()
@@ -1191,9 +1191,9 @@ def test_few_view_floaters_are_near_a_camera_and_the_coverages_edge_is_not_one()
     counts = frames_seeing(means, log_scales, viewmats, Ks, sizes)
     assert counts[-2] == 1 and counts[-1] == 1 and bool((counts[:-2] >= 2).all())
     centres = cameras.camera_to_worlds[:, :, 3]
-    near_only = few_view_floaters(means, log_scales, viewmats, Ks, sizes, centres, frames=1, nearer=0.5)
+    near_only = few_view_mask(means, log_scales, viewmats, Ks, sizes, centres, frames=1, nearer=0.5)
     assert near_only.nonzero().flatten().tolist() == [21]
-    anywhere = few_view_floaters(means, log_scales, viewmats, Ks, sizes, centres, frames=1, nearer=0.0)
+    anywhere = few_view_mask(means, log_scales, viewmats, Ks, sizes, centres, frames=1, nearer=0.0)
     assert anywhere.nonzero().flatten().tolist() == [21, 22]
 
 

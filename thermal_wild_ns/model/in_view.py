@@ -61,7 +61,7 @@ def frames_seeing(means: Tensor, log_scales: Tensor, viewmats: Tensor, Ks: Tenso
     return count
 
 
-def few_view_floaters(
+def few_view_mask(
     means: Tensor, log_scales: Tensor, viewmats: Tensor, Ks: Tensor, sizes, centres: Tensor, frames: int, nearer: float
 ) -> Tensor:
     """Gaussians (`means` [N, 3], `log_scales` [N, 3]) that `frames` or fewer of the cameras (`frames_seeing`'s
@@ -70,8 +70,8 @@ def few_view_floaters(
 
     Such a Gaussian is fitted by one to a few frames only, so it may take those frames' own level or noise, and a
     view from elsewhere sees it at the wrong level; near a camera it is a floater in front of that frame. The ground
-    at the edge of a survey's coverage is also seen by few frames, but at the survey's usual distance: `nearer`
-    keeps it."""
+    at the edge of a survey's coverage is also seen by few frames, but from the survey's usual distance: `nearer`
+    keeps it, 0 does not."""
     with torch.no_grad():
         few = frames_seeing(means, log_scales, viewmats, Ks, sizes) <= frames  # [N]
         if nearer > 0:

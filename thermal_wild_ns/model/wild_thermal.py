@@ -46,7 +46,7 @@ from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
 from thermal_wild_ns.model.graphed import GraphedCalls
-from thermal_wild_ns.model.in_view import few_view_floaters, in_view
+from thermal_wild_ns.model.in_view import few_view_mask, in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
@@ -1022,8 +1022,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 self._prune_few_view(step)
 
     def _prune_few_view(self, step: int) -> None:
-        """Remove the few-view floaters (`few_view_floaters`) among the training frames rendered so far, each at the
-        scale it last rendered (the test is in the view's own pixels)."""
+        """Remove the few-view Gaussians (`few_view_mask`) of the training frames rendered so far, each frame at the
+        scale it last rendered at (the test is in the view's own pixels)."""
         views = {cam: view for (cam, _), view in self.training_views.kept.items()}
         if len(views) <= self.config.few_view_prune_frames:
             return  # too few frames rendered yet to tell a few-view Gaussian from any other
@@ -1033,7 +1033,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         )
         Ks = torch.cat([v.K for v in views.values()])  # [F, 3, 3]
         sizes = [(v.width, v.height) for v in views.values()]
-        mask = few_view_floaters(
+        mask = few_view_mask(
             self.means.detach(),
             self.scales.detach(),
             viewmats,
