@@ -1173,7 +1173,7 @@ def survey_cameras(xs=(-1.5, -0.75, 0.0, 0.75, 1.5), width=48, height=32):
     )
 
 
-def test_few_view_mask_are_near_a_camera_and_the_coverages_edge_is_not_one():
+def test_the_few_view_mask_takes_a_floater_near_a_camera_and_the_coverages_edge_only_at_any_distance():
     """Of three Gaussians that one camera alone may draw, the one in front of it is a floater; the ground at the
     edge of the strip, seen by one camera from the usual distance, is one only where distance is not asked."""
     from thermal_wild_ns.model.in_view import few_view_mask, frames_seeing
