@@ -35,7 +35,7 @@
 # few-view-3dgs-flight2 (docs/results/growth), bg-layers-flight2 (docs/results/bg_layers_h200, the retest); a fresh one
 # after the two installs, few-view-prune-flight2; another, full-prune-flight2 (both docs/results/growth).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, full-prune-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -90,6 +90,27 @@ collect() {  # NAME...: each bench's json, log and the runs' decisions.json into
   done
   tail -n 2 /tmp/collect-*.log
   (cd /tmp && tar czf "$OUT/$plan.tgz" collect-*)
+}
+
+prune_arms() {  # SCENE: few-view-prune-flight2's runs on .data/SCENE (METHOD, ARMS, STEPS, GRAD, TIME_LIMIT,
+  # TAG as there)
+  test -d /tmp/site/tensorly || { echo cold; exit 3; }
+  method=${METHOD:-wild-thermal-3dgs}
+  settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=${GRAD:-0.0004} auto_stop.patience=1000)
+  [ "$method" = wild-thermal-3dgs ] && settings+=(pipeline.model.camera_falloff=True
+    pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
+  for arm in ${ARMS:-none near any}; do
+    extra=()
+    [ $arm = near ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.5)
+    [ $arm = any ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.0)
+    PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/prune-${TAG:-}$arm" \
+      --scenes "$PWD/.data/$1" --cache-dir "$PWD/.data/cache" --methods "$method" --seeds 3 \
+      --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps "${STEPS:-8000}" --schedule 30000 \
+      --eval-at 2000 5000 "${STEPS:-8000}" --max-gaussians 1000000 --time-limit "${TIME_LIMIT:-520}" \
+      --set "${settings[@]}" "${extra[@]}" > "/tmp/prune-${TAG:-}$arm.log" 2>&1 &
+  done
+  wait
+  collect $(for arm in ${ARMS:-none near any}; do echo "prune-${TAG:-}$arm"; done)
 }
 
 case "$plan" in
@@ -398,24 +419,17 @@ case "$plan" in
     # flight2's carry; run 2026-12-02 (docs/results/growth). STEPS (8000) and ARMS ("none near any") change the
     # length and the arms: STEPS=10000 ARMS="none any" takes the pruned variant past splatfacto's 536k;
     # METHOD=wild-thermal asks the same of the full method grown large (growth-far-raw-flight2's full arm: its own
-    # camera model, the view term), not run yet
-    test -d /tmp/site/tensorly || { echo cold; exit 3; }
-    method=${METHOD:-wild-thermal-3dgs}
-    settings=(pipeline.model.view_sh_degree=2 pipeline.model.densify_grad_thresh=0.0004 auto_stop.patience=1000)
-    [ "$method" = wild-thermal-3dgs ] && settings+=(pipeline.model.camera_falloff=True
-      pipeline.model.camera_pattern_min_motion=0.0 pipeline.model.camera_flat_field=8)
-    for arm in ${ARMS:-none near any}; do
-      extra=()
-      [ $arm = near ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.5)
-      [ $arm = any ] && extra=(pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_nearer=0.0)
-      PYTHONPATH=$PWD:/tmp/site timeout 560 python3 -m experiments.bench --output-dir "/tmp/prune-$arm" \
-        --scenes "$PWD/.data/flight2" --cache-dir "$PWD/.data/cache" --methods "$method" --seeds 3 \
-        --runs-per-gpu 3 --fit-steps 20 --fps-frames 0 --steps "${STEPS:-8000}" --schedule 30000 \
-        --eval-at 2000 5000 "${STEPS:-8000}" --max-gaussians 1000000 --time-limit 520 --set "${settings[@]}" \
-        "${extra[@]}" > "/tmp/prune-$arm.log" 2>&1 &
-    done
-    wait
-    collect $(for arm in ${ARMS:-none near any}; do echo "prune-$arm"; done)
+    # camera model, the view term): with ARMS="none any" and STEPS=10000 (2026-12-02, a second session) its six runs
+    # trained but were still being scored when the 560 s ran out, nothing came back: give it one arm, 8,000 steps.
+    # GRAD (0.0004) is densification's gradient threshold, TIME_LIMIT (520) the training seconds per run; the runs'
+    # folders are /tmp/prune-TAGARM (TAG empty unless set), so two of these plans may run side by side in one call
+    # with different TAGs
+    prune_arms flight2
+    ;;
+  few-view-prune-dunr)  # issue 33 (2026-12-02, a second session): the same on DUNR, whose 3DGS variant also fell as
+    # it grew (dunr-1m-3dgs, H100, 2026-11-26: `novel` 24.53 -> 22.55 from step 2,000 to 10,000): is the prune's hold
+    # a second real capture's too? ARMS="none any"; DUNR's carry (.data/dunr .data/cache/triangulation-c639ec94ec8782da)
+    prune_arms dunr
     ;;
   full-prune-flight2)  # issue 33 (2026-12-02, run inline in the session's last device minutes, as here): the full
     # method at the scene table's protocol on flight2 with the few-view prune at any distance, 3 seeds side by side,
