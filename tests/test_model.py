@@ -1197,9 +1197,10 @@ def test_the_few_view_mask_takes_a_floater_near_a_camera_and_the_coverages_edge_
     assert anywhere.nonzero().flatten().tolist() == [21, 22]
 
 
-def train_on_a_strip(monkeypatch, floater, **overrides):
+def train_on_a_strip(monkeypatch, floater, before_step=None, **overrides):
     """12 training steps of a model over `survey_cameras` with a small Gaussian at `floater` [3] and the rest where
-    every camera sees them; the model, the steps gsplat grew at and those the few-view prune ran at."""
+    every camera sees them (`before_step(model, step)`, where given, called before each); the model, the steps
+    gsplat grew at and those the few-view prune ran at."""
     from types import SimpleNamespace
 
     torch.manual_seed(0)  # gsplat's splits draw their new positions
@@ -1220,6 +1221,8 @@ def train_on_a_strip(monkeypatch, floater, **overrides):
     model.optimizers = optimizers
     for step in range(12):
         model.step = step
+        if before_step is not None:
+            before_step(model, step)
         camera = cameras[step % 5 : step % 5 + 1]
         camera.metadata = {"cam_idx": step % 5}
         outputs = model.get_outputs(camera)
@@ -1252,6 +1255,36 @@ def test_the_few_view_prune_removes_a_floater_at_the_rounds_gsplat_refines_and_s
             assert pruned == [] and bool(near_floater.any()) and "few-view prune" not in decided
     with pytest.raises(InputError, match="few_view_prune_frames -1"):
         make_model(few_view_prune_frames=-1)
+
+
+def test_the_few_view_prune_waits_for_a_gaussian_budget_above_its_threshold(monkeypatch):
+    """With `few_view_prune_above_budget` the prune skips the rounds while the budget is at the threshold, the
+    floater stays and the decisions say it waits; raised past it between gsplat's two rounds, the budget lets the
+    prune in at the second round only, and the floater goes. Across GPUs it stays off."""
+    floater = torch.tensor([1.5, 0.0, 2.5])  # 0.5 in front of the strip's last camera
+    budget = make_model().strategy.max_gaussians
+    waiting, _, pruned = train_on_a_strip(
+        monkeypatch, floater, few_view_prune_frames=1, few_view_prune_above_budget=budget
+    )
+    assert pruned == [] and bool(((waiting.means.detach() - floater).norm(dim=1) < 0.2).any())
+    decided = {d.part: (d.choice, d.why) for d in waiting.decisions()}["few-view prune"]
+    assert decided[0] == "waits for a larger Gaussian budget" and f"the budget {budget:,}" in decided[1]
+
+    def raise_after_the_first_round(model, step):
+        if step == 9:  # gsplat's rounds of this schedule: 8 and 10
+            model.raise_budget(budget + 1)
+
+    raised, grown, pruned = train_on_a_strip(
+        monkeypatch, floater, raise_after_the_first_round, few_view_prune_frames=1, few_view_prune_above_budget=budget
+    )
+    assert grown == [8, 10] and pruned == [10]
+    assert not bool(((raised.means.detach() - floater).norm(dim=1) < 0.2).any())
+    assert {d.part: d.choice for d in raised.decisions()}["few-view prune"].startswith("on: ")
+    raised.ranks = RankGroup(0, 2)  # as a share of the Gaussians across GPUs: the prune stays off, and says so
+    assert not raised.few_view_prune_runs()
+    assert {d.part: d.choice for d in raised.decisions()}["few-view prune"].startswith("off across GPUs (")
+    with pytest.raises(InputError, match="few_view_prune_above_budget -1"):
+        make_model(few_view_prune_above_budget=-1)
 
 
 def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(monkeypatch):

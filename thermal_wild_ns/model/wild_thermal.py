@@ -259,8 +259,14 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     few_view_prune_nearer: float = 0.0
     """With `few_view_prune_frames`: only Gaussians whose nearest training camera is nearer than this times the
     median Gaussian's nearest camera are removed (floaters in front of a frame), so that the ground at the edge
-    of a survey's coverage, seen by few frames from the usual distance, stays. 0: at any distance (on flight2
-    the near-only prune at 0.5 held out less of the fall: docs/results/growth)."""
+    of a survey's coverage, seen by few frames from the usual distance, stays. 0: at any distance (near a
+    camera only, a drone survey's stateless model still lost held-out views as it grew: docs/results/growth)."""
+    few_view_prune_above_budget: Optional[int] = None
+    """With `few_view_prune_frames`: the prune runs only while the Gaussian budget (over every GPU: `max_gaussians`,
+    or the one the held-back frames set, `--auto-stop.grow-budget`) is above this many, as the view term waits for
+    a large model (`view_term_above_budget`): a model that stays small leaves its densification as it is, one that
+    grows large loses its few-view Gaussians. Across GPUs a prune that waits for the budget stays off (the counts
+    are not kept per share of the Gaussians). None: from the start (refused across GPUs)."""
     emission_in_view_above: int = 1_000_000
     """Above this many Gaussians, training evaluates the emission MLP (and the view term) only for the
     Gaussians the camera can see (`in_view.py`): the same render, with memory and time that follow the
@@ -291,7 +297,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 "training across GPUs needs --pipeline.model.use-absgrad False (gsplat's distributed "
                 "rasterization has no absgrad) and --pipeline.model.camera-optimizer.mode off"
             )
-        if self.ranks.split and cfg.few_view_prune_frames > 0:
+        if self.ranks.split and cfg.few_view_prune_frames > 0 and cfg.few_view_prune_above_budget is None:
             raise InputError(
                 "training across GPUs needs --pipeline.model.few-view-prune-frames 0 (each GPU holds a share of "
                 "the Gaussians and renders every frame with the others: the prune's counts are not kept per share)"
@@ -300,6 +306,10 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             raise InputError(
                 f"few_view_prune_frames {cfg.few_view_prune_frames}, few_view_prune_nearer "
                 f"{cfg.few_view_prune_nearer:g}: each must be 0 (off; at any distance) or more"
+            )
+        if cfg.few_view_prune_above_budget is not None and cfg.few_view_prune_above_budget < 0:
+            raise InputError(
+                f"few_view_prune_above_budget {cfg.few_view_prune_above_budget}: must be 0 or more (None: no rule)"
             )
         self.few_view_pruned = 0  # Gaussians the few-view prune removed (`_prune_few_view`), for `decisions`
         params = self.ranks.own_rows(initial_gaussians(self.seed_points, cfg, self.k_nearest_sklearn))
@@ -847,7 +857,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 f", nearer than {cfg.few_view_prune_nearer:g} x the median" if cfg.few_view_prune_nearer > 0 else ""
             )
             why = f"few_view_prune_frames {cfg.few_view_prune_frames}{nearer}"
-            entries.append(Decision("few-view prune", f"on: {self.few_view_pruned:,} removed so far", why, "config"))
+            if cfg.few_view_prune_above_budget is not None:
+                budget_now = self.strategy.max_gaussians * self.ranks.world
+                why += f"; few_view_prune_above_budget {cfg.few_view_prune_above_budget:,}, the budget {budget_now:,}"
+            if self.few_view_prune_runs():
+                choice = f"on: {self.few_view_pruned:,} removed so far"
+            else:
+                choice = "off across GPUs" if self.ranks.split else "waits for a larger Gaussian budget"
+                choice += f" ({self.few_view_pruned:,} removed so far)" if self.few_view_pruned else ""
+            entries.append(Decision("few-view prune", choice, why, "config"))
         view = f"view_sh_degree {cfg.view_sh_degree}"
         if self._view_term_follows_budget():
             budget_now = self.strategy.max_gaussians * self.ranks.world
@@ -1018,8 +1036,17 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 info=info,
                 packed=self.ranks.split,
             )
-            if self.config.few_view_prune_frames > 0 and self.strategy.refines_at(step):
+            if self.few_view_prune_runs() and self.strategy.refines_at(step):
                 self._prune_few_view(step)
+
+    def few_view_prune_runs(self) -> bool:
+        """Whether the few-view prune takes part at densification rounds now (`few_view_prune_frames`, on one GPU,
+        with a Gaussian budget above `few_view_prune_above_budget` where that is set)."""
+        cfg = self.config
+        if cfg.few_view_prune_frames <= 0 or self.ranks.split:
+            return False
+        threshold = cfg.few_view_prune_above_budget
+        return threshold is None or self.strategy.max_gaussians * self.ranks.world > threshold
 
     def _prune_few_view(self, step: int) -> None:
         """Remove the few-view Gaussians (`few_view_mask`) of the training frames rendered so far, each frame at the
