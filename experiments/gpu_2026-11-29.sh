@@ -35,7 +35,7 @@
 # few-view-3dgs-flight2 (docs/results/growth), bg-layers-flight2 (docs/results/bg_layers_h200, the retest); a fresh one
 # after the two installs, few-view-prune-flight2; another, full-prune-flight2 (both docs/results/growth).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -436,6 +436,19 @@ case "$plan" in
   # model): the stock ablation grown large with and without the prune, on each capture after the two installs:
   #     STOCK=1 STEPS=8000 ARMS="none any" TIME_LIMIT=330 bash experiments/gpu_2026-11-29.sh few-view-prune-dunr
   #     STOCK=1 STEPS=8000 ARMS="none any" TIME_LIMIT=330 bash experiments/gpu_2026-11-29.sh few-view-prune-flight2
+  batched-cameras-dunr)  # issue 34, not run yet: what several cameras per step could save, splatting alone
+    # (experiments.batched_cameras: DUNR's cameras, 100k Gaussians about its seed points, render + L1 + backward of
+    # 1, 2, 4, 8 cameras per step, at full size and at half, the early schedule's); DUNR's carry
+    test -d /tmp/site || { echo cold; exit 3; }
+    for downscale in 1 2; do
+      PYTHONPATH=$PWD:/tmp/site timeout 200 python3 -m experiments.batched_cameras --scene "$PWD/.data/dunr" \
+        --cache-dir "$PWD/.data/cache" --downscale $downscale --output-dir "/tmp/batched-$downscale" \
+        > "/tmp/batched-$downscale.log" 2>&1 || tail -20 "/tmp/batched-$downscale.log"
+      cp "/tmp/batched-$downscale/batched_cameras.md" "$OUT/batched-cameras-dunr-$downscale.md"
+      cp "/tmp/batched-$downscale/batched_cameras.json" "$OUT/batched-cameras-dunr-$downscale.json"
+    done
+    cat "$OUT"/batched-cameras-dunr-*.md
+    ;;
   full-prune-flight2)  # issue 33 (2026-12-02, run inline in the session's last device minutes, as here): the full
     # method at the scene table's protocol on flight2 with the few-view prune at any distance, 3 seeds side by side,
     # against its default runs of earlier calls (docs/results/growth; flight2's carry)

@@ -684,3 +684,17 @@ def test_few_view_gaussians_takes_the_same_gaussians_out_of_every_parameter():
     assert model.gauss_params["means"].tolist() == [[0.0, 1.0, 2.0], [6.0, 7.0, 8.0]]
     assert model.gauss_params["opacities"].view(-1).tolist() == [0.0, 2.0]
     assert isinstance(model.gauss_params["means"], torch.nn.Parameter)
+
+
+def test_the_batched_cameras_probe_renders_a_batch_as_its_cameras_alone_and_times_every_batch_size(tmp_path):
+    """`experiments.batched_cameras` on the demo scene (CPU, the torch rasterizer): a batch of cameras renders what
+    each camera renders alone, every batch size gets a row, and the files are written."""
+    from experiments.batched_cameras import BatchedArgs, main
+
+    args = BatchedArgs(gaussians=500, batch_sizes=(1, 3), steps=1, warmup_steps=0, downscale=8, output_dir=tmp_path)
+    result = main(args)
+    assert result["batch_difference"] < 1e-5
+    assert [row["cameras"] for row in result["rows"]] == [1, 3]
+    assert all(row["ms_per_camera"] * row["cameras"] == pytest.approx(row["ms_per_step"]) for row in result["rows"])
+    assert json.loads((tmp_path / "batched_cameras.json").read_text()) == result
+    assert "| 3 |" in (tmp_path / "batched_cameras.md").read_text()
