@@ -858,8 +858,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             )
             why = f"few_view_prune_frames {cfg.few_view_prune_frames}{nearer}"
             if cfg.few_view_prune_above_budget is not None:
-                budget_now = self.strategy.max_gaussians * self.ranks.world
-                why += f"; few_view_prune_above_budget {cfg.few_view_prune_above_budget:,}, the budget {budget_now:,}"
+                threshold = cfg.few_view_prune_above_budget
+                why += f"; few_view_prune_above_budget {threshold:,}, the budget {self.budget_over_gpus:,}"
             if self.few_view_prune_runs():
                 choice = f"on: {self.few_view_pruned:,} removed so far"
             else:
@@ -868,8 +868,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             entries.append(Decision("few-view prune", choice, why, "config"))
         view = f"view_sh_degree {cfg.view_sh_degree}"
         if self._view_term_follows_budget():
-            budget_now = self.strategy.max_gaussians * self.ranks.world
-            view += f"; view_term_above_budget {cfg.view_term_above_budget:,}, the Gaussian budget {budget_now:,}"
+            threshold = cfg.view_term_above_budget
+            view += f"; view_term_above_budget {threshold:,}, the Gaussian budget {self.budget_over_gpus:,}"
         on = cfg.view_sh_degree > 0 and not self._view_term_waits
         entries.append(Decision("view-dependent emission", "on" if on else "off", view, "config"))
         falloff = "off" if self.camera_falloff is None else f"on: {describe_falloff(self.camera_falloff)}"
@@ -911,6 +911,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             return self.training and self.step % 2 == 1
         return self._view_term == "on"
 
+    @property
+    def budget_over_gpus(self) -> int:
+        """The Gaussian budget densification applies now, over every GPU (each holds its share of it)."""
+        return self.strategy.max_gaussians * self.ranks.world
+
     def gaussian_budget(self) -> Tuple[int, int]:
         """(Gaussians now, `max_gaussians` as densification applies it) on this GPU."""
         return self.num_points, self.strategy.max_gaussians
@@ -939,7 +944,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         threshold = self.config.view_term_above_budget
         if not self._view_term_follows_budget():
             return
-        waits = self.strategy.max_gaussians * self.ranks.world <= threshold
+        waits = self.budget_over_gpus <= threshold
         if self._view_term_waits and not waits and self.step > 0 and self.ranks.rank == 0:
             CONSOLE.log(
                 f"step {self.step}: the Gaussian budget passed {threshold:,}: the view-dependent emission "
@@ -1046,7 +1051,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if cfg.few_view_prune_frames <= 0 or self.ranks.split:
             return False
         threshold = cfg.few_view_prune_above_budget
-        return threshold is None or self.strategy.max_gaussians * self.ranks.world > threshold
+        return threshold is None or self.budget_over_gpus > threshold
 
     def _prune_few_view(self, step: int) -> None:
         """Remove the few-view Gaussians (`few_view_mask`) of the training frames rendered so far, each frame at the
