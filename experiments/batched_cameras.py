@@ -27,6 +27,7 @@ import tyro
 from torch import Tensor
 
 from experiments import device_name, synchronize, write_report
+from experiments.bench import scene_dataparser
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.rendering import world_to_camera
 from thermal_wild_ns.rendering.backend import NEAR_PLANE, rasterization
@@ -37,7 +38,7 @@ class BatchedArgs:
     scene: str = "demo"
     """'demo', 'stress:FAULT' or a dataset folder (as in python -m experiments.bench)."""
     gaussians: int = 100_000
-    """Gaussians to render (the full method's step profile holds about 96k at step 3,000 on DUNR)."""
+    """Gaussians to render (near the full method's at its fixed budget: `--auto-stop.grow-budget False`)."""
     batch_sizes: Tuple[int, ...] = (1, 2, 4, 8)
     """Cameras per step."""
     steps: int = 200
@@ -52,8 +53,6 @@ class BatchedArgs:
 def scene_views(args: BatchedArgs) -> Tuple[Tensor, Tensor, Tensor, int, int, Tensor]:
     """The scene's training views and seed points: (world-to-camera [F, 4, 4], K [F, 3, 3], frames [F, H, W, 1],
     width, height, points [P, 3]) at 1/`downscale` of the frames' size."""
-    from experiments.bench import scene_dataparser
-
     config = scene_dataparser(args.scene, args.output_dir, args.cache_dir or args.output_dir / "cache")
     outputs = config.setup().get_dataparser_outputs("train")
     cameras = outputs.cameras
@@ -117,7 +116,6 @@ def time_batch(gaussians, viewmats, Ks, frames, width, height, size: int, steps:
     """ms per step and per camera of `size` cameras a step (render, L1 loss, backward), cycling over the views."""
     params = {k: v.clone().requires_grad_(True) for k, v in gaussians.items()}
     cuda = viewmats.is_cuda
-    gpu_ms: List[float] = []
 
     def step(i: int) -> None:
         pick = torch.arange(i * size, (i + 1) * size, device=viewmats.device) % len(Ks)
@@ -141,7 +139,7 @@ def time_batch(gaussians, viewmats, Ks, frames, width, height, size: int, steps:
             events.append((begin, end))
     synchronize()
     wall_ms = (time.perf_counter() - start) * 1000 / steps
-    gpu_ms = [b.elapsed_time(e) for b, e in events]
+    gpu_ms: List[float] = [b.elapsed_time(e) for b, e in events]
     result = {"cameras": size, "ms_per_step": wall_ms, "ms_per_camera": wall_ms / size}
     if gpu_ms:
         result["gpu_ms_per_step"] = sum(gpu_ms) / len(gpu_ms)
