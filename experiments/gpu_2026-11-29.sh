@@ -35,7 +35,7 @@
 # few-view-3dgs-flight2 (docs/results/growth), bg-layers-flight2 (docs/results/bg_layers_h200, the retest); a fresh one
 # after the two installs, few-view-prune-flight2; another, full-prune-flight2 (both docs/results/growth).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -53,13 +53,13 @@ bench() {  # NAME SEED SCENE... -- SETTING...: the full method, 3 seeds from SEE
     > "/tmp/$name.log" 2>&1 &
 }
 
-table_arm() {  # NAME SCENE SETTING...: the full method on one real capture at the scene table's protocol (the first
-  # 15,000 steps of the 30k schedule asked, the stop on), 3 seeds side by side, with SETTINGs, in the background;
-  # its bench and logs to /tmp/NAME
+table_arm() {  # NAME SCENE SETTING...: the full method (or METHOD) on one real capture at the scene table's protocol
+  # (the first 15,000 steps of the 30k schedule asked, the stop on), 3 seeds side by side, with SETTINGs, in the
+  # background; its bench and logs to /tmp/NAME
   local name=$1 scene=$2
   shift 2
   PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$name" \
-    --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
+    --scenes "$PWD/.data/$scene" --methods "${METHOD:-wild-thermal}" --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
     --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 --set "$@" \
     > "/tmp/$name.log" 2>&1 &
 }
@@ -436,7 +436,32 @@ case "$plan" in
   # model): the stock ablation grown large with and without the prune, on each capture after the two installs:
   #     STOCK=1 STEPS=8000 ARMS="none any" TIME_LIMIT=330 bash experiments/gpu_2026-11-29.sh few-view-prune-dunr
   #     STOCK=1 STEPS=8000 ARMS="none any" TIME_LIMIT=330 bash experiments/gpu_2026-11-29.sh few-view-prune-flight2
-  batched-cameras-dunr)  # issue 34, not run yet: what several cameras per step could save, splatting alone
+  prune-default-dunr|prune-default-flight2)  # issue 33 (2026-12-02, a third session): the stock 3DGS variant grown
+    # to a 1M budget fell on both real captures without the few-view prune and held far better with it
+    # (docs/results/growth): at its default (the budget the held-back frames set, the scene table's protocol) does it
+    # gain from the prune too? METHOD=wild-thermal-3dgs with the prune from the start against none, 3 seeds each,
+    # 6 runs side by side (its carry as table-dunr or table-flight2)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${plan#prune-default-}
+    for frames in 0 3; do
+      METHOD=wild-thermal-3dgs table_arm "$scene-3dgs-default-prune$frames" "$scene" \
+        pipeline.model.few_view_prune_frames=$frames
+    done
+    wait
+    collect "$scene-3dgs-default-prune0" "$scene-3dgs-default-prune3"
+    ;;
+  prune-default-generated)  # issue 33 (2026-12-02, a third session, the last device minutes): the 3DGS variant with
+    # the few-view prune from the start on the demo and the five stress scenes at issue 16's protocol (as
+    # gpu_2026-11-28.sh's ablations-generated, whose runs are the scene table's rows without it), 3 seeds, the 18
+    # runs side by side (nothing carried)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.bench --output-dir /tmp/gen-3dgs-prune \
+      --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal-3dgs \
+      --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 18 \
+      --set pipeline.model.few_view_prune_frames=3 > "$OUT/generated-3dgs-prune.log" 2>&1
+    cp /tmp/gen-3dgs-prune/bench.json "$OUT/generated-3dgs-prune-bench.json"
+    ;;
+  batched-cameras-dunr)  # issue 34, run 2026-12-02 (a third session: docs/results/batched_cameras_h200): what several cameras per step could save, splatting alone
     # (experiments.batched_cameras: DUNR's cameras, 100k Gaussians about its seed points, render + L1 + backward of
     # 1, 2, 4, 8 cameras per step, at full size and at half, the early schedule's); DUNR's carry
     test -d /tmp/site || { echo cold; exit 3; }

@@ -1287,6 +1287,21 @@ def test_the_few_view_prune_waits_for_a_gaussian_budget_above_its_threshold(monk
         make_model(few_view_prune_above_budget=-1)
 
 
+def test_only_the_raw_frame_3dgs_variant_prunes_few_view_gaussians_and_only_with_a_large_budget():
+    """The registered methods: the 3DGS variant on raw frames (no per-frame state, no stabilisation) prunes once its
+    Gaussian budget passes `LARGE_BUDGET`, and not at a default budget; the full method and every other ablation
+    leave densification as it is."""
+    from thermal_wild_ns.method_configs import LARGE_BUDGET, METHODS
+
+    pruning = sorted(name for name, spec in METHODS.items() if spec.config.pipeline.model.few_view_prune_frames > 0)
+    assert pruning == ["wild-thermal-3dgs"]
+    config = METHODS["wild-thermal-3dgs"].config.pipeline.model
+    settings = dict(few_view_prune_frames=3, few_view_prune_above_budget=LARGE_BUDGET)
+    assert (config.few_view_prune_frames, config.few_view_prune_above_budget) == (3, LARGE_BUDGET)
+    assert not make_model(**settings).few_view_prune_runs()  # the default budget
+    assert make_model(max_gaussians=LARGE_BUDGET + 1, **settings).few_view_prune_runs()
+
+
 def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(monkeypatch):
     """`frames_seeing` tests the cameras a chunk at a time, each chunk's image sizes its own: the counts are those of
     one camera at a time, however the cameras are chunked."""
