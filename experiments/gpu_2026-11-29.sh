@@ -34,6 +34,10 @@
 # (docs/results/render_slices_h200). An eighth (2026-12-02): one warm machine after the two installs,
 # few-view-3dgs-flight2 (docs/results/growth), bg-layers-flight2 (docs/results/bg_layers_h200, the retest); a fresh one
 # after the two installs, few-view-prune-flight2; another, full-prune-flight2 (both docs/results/growth).
+# A ninth (2026-12-02): one warm machine after the two installs, STOCK=1 few-view-prune-dunr and -flight2,
+# batched-cameras-dunr (docs/results/batched_cameras_h200); a fresh one, prune-default-dunr and -flight2; a fresh one,
+# METHOD=wild-thermal-3dgs-stab-bbhe STOCK=1 few-view-prune-dunr (TAG=sd) and -flight2 (TAG=sf) (docs/results/growth).
+# prune-default-generated not run (no device time left).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated}
 OUT=${OUT:-/tmp/out}
@@ -424,7 +428,8 @@ case "$plan" in
     # trained but were still being scored when the 560 s ran out, nothing came back: give it one arm, 8,000 steps.
     # GRAD (0.0004) is densification's gradient threshold, TIME_LIMIT (520) the training seconds per run; the runs'
     # folders are /tmp/prune-TAGARM (TAG empty unless set), so two of these plans may run side by side in one call
-    # with different TAGs
+    # with different TAGs (two calls on one machine with the same TAG share those folders: the second's decisions
+    # archive holds the first's runs too)
     prune_arms flight2
     ;;
   few-view-prune-dunr)  # issue 33 (2026-12-02, a second session): the same on DUNR, whose 3DGS variant also fell as
@@ -432,8 +437,8 @@ case "$plan" in
     # a second real capture's too? ARMS="none any"; DUNR's carry (.data/dunr .data/cache/triangulation-c639ec94ec8782da)
     prune_arms dunr
     ;;
-  # Not run yet (the next call; 2026-12-02's runs all gave the 3DGS variant the full method's view term and camera
-  # model): the stock ablation grown large with and without the prune, on each capture after the two installs:
+  # Run 2026-12-02 (a third session; the runs before all gave the 3DGS variant the full method's view term and
+  # camera model): the stock ablation grown large with and without the prune, on each capture after the two installs:
   #     STOCK=1 STEPS=8000 ARMS="none any" TIME_LIMIT=330 bash experiments/gpu_2026-11-29.sh few-view-prune-dunr
   #     STOCK=1 STEPS=8000 ARMS="none any" TIME_LIMIT=330 bash experiments/gpu_2026-11-29.sh few-view-prune-flight2
   prune-default-dunr|prune-default-flight2)  # issue 33 (2026-12-02, a third session): the stock 3DGS variant grown
