@@ -63,8 +63,9 @@ table_arm() {  # NAME SCENE SETTING...: the full method (or METHOD) on one real 
   local name=$1 scene=$2
   shift 2
   PYTHONPATH=$PWD:/tmp/site timeout 580 python3 -m experiments.bench --output-dir "/tmp/$name" \
-    --scenes "$PWD/.data/$scene" --methods "${METHOD:-wild-thermal}" --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
-    --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 --set "$@" \
+    --scenes "$PWD/.data/$scene" --methods "${METHOD:-wild-thermal}" --seeds 3 --fps-frames 0 \
+    --cache-dir "$PWD/.data/cache" --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 \
+    --runs-per-gpu 3 --set "$@" \
     > "/tmp/$name.log" 2>&1 &
 }
 
@@ -466,9 +467,10 @@ case "$plan" in
       --set pipeline.model.few_view_prune_frames=3 > "$OUT/generated-3dgs-prune.log" 2>&1
     cp /tmp/gen-3dgs-prune/bench.json "$OUT/generated-3dgs-prune-bench.json"
     ;;
-  batched-cameras-dunr)  # issue 34, run 2026-12-02 (a third session: docs/results/batched_cameras_h200): what several cameras per step could save, splatting alone
-    # (experiments.batched_cameras: DUNR's cameras, 100k Gaussians about its seed points, render + L1 + backward of
-    # 1, 2, 4, 8 cameras per step, at full size and at half, the early schedule's); DUNR's carry
+  batched-cameras-dunr)  # issue 34, run 2026-12-02 (a third session: docs/results/batched_cameras_h200): what
+    # several cameras per step could save, splatting alone (experiments.batched_cameras: DUNR's cameras, 100k
+    # Gaussians about its seed points, render + L1 + backward of 1, 2, 4, 8 cameras per step, at full size and at
+    # half, the early schedule's); DUNR's carry
     test -d /tmp/site || { echo cold; exit 3; }
     for downscale in 1 2; do
       PYTHONPATH=$PWD:/tmp/site timeout 200 python3 -m experiments.batched_cameras --scene "$PWD/.data/dunr" \
