@@ -37,9 +37,13 @@
 # A ninth (2026-12-02): one warm machine after the two installs, STOCK=1 few-view-prune-dunr and -flight2,
 # batched-cameras-dunr (docs/results/batched_cameras_h200); a fresh one, prune-default-dunr and -flight2; a fresh one,
 # METHOD=wild-thermal-3dgs-stab-bbhe STOCK=1 few-view-prune-dunr (TAG=sd) and -flight2 (TAG=sf) (docs/results/growth).
-# prune-default-generated not run (no device time left).
+# prune-default-generated not run (no device time left). A tenth (2026-12-02): one machine after the two installs,
+# LIMIT=420 prune-default-generated (its plan then did not lift the variant's budget rule: the runs are the arm
+# without); a fresh one after install, then install-extra and LIMIT=400 prune-default-generated in one call (the arm
+# with; docs/results/prune_3dgs_generated_h200), then STOCK=1 STEPS=12000 ARMS=any GRAD=0.0002 TIME_LIMIT=380 TAG=far
+# few-view-prune-flight2 (docs/results/growth). splatfacto-30k-generated ready, not run (device time).
 set -uo pipefail
-plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated}
+plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated, full-prune-dunr, splatfacto-30k-generated}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -446,25 +450,50 @@ case "$plan" in
     # to a 1M budget fell on both real captures without the few-view prune and held far better with it
     # (docs/results/growth): at its default (the budget the held-back frames set, the scene table's protocol) does it
     # gain from the prune too? METHOD=wild-thermal-3dgs with the prune from the start against none, 3 seeds each,
-    # 6 runs side by side (its carry as table-dunr or table-flight2)
+    # 6 runs side by side (its carry as table-dunr or table-flight2). Run with the package of 33363d3 before the
+    # variant's `few_view_prune_above_budget` 250k; since, the plan lifts that rule (None), as those runs had it
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${plan#prune-default-}
     for frames in 0 3; do
       METHOD=wild-thermal-3dgs table_arm "$scene-3dgs-default-prune$frames" "$scene" \
-        pipeline.model.few_view_prune_frames=$frames
+        pipeline.model.few_view_prune_frames=$frames pipeline.model.few_view_prune_above_budget=None
     done
     wait
     collect "$scene-3dgs-default-prune0" "$scene-3dgs-default-prune3"
     ;;
+  full-prune-dunr)  # issue 33 (2026-12-02, a tenth session): the full method at its default with the few-view prune
+    # from the start against without on DUNR, as full-prune-flight2 asked of flight2 alone (neutral there), 3 seeds
+    # each, the 6 runs side by side at the scene table's protocol (DUNR's carry)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for frames in 0 3; do
+      table_arm "dunr-full-default-prune$frames" dunr pipeline.model.few_view_prune_frames=$frames
+    done
+    wait
+    collect dunr-full-default-prune0 dunr-full-default-prune3
+    ;;
+  splatfacto-30k-generated)  # issue 33 (2026-12-02, a tenth session): the scene table's splatfacto rows on the
+    # generated scenes ran issue 16's 5,000-step protocol; the issue asks splatfacto at 30k too: its whole schedule
+    # (1/2-resolution warm-up as there) on SCENES (stress:vignetting, whose `time` row the full method leads by
+    # 0.29 dB), 3 seeds side by side (nothing carried); LIMIT (560) the bench's seconds
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-560} python3 -m experiments.bench --output-dir /tmp/splatfacto-30k \
+      --scenes ${SCENES:-stress:vignetting} --methods splatfacto --seeds 3 --steps 30000 --num-downscales 1 \
+      --eval-at 5000 15000 30000 --fps-frames 0 --runs-per-gpu 3 > "$OUT/splatfacto-30k-generated.log" 2>&1
+    cp /tmp/splatfacto-30k/bench.json "$OUT/splatfacto-30k-generated-bench.json"
+    ;;
   prune-default-generated)  # issue 33 (2026-12-02, a third session, the last device minutes): the 3DGS variant with
     # the few-view prune from the start on the demo and the five stress scenes at issue 16's protocol (as
     # gpu_2026-11-28.sh's ablations-generated, whose runs are the scene table's rows without it), 3 seeds, the 18
-    # runs side by side (nothing carried)
+    # runs side by side (nothing carried). Its first call (2026-12-02, a tenth session) set only
+    # `few_view_prune_frames=3`, which the variant has had since 33363d3 with the rule of `few_view_prune_above_budget`
+    # 250k: at these budgets (12.5k-25k) nothing was pruned, so those runs are the variant at its default, the arm
+    # without; since, the plan lifts the rule (None: from the start). LIMIT (150) is the bench's seconds
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.bench --output-dir /tmp/gen-3dgs-prune \
       --scenes demo stress:clean stress:drift stress:ffc stress:outlier stress:vignetting --methods wild-thermal-3dgs \
       --seeds 3 --steps 5000 --num-downscales 1 --eval-at 500 1000 2000 5000 --fps-frames 0 --runs-per-gpu 18 \
-      --set pipeline.model.few_view_prune_frames=3 > "$OUT/generated-3dgs-prune.log" 2>&1
+      --set pipeline.model.few_view_prune_frames=3 pipeline.model.few_view_prune_above_budget=None \
+      > "$OUT/generated-3dgs-prune.log" 2>&1
     cp /tmp/gen-3dgs-prune/bench.json "$OUT/generated-3dgs-prune-bench.json"
     ;;
   batched-cameras-dunr)  # issue 34, run 2026-12-02 (a third session: docs/results/batched_cameras_h200): what
