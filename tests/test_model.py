@@ -1287,19 +1287,25 @@ def test_the_few_view_prune_waits_for_a_gaussian_budget_above_its_threshold(monk
         make_model(few_view_prune_above_budget=-1)
 
 
-def test_only_the_raw_frame_3dgs_variant_prunes_few_view_gaussians_and_only_with_a_large_budget():
-    """The registered methods: the 3DGS variant on raw frames (no per-frame state, no preprocessing) prunes once its
-    Gaussian budget passes `LARGE_BUDGET`, and not at a default budget; the full method and every other ablation
-    leave densification as it is."""
-    from thermal_wild_ns.method_configs import LARGE_BUDGET, METHODS
+def test_only_the_raw_frame_3dgs_variant_prunes_few_view_gaussians_from_the_start():
+    """The registered methods: the 3DGS variant on raw frames (no per-frame state, no preprocessing) prunes
+    few-view Gaussians at its default budget, with no budget rule; the full method and every other ablation leave
+    densification as it is."""
+    from thermal_wild_ns.method_configs import METHODS
 
     pruning = sorted(name for name, spec in METHODS.items() if spec.config.pipeline.model.few_view_prune_frames > 0)
     assert pruning == ["wild-thermal-3dgs"]
     config = METHODS["wild-thermal-3dgs"].config.pipeline.model
-    assert (config.few_view_prune_frames, config.few_view_prune_above_budget) == (3, LARGE_BUDGET)
-    settings = dict(few_view_prune_frames=3, few_view_prune_above_budget=config.few_view_prune_above_budget)
-    assert not make_model(**settings).few_view_prune_runs()  # the default budget
-    assert make_model(max_gaussians=LARGE_BUDGET + 1, **settings).few_view_prune_runs()
+    assert (config.few_view_prune_frames, config.few_view_prune_nearer, config.few_view_prune_above_budget) == (
+        3,
+        0.0,
+        None,
+    )
+    model = make_model(few_view_prune_frames=3)
+    assert model.few_view_prune_runs()  # the default budget
+    model.ranks = RankGroup(0, 2)  # a share of the Gaussians across GPUs: off, and said so (not refused)
+    assert not model.few_view_prune_runs()
+    assert {d.part: d.choice for d in model.decisions()}["few-view prune"] == "off across GPUs"
 
 
 def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(monkeypatch):

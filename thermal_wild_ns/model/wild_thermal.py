@@ -255,7 +255,9 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     `in_view` test, occlusion ignored; with `few_view_prune_nearer`, only those near a camera): fitted by a frame
     or two, such a Gaussian can take those frames' own level, which a view from elsewhere then sees. A model
     without a per-frame state (`wild-thermal-3dgs`) that grows on a drone survey puts the frames' level changes
-    there (docs/results/growth). 0: no such pruning."""
+    there (docs/results/growth). Across GPUs it stays off, and the run's decisions say so (each GPU holds a share
+    of the Gaussians and renders every frame with the others: the counts are not kept per share). 0: no such
+    pruning."""
     few_view_prune_nearer: float = 0.0
     """With `few_view_prune_frames`: only Gaussians whose nearest training camera is nearer than this times the
     median Gaussian's nearest camera are removed (floaters in front of a frame), so that the ground at the edge
@@ -265,8 +267,7 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """With `few_view_prune_frames`: the prune runs only while the Gaussian budget (over every GPU: `max_gaussians`,
     or the one the held-back frames set, `--auto-stop.grow-budget`) is above this many, as the view term waits for
     a large model (`view_term_above_budget`): a model that stays small leaves its densification as it is, one that
-    grows large loses its few-view Gaussians. Across GPUs a prune that waits for the budget stays off (the counts
-    are not kept per share of the Gaussians). None: from the start (refused across GPUs)."""
+    grows large loses its few-view Gaussians. None: from the start."""
     emission_in_view_above: int = 1_000_000
     """Above this many Gaussians, training evaluates the emission MLP (and the view term) only for the
     Gaussians the camera can see (`in_view.py`): the same render, with memory and time that follow the
@@ -296,11 +297,6 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             raise InputError(
                 "training across GPUs needs --pipeline.model.use-absgrad False (gsplat's distributed "
                 "rasterization has no absgrad) and --pipeline.model.camera-optimizer.mode off"
-            )
-        if self.ranks.split and cfg.few_view_prune_frames > 0 and cfg.few_view_prune_above_budget is None:
-            raise InputError(
-                "training across GPUs needs --pipeline.model.few-view-prune-frames 0 (each GPU holds a share of "
-                "the Gaussians and renders every frame with the others: the prune's counts are not kept per share)"
             )
         if cfg.few_view_prune_frames < 0 or cfg.few_view_prune_nearer < 0:
             raise InputError(
