@@ -41,7 +41,8 @@
 # LIMIT=420 prune-default-generated (its plan then did not lift the variant's budget rule: the runs are the arm
 # without); a fresh one after install, then install-extra and LIMIT=400 prune-default-generated in one call (the arm
 # with; docs/results/prune_3dgs_generated_h200), then STOCK=1 STEPS=12000 ARMS=any GRAD=0.0002 TIME_LIMIT=380 TAG=far
-# few-view-prune-flight2 (docs/results/growth). splatfacto-30k-generated ready, not run (device time).
+# few-view-prune-flight2 (docs/results/growth); a third machine after the two installs, full-prune-dunr (202 s;
+# docs/results/growth). splatfacto-30k-generated ready, not run (device time).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated, full-prune-dunr, splatfacto-30k-generated}
 OUT=${OUT:-/tmp/out}
@@ -461,15 +462,18 @@ case "$plan" in
     wait
     collect "$scene-3dgs-default-prune0" "$scene-3dgs-default-prune3"
     ;;
-  full-prune-dunr)  # issue 33 (2026-12-02, a tenth session): the full method at its default with the few-view prune
-    # from the start against without on DUNR, as full-prune-flight2 asked of flight2 alone (neutral there), 3 seeds
-    # each, the 6 runs side by side at the scene table's protocol (DUNR's carry)
+  full-prune-dunr)  # issue 33 (2026-12-02, a tenth session, run inline in the session's last device minutes, as
+    # here): the full method at its default with the few-view prune from the start on DUNR, as full-prune-flight2
+    # asked of flight2 alone (neutral there), 3 seeds side by side at the scene table's protocol, against its
+    # default runs of earlier calls (docs/results/growth; DUNR's carry)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
-    for frames in 0 3; do
-      table_arm "dunr-full-default-prune$frames" dunr pipeline.model.few_view_prune_frames=$frames
-    done
-    wait
-    collect dunr-full-default-prune0 dunr-full-default-prune3
+    PYTHONPATH=$PWD:/tmp/site timeout 420 python3 -m experiments.bench --output-dir /tmp/full-prune-dunr \
+      --scenes "$PWD/.data/dunr" --methods wild-thermal --seeds 3 --fps-frames 0 --cache-dir "$PWD/.data/cache" \
+      --fit-steps 20 --steps 15000 --schedule 30000 --eval-at 5000 15000 --runs-per-gpu 3 --time-limit 260 \
+      --set pipeline.model.few_view_prune_frames=3 > /tmp/full-prune-dunr.log 2>&1
+    cp /tmp/full-prune-dunr/bench.json "$OUT/dunr-full-prune-any-bench.json"
+    cp /tmp/full-prune-dunr.log "$OUT/dunr-full-prune-any.log"
+    (cd /tmp/full-prune-dunr && find . -name decisions.json | tar czf "$OUT/dunr-full-prune-any-decisions.tgz" -T -)
     ;;
   splatfacto-30k-generated)  # issue 33 (2026-12-02, a tenth session): the scene table's splatfacto rows on the
     # generated scenes ran issue 16's 5,000-step protocol; the issue asks splatfacto at 30k too: its whole schedule
