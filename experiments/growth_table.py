@@ -4,6 +4,8 @@ checkpoint of its runs against the Gaussians it held there, from the *-bench.jso
 python -m experiments.growth_table docs/results/growth      # prints the table, writes novel_vs_gaussians.png
 python -m experiments.growth_table docs/results/growth flight2-3dgs-prune   # only the bench files whose name holds
                                                            # it: novel_vs_gaussians-flight2-3dgs-prune.png
+
+Then the automatic stop's held-back checks of the runs that recorded them, and the model each run kept.
 """
 
 from __future__ import annotations
@@ -44,6 +46,29 @@ def table(found: Dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def checks_table(found: Dict[str, dict]) -> str:
+    """The automatic stop's held-back checks of each bench file whose runs recorded them (a gain + offset fit per
+    held-back frame: a training signal, not a held-out score), check by check over the seeds, and the model the
+    stop kept with its held-out scores."""
+    lines = ["| bench file | check step | Gaussians | held-back PSNR (a fit) |", "| --- | --- | --- | --- |"]
+    for name, bench in found.items():
+        runs = [r for r in bench["runs"] if (r.get("auto_stop") or {}).get("checks")]
+        if not runs:
+            continue
+        for index in range(min(len(r["auto_stop"]["checks"]) for r in runs)):
+            at = [r["auto_stop"]["checks"][index] for r in runs]
+            gaussians = int(np.mean([c["gaussians"] for c in at]))
+            lines.append(f"| `{name}` | {at[0]['step']} | {gaussians:,} | {mean_range([c['psnr'] for c in at])} |")
+        kept = [r["auto_stop"]["kept_step"] for r in runs]
+        counts = [r["gaussians"] for r in runs]
+        lines.append(
+            f"| `{name}`, the model kept | {min(kept)}–{max(kept)} | {min(counts):,}–{max(counts):,} | `novel` "
+            f"{mean_range([r['psnr_novel'] for r in runs])}, `aligned` (a fit) "
+            f"{mean_range([r['psnr_aligned'] for r in runs])} |"
+        )
+    return "\n".join(lines)
+
+
 def panel(bench: dict) -> str:
     """The chart's panel of a bench file: its scene and method (without the settings it changed)."""
     run = bench["runs"][0]
@@ -69,7 +94,7 @@ def chart(found: Dict[str, dict], path: Path) -> None:
             line = ax.plot(gaussians, novel.mean(1), marker="o", label=name)[0]
             ax.fill_between(gaussians, novel.min(1), novel.max(1), color=line.get_color(), alpha=0.15)
         ax.set_xscale("log")
-        ax.set_xlabel("Gaussians (mean of the seeds, at each checkpoint: steps 2k, 5k and 8k or 10k)")
+        ax.set_xlabel("Gaussians (mean of the seeds, at each checkpoint of the runs)")
         ax.set_ylabel("`novel` PSNR (dB): mean, band = min-max of the seeds")
         ax.set_title(f"{title}: held-out views as the model grows", fontsize=10)
         ax.legend(fontsize=7)
@@ -81,6 +106,8 @@ def chart(found: Dict[str, dict], path: Path) -> None:
 def main(folder: Path, only: str = "") -> None:
     found = {name: bench for name, bench in curves(folder).items() if only in name}
     print(table(found))
+    print()
+    print(checks_table(found))
     chart(found, folder / (f"novel_vs_gaussians-{only}.png" if only else "novel_vs_gaussians.png"))
 
 
