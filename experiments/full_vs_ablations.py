@@ -6,7 +6,8 @@
 Reads bench.json files (`python -m experiments.bench`). `--full`: the runs of `wild-thermal` (its
 label before any " (...)"), one configuration per scene: where several files hold a scene, the last
 file's runs replace the earlier ones (`--pool`: they add to them, more seeds of one configuration).
-`--others`: every other method's runs (the full method's runs in them are left out). For each scene and
+`--others`: every other method's runs (the full method's runs in them are left out; a method's runs of a fixed
+schedule, no automatic stop, are a rival of their own per number of steps). For each scene and
 protocol (`aligned`, `time`), the full method's mean over seeds against the best other method's mean: the
 margin, and whether it is within `--tolerance` dB.
 Also the steps the automatic stop saved: steps asked minus steps trained, and those steps at the
@@ -68,8 +69,16 @@ def collect(args: Args) -> Tuple[Dict[str, List[dict]], Dict[Tuple[str, str], Li
     for path in args.others:
         for run in _runs(path):
             if base_method(run["method"]) != FULL:
-                others[(run["scene"], run["method"])].append(run)
+                others[(run["scene"], rival_label(run))].append(run)
     return full, others
+
+
+def rival_label(run: dict) -> str:
+    """A run's method label, with its steps where it trained a fixed schedule (no automatic stop): one method on
+    two schedules (splatfacto at the protocol's steps and at its own 30k) is two rivals, not one pooled."""
+    if run.get("auto_stop"):
+        return run["method"]
+    return f"{run['method']}, {run['steps']} steps"
 
 
 def _mean_range(values: List[float], digits: int = 2) -> str:

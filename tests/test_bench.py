@@ -514,14 +514,16 @@ def test_full_vs_ablations_compares_the_full_method_with_the_best_other_per_scen
     others = bench(
         "others.json",
         run("splatfacto", "a", 21.2, 18.0),
-        run("wild-thermal-3dgs", "a", 19.0, 19.5),
+        run("splatfacto", "a", 21.25, 17.0, steps=30000),  # another schedule: a rival of its own, not pooled
+        run("wild-thermal-3dgs", "a", 19.0, 19.5, stop=stop),  # stopped: its label alone
         run("wild-thermal", "a", 99.0, 99.0),  # the full method's runs among the others are not rivals
         run("wild-thermal-3dgs", "b", 31.0, 29.0),
     )
     rows = main(Args(full=(first, later), others=(others,), output=tmp_path / "out.md"))
     got = {(r["scene"], r["protocol"]): r for r in rows}
     # scene a: the later file's runs (mean 21.0 aligned, 19.0 time) replace the first file's
-    assert got[("a", "aligned")]["best"] == "splatfacto" and got[("a", "aligned")]["margin"] == pytest.approx(-0.2)
+    assert got[("a", "aligned")]["best"] == "splatfacto, 30000 steps"
+    assert got[("a", "aligned")]["margin"] == pytest.approx(-0.25)  # pooled, the two schedules: -0.225
     assert got[("a", "aligned")]["met"] and got[("a", "aligned")]["seeds"] == 2
     assert got[("a", "time")]["best"] == "wild-thermal-3dgs" and got[("a", "time")]["margin"] == pytest.approx(-0.5)
     assert not got[("a", "time")]["met"]  # 0.5 dB short: past the 0.3 dB tolerance
