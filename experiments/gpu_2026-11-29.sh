@@ -43,7 +43,16 @@
 # with; docs/results/prune_3dgs_generated_h200), then STOCK=1 STEPS=12000 ARMS=any GRAD=0.0002 TIME_LIMIT=380 TAG=far
 # few-view-prune-flight2 (docs/results/growth); a third machine after the two installs, full-prune-dunr (202 s;
 # docs/results/growth); the last seconds, its probe (see splatfacto-30k-generated). splatfacto-30k-generated ready,
-# not run (device time).
+# not run (device time). An eleventh (2026-12-02): splatfacto-30k-generated on stress-vignetting and -clean, 2 seeds
+# side by side per call (about 13.5-14 ms/step), their bench files lost with that session's machine (not committed).
+# A twelfth: splatfacto-30k-bg with 6, then 4 runs side by side (25.5 and about 18 ms/step): both lost when the
+# machine went back between calls. A thirteenth (2026-12-03): after the two installs, SCENES="demo stress:drift
+# stress:ffc stress:outlier stress:clean stress:vignetting" SEEDS=3 RUNS=9 LIMIT=2700 WAIT=560 TAG=-all
+# splatfacto-30k-bg: 9 runs side by side at 41-45 ms/step (no faster per run-step than 6), step 11.2k-11.4k of 30k
+# after 560 s; the wait call after it found a fresh machine (lost between calls) and waited out its 575 s on it,
+# which splatfacto-30k-wait now refuses at once. Nothing of splatfacto at 30k on the generated scenes is kept: the
+# 18 runs need about 2,300 s of one GPU at any side-by-side count tried, more than a session's device time when a
+# one-GPU machine counts in full; a host of 2 GPUs halves it.
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated, full-prune-dunr, splatfacto-30k-generated, splatfacto-30k-bg, splatfacto-30k-wait}
 OUT=${OUT:-/tmp/out}
@@ -508,6 +517,9 @@ case "$plan" in
   splatfacto-30k-wait)  # waits up to WAIT (570) seconds for splatfacto-30k-bg's bench, then returns its log, what
     # the runs logged last, each finished run's bench.json, and (once done) the merged bench as
     # $OUT/splatfacto-30k-bg${TAG}-bench.json
+    # a machine that went back between calls comes fresh: nothing to wait for (a wait there spent a whole
+    # call's device time on an empty machine, 2026-12-03)
+    test -e /tmp/splatfacto-30k.log || { echo "cold: no bench running on this machine"; exit 3; }
     end=$((SECONDS + ${WAIT:-570}))
     while [ ! -e /tmp/splatfacto-30k.done ] && [ $SECONDS -lt $end ]; do sleep 5; done
     cp /tmp/splatfacto-30k.log "$OUT/splatfacto-30k-bg${TAG:-}.log"
