@@ -1326,3 +1326,60 @@ def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(m
     for elements in (10**9, 1000, 1):  # one chunk, chunks of two cameras, one camera at a time
         monkeypatch.setattr(module, "CAMERA_CHUNK_ELEMENTS", elements)
         assert torch.equal(module.frames_seeing(means, log_scales, viewmats, Ks, sizes), alone)
+
+
+def test_several_cameras_per_step_render_train_and_count_as_their_steps_would():
+    """`get_training_outputs` of two cameras renders each as `get_outputs` does alone; the step's losses are
+    the two steps' means, its gradients the mean of theirs, and the densification statistics those of the
+    two steps added (gsplat's scaling by the camera count undoes the mean)."""
+
+    def camera(idx, x):
+        shifted = make_camera(idx)
+        shifted.camera_to_worlds[0, 0, 3] = x
+        return shifted
+
+    cameras = [camera(1, 0.0), camera(3, 0.3)]
+    batches = [
+        {"image": torch.rand(32, 48, 1, generator=torch.Generator().manual_seed(k)), "image_idx": k} for k in (1, 3)
+    ]
+
+    def fresh():
+        torch.manual_seed(0)  # the same moved output layers and embeddings in both
+        return make_frame_dependent_model().train()
+
+    alone, singles = fresh(), []
+    for cam, batch in zip(cameras, batches):
+        outputs = alone.get_outputs(cam)
+        losses = alone.get_loss_dict(outputs, batch)
+        (sum(losses.values()) / 2).backward()  # the mean over the two frames
+        means2d = alone.info["means2d"]  # each step of its own has its whole loss, not half
+        (means2d.absgrad if alone.strategy.absgrad else means2d.grad).mul_(2)
+        alone.strategy.update_statistics(alone.gauss_params, alone.strategy_state, alone.info, packed=False)
+        singles.append((outputs["thermal"].detach(), {k: v.detach() for k, v in losses.items()}))
+    together = fresh()
+    outputs = together.get_training_outputs(cameras)
+    metrics, losses = together.get_training_metrics_and_losses(outputs, batches)
+    sum(losses.values()).backward()
+    together.strategy.update_statistics(together.gauss_params, together.strategy_state, together.info, packed=False)
+
+    assert len(outputs) == 2 and together.info["n_cameras"] == 2
+    for (thermal, _), out in zip(singles, outputs):
+        assert torch.allclose(out["thermal"], thermal, atol=1e-6)
+    for key, value in losses.items():
+        assert torch.allclose(value, (singles[0][1][key] + singles[1][1][key]) / 2, atol=1e-6), key
+    assert metrics["psnr"] > 0 and together.last_training_loss()[1] is None  # no one frame for the guard
+    grads = lambda m: {n: p.grad for n, p in m.named_parameters() if p.grad is not None}
+    assert grads(alone).keys() == grads(together).keys()
+    for name, grad in grads(together).items():
+        assert torch.allclose(grad, grads(alone)[name], atol=1e-5, rtol=1e-4), name
+    assert together.frame_embed.weight.grad[[1, 3]].abs().sum(-1).gt(0).all()
+    for key in ("grad2d", "count"):
+        assert torch.allclose(together.strategy_state[key], alone.strategy_state[key], atol=1e-5), key
+    assert together.strategy_state["count"].max() == 2  # seen from both cameras
+
+
+def test_several_cameras_per_step_need_frames_of_one_size():
+    model = make_model()
+    model.train()
+    with pytest.raises(ValueError, match=r"one size.*\(24, 32\), \(48, 32\)"):
+        model.get_training_outputs([make_camera(1), make_camera(2, width=24)])

@@ -165,15 +165,16 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     def update_statistics(self, params, state, info, packed: bool) -> bool:
         """gsplat's running statistics, computed with masks instead of gathering the visible
         Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
-        one camera per step (what splatfacto renders), except that a render too small for the
-        screen-size rule (`screen_size_rule_applies`) adds no screen radii. A distributed render (one
+        any number of cameras per render, except that a render too small for the screen-size rule
+        (`screen_size_rule_applies`) adds no screen radii, and that of several cameras the largest screen
+        radius is kept (gsplat keeps whichever camera its indexing writes last). A distributed render (one
         camera per rank) gives this rank's Gaussians in every rank's camera [W, N, ...]: summed as gsplat."""
-        if packed or info["n_cameras"] != 1:
+        if packed:
             return False  # gsplat's own
         if info["radii"].dim() != 2:  # a packed render said to be unpacked would be summed into every Gaussian
             raise ValueError(f"densification statistics: radii {tuple(info['radii'].shape)} are not [C, N]")
         gradient = info[self.key_for_gradient]
-        grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [C, N, 2], C = 1 or ranks
+        grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [C, N, 2], C: cameras or ranks
         grads[..., 0] *= info["width"] / 2.0 * info["n_cameras"]
         grads[..., 1] *= info["height"] / 2.0 * info["n_cameras"]
         n = params["means"].shape[0]

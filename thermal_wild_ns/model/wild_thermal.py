@@ -62,6 +62,11 @@ TYPICAL_STATE_GAUSSIANS = 16_384
 BAKE_ROWS = 1 << 22
 """Gaussians per evaluation of the emission MLP when its output is baked (`baked_emission`)."""
 
+TRAINING_COLLAPSED = (
+    "All Gaussians have been pruned: training collapsed. Lower cull_alpha_thresh or check the data (constant or "
+    "NaN frames)."
+)
+
 GROUND_TRUTH_KEY = "_ground_truth"
 """Where a training step's outputs keep its frame as the loss compares it (`_ground_truth`)."""
 
@@ -530,13 +535,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             raise TypeError(f"WildThermalModel.get_outputs needs a Cameras object, got {type(camera).__name__}")
         if self.training:
             assert camera.shape[0] == 1, "Only one camera at a time"
-        fixed_pose = (
-            self.training
-            and self.config.camera_optimizer.mode == "off"
-            and camera.metadata
-            and "cam_idx" in camera.metadata
-        )
-        cam_idx = int(camera.metadata["cam_idx"]) if fixed_pose else None
+        cam_idx = self._fixed_pose_index(camera)
         frame_embed = self.frame_embedding(camera, frame_embedding)
         ids = None
         if self.crop_box is not None and not self.training:
@@ -546,41 +545,22 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if viewing:  # full resolution; its view matrix comes with the background (`viewing_view_and_background`)
             view = self.viewing_views.get(camera, self.device)
         else:
-            pose = lambda: self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
-            view = self.training_views.get(camera, pose, self._get_downscale_factor(), self.device, cam_idx)
+            view = self._posed_view(camera, cam_idx)
         W, H = view.width, view.height
         self.last_size = (H, W)
         with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
             if viewing:
                 viewmat, background = self.viewing_view_and_background(view, frame_embed)
             else:
-                viewmat = view.viewmat
-                background = self.background_field(
-                    view.K[0],
-                    view.camera_to_world[0],
-                    frame_embed,
-                    W,
-                    H,
-                    cam_idx,
-                    view.pinhole,
-                    training=self.training,
-                    step=self.step,
-                )  # [H, W, 1]
+                viewmat, background = view.viewmat, self._background(view, frame_embed, cam_idx)  # [H, W, 1]
 
         if self.num_points == 0 or (ids is not None and ids.sum() == 0):
             if self.training:
-                raise RuntimeError(
-                    "All Gaussians have been pruned: training collapsed. Lower cull_alpha_thresh or "
-                    "check the data (constant or NaN frames)."
-                )
+                raise RuntimeError(TRAINING_COLLAPSED)
             CONSOLE.log("[yellow]WildThermalModel: no Gaussians to render; returning the background only.")
             background = background.clone()  # outside training, a CUDA graph's buffer until its next replay
             return self._outputs(background, torch.zeros_like(background), background, None)
 
-        def crop(x: Tensor) -> Tensor:
-            return x if ids is None else x[ids]
-
-        render_mode = "RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB"
         camera_position = view.camera_to_world[0, :3, 3]  # [3]
         # the Gaussians are split across GPUs: every render is one of all ranks together (outside
         # training, the automatic stop's: every rank renders the same camera at the same state)
@@ -591,17 +571,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             elif self.training and self.num_points > self.config.emission_in_view_above:
                 colors = self.emission_in_view(frame_embed, view.viewmat[0], view.K[0], W, H, camera_position)
             else:
-                colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
-                if self.renders_view_term():  # the view-dependent term (`view_emission.py`)
-                    colors = colors + view_term(crop(self.means), crop(self.gauss_params["view_sh"]), camera_position)
+                colors = self._emission(frame_embed, camera_position, ids)  # [N, 1]
             colors = self.radiance(colors)
         with record_function("thermal/rasterize"):
-            activated = (
-                self.baked.get("activated", (self.scales, self.opacities), self.step, self.activated_splats)
-                if viewing
-                else self.activated_splats(ids)
-            )  # [N, 3], [N]
             if viewing:  # one camera, no autograd, every Gaussian
+                activated = self.baked.get("activated", (self.scales, self.opacities), self.step, self.activated_splats)
                 render, alpha = render_one_view(
                     self.means,
                     self.quats,
@@ -615,49 +589,154 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                     self.config.rasterizer,
                 )  # [1, H, W, 2], [1, H, W, 1]
             else:
-                render, alpha, self.info = rasterization(
-                    means=crop(self.means),
-                    quats=crop(self.quats),  # rasterization normalises internally
-                    scales=activated[0],
-                    opacities=activated[1],
-                    colors=colors,
-                    viewmats=viewmat,
-                    Ks=view.K,
-                    width=W,
-                    height=H,
-                    packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
-                    near_plane=NEAR_PLANE,
-                    far_plane=FAR_PLANE,
-                    render_mode=render_mode,
-                    sh_degree=None,
-                    sparse_grad=False,
-                    absgrad=self.strategy.absgrad,
-                    rasterize_mode=self.config.rasterize_mode,
-                    distributed=split,
-                    backend=self.config.rasterizer,
-                )  # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split in training: this rank's channel is kept), [1, H, W, 1]
+                render, alpha = self._rasterize(colors, viewmat, view.K, W, H, ids)
+                # [1, H, W, 1(+1)] ([1, H, W, W(+1)] split in training: this rank's channel is kept), [1, H, W, 1]
         if split and self.training:
             render = torch.cat(
                 [render[..., self.ranks.rank : self.ranks.rank + 1], render[..., self.ranks.world :]], -1
             )
-        if self.training and torch.is_grad_enabled():  # no densification statistics from no-grad renders
+        self._count_for_densification()
+        if viewing:
+            return self.viewing_outputs(render, alpha, background)
+        return self._composited_outputs(render, alpha, background, view, colors, 0)
+
+    def get_training_outputs(self, cameras: Sequence[Cameras]) -> List[Dict[str, Union[Tensor, List]]]:
+        """The training renders of several cameras of one size, each at its frame's state, in one
+        rasterization (`ThermalPipelineConfig.cameras_per_step`): the step's fixed costs (gsplat's
+        launches and sorting, the Python around them) are paid once for all of them. Each camera's
+        view, background, emission and camera response as `get_outputs` makes them; the densification
+        statistics count each camera a Gaussian is seen from, as gsplat's own. One camera is `get_outputs`."""
+        if len(cameras) == 1:
+            return [self.get_outputs(cameras[0])]
+        if not self.training or self.ranks.split:
+            raise RuntimeError("several cameras per render: training on one GPU only")
+        views, backgrounds, colors = [], [], []
+        for camera in cameras:
+            cam_idx = self._fixed_pose_index(camera)
+            frame_embed = self.frame_embedding(camera)
+            view = self._posed_view(camera, cam_idx)
+            with record_function("thermal/background"):
+                backgrounds.append(self._background(view, frame_embed, cam_idx))  # [H, W, 1]
+            with record_function("thermal/emission"):
+                # every Gaussian's, whatever the model's size (`emission_in_view_above` picks those of one camera)
+                colors.append(self._emission(frame_embed, view.camera_to_world[0, :3, 3]))  # [N, 1]
+            views.append(view)
+        W, H = views[0].width, views[0].height
+        sizes = sorted({(view.width, view.height) for view in views})
+        if len(sizes) > 1:
+            raise ValueError(f"several cameras per render need frames of one size; this step's: {sizes}")
+        self.last_size = (H, W)
+        if self.num_points == 0:
+            raise RuntimeError(TRAINING_COLLAPSED)
+        colors = self.radiance(torch.stack(colors))  # [B, N, 1]
+        with record_function("thermal/rasterize"):
+            viewmats, Ks = torch.cat([view.viewmat for view in views]), torch.cat([view.K for view in views])
+            render, alpha = self._rasterize(colors, viewmats, Ks, W, H, None)  # [B, H, W, 1(+1)], [B, H, W, 1]
+        self._count_for_densification()
+        return [
+            self._composited_outputs(render, alpha, backgrounds[c], views[c], colors[c], c) for c in range(len(views))
+        ]
+
+    def _fixed_pose_index(self, camera: Cameras) -> Optional[int]:
+        """The training image of a training camera whose pose is fixed (no pose optimizer), else None."""
+        fixed_pose = (
+            self.training
+            and self.config.camera_optimizer.mode == "off"
+            and camera.metadata
+            and "cam_idx" in camera.metadata
+        )
+        return int(camera.metadata["cam_idx"]) if fixed_pose else None
+
+    def _posed_view(self, camera: Cameras, cam_idx: Optional[int]) -> View:
+        """The view of a render that is not a viewer's: in training at the step's resolution and pose
+        (the pose optimizer's, where there is one)."""
+        pose = lambda: self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
+        return self.training_views.get(camera, pose, self._get_downscale_factor(), self.device, cam_idx)
+
+    def _background(self, view: View, frame_embed: Tensor, cam_idx: Optional[int]) -> Tensor:
+        """The background [H, W, 1] of a render at `view` and the state `frame_embed` [Df]."""
+        return self.background_field(
+            view.K[0],
+            view.camera_to_world[0],
+            frame_embed,
+            view.width,
+            view.height,
+            cam_idx,
+            view.pinhole,
+            training=self.training,
+            step=self.step,
+        )
+
+    def _emission(self, frame_embed: Tensor, camera_position: Tensor, ids: Optional[Tensor] = None) -> Tensor:
+        """Every (or the selected) Gaussian's emission [N, 1] at `frame_embed` [Df], seen from
+        `camera_position` [3] where the view term renders (`view_emission.py`)."""
+        colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
+        if self.renders_view_term():
+            means, view_sh = self.means, self.gauss_params["view_sh"]
+            if ids is not None:
+                means, view_sh = means[ids], view_sh[ids]
+            colors = colors + view_term(means, view_sh, camera_position)
+        return colors
+
+    def _rasterize(
+        self, colors: Tensor, viewmats: Tensor, Ks: Tensor, width: int, height: int, ids: Optional[Tensor]
+    ) -> Tuple[Tensor, Tensor]:
+        """gsplat's render [C, H, W, D(+1)] and alpha [C, H, W, 1] of every (or the selected) Gaussian
+        with `colors` [N, D] or [C, N, D] in the C cameras `viewmats` [C, 4, 4], `Ks` [C, 3, 3]; its
+        `info` kept for the densification after the step."""
+        crop = lambda x: x if ids is None else x[ids]
+        scales, opacities = self.activated_splats(ids)  # [N, 3], [N]
+        split = self.ranks.split
+        render, alpha, self.info = rasterization(
+            means=crop(self.means),
+            quats=crop(self.quats),  # rasterization normalises internally
+            scales=scales,
+            opacities=opacities,
+            colors=colors,
+            viewmats=viewmats,
+            Ks=Ks,
+            width=width,
+            height=height,
+            packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
+            near_plane=NEAR_PLANE,
+            far_plane=FAR_PLANE,
+            render_mode="RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB",
+            sh_degree=None,
+            sparse_grad=False,
+            absgrad=self.strategy.absgrad,
+            rasterize_mode=self.config.rasterize_mode,
+            distributed=split,
+            backend=self.config.rasterizer,
+        )
+        return render, alpha
+
+    def _count_for_densification(self) -> None:
+        """The training render's screen-space gradients enter the densification statistics after
+        backward (no statistics from no-grad renders)."""
+        if self.training and torch.is_grad_enabled():
             self.strategy.step_pre_backward(
                 self.gauss_params, self.optimizers, self.strategy_state, self.step, self.info
             )
-        if viewing:
-            return self.viewing_outputs(render, alpha, background)
-        thermal, alpha, depth = composite(render, alpha, background)
+
+    def _composited_outputs(
+        self, render: Tensor, alpha: Tensor, background: Tensor, view: View, colors: Tensor, c: int
+    ) -> Dict[str, Union[Tensor, List]]:
+        """`_outputs` of camera `c` of a render (gsplat's render [C, H, W, D(+1)], alpha [C, H, W, 1]) over
+        its `background` [H, W, 1]: in training as its camera records it, with the view term's radial
+        part where it is penalised; `colors` [N, D], the Gaussians' radiance in that camera."""
+        thermal, alpha, depth = composite(render[c : c + 1], alpha[c : c + 1], background)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
             thermal = self.camera_response(thermal, view.K[0], view.pinhole)
         outputs = self._outputs(thermal, alpha, background, depth)
-        if self.training and self.config.view_radial_penalty > 0 and self.renders_view_term() and not split:
-            visible = self.info["radii"][0].reshape(self.num_points, -1).amax(-1) > 0  # [N]
+        if self.training and self.config.view_radial_penalty > 0 and self.renders_view_term() and not self.ranks.split:
+            visible = self.info["radii"][c].reshape(self.num_points, -1).amax(-1) > 0  # [N]
+            camera_position = view.camera_to_world[0, :3, 3]  # [3]
             outputs["view_radial"] = radial_part(
                 view_term(self.means[visible], self.gauss_params["view_sh"][visible], camera_position),  # [M, 1]
                 colors[visible].detach(),  # [M, 1]
-                self.info["means2d"][0][visible],  # [M, 2]
-                W,
-                H,
+                self.info["means2d"][c][visible],  # [M, 2]
+                view.width,
+                view.height,
             )
         return outputs
 
@@ -824,6 +903,23 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self.camera_optimizer.get_loss_dict(losses)
             self._last_training_loss = (sum(losses.values()).detach(), image)
         return losses
+
+    def get_training_metrics_and_losses(
+        self, outputs: Sequence[Dict], batches: Sequence[Dict]
+    ) -> Tuple[Dict[str, Tensor], Dict[str, Tensor]]:
+        """The metrics and losses of a step of several cameras (`get_training_outputs`): each camera's
+        as a step of its own, averaged over the cameras (the densification statistics scale each
+        camera's share back by the camera count, as gsplat's). The step's loss has no one training
+        image: the divergence guard reads it against the recent steps' alone."""
+        metrics = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
+        losses = [self.get_loss_dict(o, b, m) for o, b, m in zip(outputs, batches, metrics)]
+        if len(outputs) == 1:
+            return metrics[0], losses[0]
+        mean = lambda dicts, key: torch.stack([d[key] for d in dicts]).mean()
+        loss_dict = {key: mean(losses, key) for key in losses[0]}
+        metrics_dict = {"psnr": mean(metrics, "psnr"), "gaussian_count": self.num_points}
+        self._last_training_loss = (sum(loss_dict.values()).detach(), None)
+        return metrics_dict, loss_dict
 
     # ------------------------------------------------- the trainer's interface (training/model_interface.py)
     def last_training_loss(self) -> Tuple[Optional[Tensor], Optional[int]]:

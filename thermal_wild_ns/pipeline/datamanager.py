@@ -236,7 +236,16 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
     def next_train(self, step: int):
         """The training image of `step` (a function of the step alone, so a resumed run sees what
         the uninterrupted one would) and its camera, as nerfstudio's `next_train` gives them."""
-        epoch, position = divmod(self.ranks.image_slot(step), len(self.train_dataset) - len(self.held_back))
+        return self._train_at(self.ranks.image_slot(step))
+
+    def next_train_cameras(self, step: int, count: int) -> List[Tuple[Cameras, Dict]]:
+        """The `count` training images of a step that trains several at once, on one GPU
+        (`ThermalPipelineConfig.cameras_per_step`): the next `count` of the order, as `next_train`."""
+        return [self._train_at(step * count + k) for k in range(count)]
+
+    def _train_at(self, slot: int) -> Tuple[Cameras, Dict]:
+        """The image at position `slot` of the sequence of training images (a fresh permutation per pass)."""
+        epoch, position = divmod(slot, len(self.train_dataset) - len(self.held_back))
         image_idx = self.train_order(epoch)[position]
         data = dict(self.cached_train[image_idx])  # a copy: the cached dictionary is never changed
         data["image"] = data["image"].to(self.device)

@@ -7,11 +7,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional, Protocol, Type, runtime_checkable
+from typing import Callable, Dict, List, Optional, Protocol, Sequence, Tuple, Type, runtime_checkable
 
 import numpy as np
 import torch
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
+from torch import Tensor
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
 from thermal_wild_ns.data.dataparsers import ThermalDataParser
@@ -41,6 +43,17 @@ class ThermalViewerControlsLike(Protocol):
     def show_colour_bar(self, text: str) -> None: ...
 
 
+@runtime_checkable
+class SeveralCamerasModel(Protocol):
+    """A model that renders several training cameras per step (`WildThermalModel`)."""
+
+    def get_training_outputs(self, cameras: Sequence[Cameras]) -> List[Dict]: ...
+
+    def get_training_metrics_and_losses(
+        self, outputs: Sequence[Dict], batches: Sequence[Dict]
+    ) -> Tuple[Dict[str, Tensor], Dict[str, Tensor]]: ...
+
+
 @dataclass
 class ThermalPipelineConfig(VanillaPipelineConfig):
     _target: Type = field(default_factory=lambda: ThermalPipeline)
@@ -50,6 +63,11 @@ class ThermalPipelineConfig(VanillaPipelineConfig):
     checkpoint_dir: Optional[Path] = None
     """Where the run keeps its checkpoints, recorded when its config is saved, so that ns-eval,
     ns-render and ns-viewer can find a run without checkpoints before they read any data."""
+    cameras_per_step: int = 1
+    """Training frames per step, rendered together in one rasterization and their losses averaged:
+    the step's fixed costs (launches, sorting, the Python around them) are paid once for all of them.
+    The schedule still counts steps, each of which now trains this many frames. One GPU, frames of
+    one size, the plugin's models only."""
 
 
 def colour_bar(pipeline, state: PhotometricState, ticks: int = 5) -> str:
@@ -86,6 +104,8 @@ class ThermalPipeline(VanillaPipeline):
             ) from None
         if config.checkpoint_dir is not None:
             self._record_or_check_data(Path(config.checkpoint_dir).parent / DATA_RECORD, loads_a_run)
+        if config.cameras_per_step != 1:
+            self._check_several_cameras(config.cameras_per_step)
         if isinstance(self.model, ViewerControlledModel):  # a thermal model (its ThermalViewerControls)
             self.model.viewer_controls.on_state_change(self.update_colour_bar)
             self.update_colour_bar()
@@ -97,6 +117,34 @@ class ThermalPipeline(VanillaPipeline):
         if all(module.training == mode for module in self.modules()):
             return self
         return super().train(mode)
+
+    def _check_several_cameras(self, count: int) -> None:
+        """`cameras_per_step` above 1 needs a model that renders several cameras at once, one GPU and
+        training frames of one size: else an error that says which."""
+        why = None
+        if count < 1:
+            why = "it must be at least 1"
+        elif not isinstance(self.model, SeveralCamerasModel):
+            why = f"{type(self.model).__name__} renders one camera per step (the plugin's models render several)"
+        elif self.datamanager.ranks.world > 1:
+            why = "each GPU of a multi-GPU run trains its own frame per step"
+        else:
+            cameras = self.datamanager.train_dataset.cameras
+            sizes = sorted({(int(w), int(h)) for w, h in zip(cameras.width.reshape(-1), cameras.height.reshape(-1))})
+            if len(sizes) > 1:
+                why = f"the training frames differ in size ({', '.join(f'{w}x{h}' for w, h in sizes)})"
+        if why is not None:
+            raise InputError(f"--pipeline.cameras-per-step {count}: {why}")
+
+    def get_train_loss_dict(self, step: int):
+        """nerfstudio's step (one training frame), or `cameras_per_step` frames rendered together."""
+        count = self.config.cameras_per_step
+        if count == 1:
+            return super().get_train_loss_dict(step)
+        cameras, batches = zip(*self.datamanager.next_train_cameras(step, count))
+        outputs = self.model.get_training_outputs(cameras)
+        metrics_dict, loss_dict = self.model.get_training_metrics_and_losses(outputs, batches)
+        return outputs, loss_dict, metrics_dict
 
     def _record_or_check_data(self, record: Path, loads_a_run: bool) -> None:
         """Training: record what the run is trained on (`ThermalDataParser.fingerprint`) beside its

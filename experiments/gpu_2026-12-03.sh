@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Plans for the GPU, 2026-12-03 (issue 34: several cameras per training step). One H200 or H100, each call right
+# after the two installs of gpu_2026-11-29.sh on a warm machine (a machine stays warm 30 s):
+#     bash experiments/gpu_2026-11-29.sh install          # .devicebundle carried
+#     bash experiments/gpu_2026-11-29.sh install-extra    # .data/wheels_extra carried
+#     SEED=0 bash experiments/gpu_2026-12-03.sh cameras-per-step dunr
+#         # .data/dunr .data/cache/triangulation-c639ec94ec8782da; then SEED=1, SEED=2
+#     SEED=0 bash experiments/gpu_2026-12-03.sh cameras-per-step flight2
+#         # .data/flight2/rjpeg .data/flight2/metashape .data/cache/triangulation-ff4070e3f7030d32
+# Not run yet (2026-12-03: the session's device time went to splatfacto-30k-bg, lost; see gpu_2026-11-29.sh).
+set -uo pipefail
+plan=${1:?plan: cameras-per-step SCENE (dunr or flight2)}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
+case "$plan" in
+  cameras-per-step)  # the full method at the scene table's protocol (the first 15,000 steps of the 30k schedule
+    # asked, the stop on) with 1, 2 and 4 training frames per step (CAMERAS), one seed (SEED) per call, each run
+    # alone on the GPU one after another (a speed measurement: no run beside it), curve points every 1,000 steps
+    # for accuracy against seconds (experiments.bench's speed_time chart after --merge)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${2:?scene: dunr or flight2}
+    for count in ${CAMERAS:-1 2 4}; do
+      name=cameras-$scene-b$count-seed${SEED:-0}
+      PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-190} python3 -m experiments.bench --output-dir "/tmp/$name" \
+        --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 1 --seed "${SEED:-0}" --fps-frames 0 \
+        --cache-dir "$PWD/.data/cache" --fit-steps 20 --steps 15000 --schedule 30000 \
+        --eval-at 1000 2000 3000 4000 5000 6000 8000 10000 12000 15000 --set pipeline.cameras_per_step=$count \
+        > "$OUT/$name.log" 2>&1
+      cp "/tmp/$name/bench.json" "$OUT/$name-bench.json" && tail -n 3 "$OUT/$name.log"
+    done
+    ;;
+  *) echo "unknown plan $plan"; exit 2 ;;
+esac
