@@ -9,7 +9,7 @@
 #         # .data/flight2/rjpeg .data/flight2/metashape .data/cache/triangulation-ff4070e3f7030d32
 # Not run yet (2026-12-03: the session's device time went to splatfacto-30k-bg, lost; see gpu_2026-11-29.sh).
 set -uo pipefail
-plan=${1:?plan: cameras-per-step SCENE (dunr or flight2)}
+plan=${1:?plan: cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -28,6 +28,17 @@ case "$plan" in
         --eval-at 1000 2000 3000 4000 5000 6000 8000 10000 12000 15000 --set pipeline.cameras_per_step=$count \
         > "$OUT/$name.log" 2>&1
       cp "/tmp/$name/bench.json" "$OUT/$name-bench.json" && tail -n 3 "$OUT/$name.log"
+    done
+    ;;
+  cameras-probe-demo)  # a first reading (not run yet: no device time was left 2026-12-03): the training step's ms
+    # on the demo scene (no carry) at step 1,500 with 1, 2 and 4 cameras per step (experiments.profile_step, 300 steps timed), each arm's
+    # profile to $OUT as soon as it ends
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    for count in ${CAMERAS:-1 2 4}; do
+      PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-50} python3 -m experiments.profile_step --scene demo --warmup 1500 \
+        --steps 300 --profile-steps 5 --python-steps 5 --output-dir "/tmp/probe-b$count" \
+        --set pipeline.cameras_per_step=$count > "$OUT/probe-b$count.log" 2>&1
+      cp "/tmp/probe-b$count/profile.md" "$OUT/probe-b$count.md" && echo "b$count: $(grep -m1 'ms/step' "$OUT/probe-b$count.md")"
     done
     ;;
   *) echo "unknown plan $plan"; exit 2 ;;
