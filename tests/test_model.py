@@ -1378,6 +1378,30 @@ def test_several_cameras_per_step_render_train_and_count_as_their_steps_would():
     assert together.strategy_state["count"].max() == 2  # seen from both cameras
 
 
+def test_several_cameras_per_step_add_the_step_terms_once():
+    """The states' smoothness and the camera optimizer's regulariser belong to the step, not to a camera:
+    a step of two cameras computes each once, with the value a step of one has."""
+    from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
+
+    torch.manual_seed(0)
+    model = make_model(state_smoothness=0.5, camera_optimizer=CameraOptimizerConfig(mode="SO3xR3")).train()
+    with torch.no_grad():
+        model.frame_embed.weight.normal_()  # the states differ: a smoothness term above zero
+    calls, residual = [], model.frame_states.neighbour_residual
+    model.frame_states.neighbour_residual = lambda: calls.append(1) or residual()
+    cameras = [make_camera(1), make_camera(3)]
+    batches = [{"image": torch.rand(32, 48, 1), "image_idx": k} for k in (1, 3)]
+
+    one = model.get_loss_dict(model.get_outputs(cameras[0]), batches[0])
+    assert len(calls) == 1
+    _, two = model.get_training_metrics_and_losses(model.get_training_outputs(cameras), batches)
+    assert len(calls) == 2  # once for the step of two cameras
+    assert {"state_smoothness", "camera_opt_regularizer"} <= two.keys()
+    assert two["state_smoothness"] > 0
+    for key in ("state_smoothness", "camera_opt_regularizer"):
+        assert torch.equal(two[key], one[key]), key
+
+
 def test_several_cameras_per_step_need_frames_of_one_size():
     model = make_model()
     model.train()

@@ -889,19 +889,29 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return {"psnr": psnr(outputs["thermal"].detach(), gt), "gaussian_count": self.num_points}
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
+        losses = self._camera_losses(outputs, batch)
+        if self.training:
+            losses = self._step_losses(losses)
+            self._last_training_loss = (sum(losses.values()).detach(), self._training_image(batch))
+        return losses
+
+    def _camera_losses(self, outputs, batch) -> Dict[str, Tensor]:
+        """The losses of one camera's render against its frame."""
         with record_function("thermal/loss"):
             gt, contrast = self._ground_truth(outputs, batch)
-            image = self._training_image(batch)
-            losses = self.thermal_loss(outputs, gt, contrast, image)
+            losses = self.thermal_loss(outputs, gt, contrast, self._training_image(batch))
         if "view_radial" in outputs:  # the view term's radial part (`view_radial_penalty`)
             losses["view_radial"] = self.config.view_radial_penalty * outputs["view_radial"]
-        if self.training and self.config.state_smoothness > 0:
+        return losses
+
+    def _step_losses(self, losses: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """`losses` with the terms of the step rather than of a camera added (once, however many
+        cameras the step trains): the states' smoothness and the camera optimizer's regulariser."""
+        if self.config.state_smoothness > 0:
             # the embeddings are one copy per GPU whose gradients are summed: each rank adds its share
             share = self.config.state_smoothness / self.ranks.world
             losses["state_smoothness"] = share * self.frame_states.neighbour_residual()
-        if self.training:
-            self.camera_optimizer.get_loss_dict(losses)
-            self._last_training_loss = (sum(losses.values()).detach(), image)
+        self.camera_optimizer.get_loss_dict(losses)
         return losses
 
     def get_training_metrics_and_losses(
@@ -909,14 +919,16 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     ) -> Tuple[Dict[str, Tensor], Dict[str, Tensor]]:
         """The metrics and losses of a step of several cameras (`get_training_outputs`): each camera's
         as a step of its own, averaged over the cameras (the densification statistics scale each
-        camera's share back by the camera count, as gsplat's). The step's loss has no one training
-        image: the divergence guard reads it against the recent steps' alone."""
-        metrics = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
-        losses = [self.get_loss_dict(o, b, m) for o, b, m in zip(outputs, batches, metrics)]
+        camera's share back by the camera count, as gsplat's), and the step's own terms once. The
+        step's loss has no one training image: the divergence guard reads it against the recent
+        steps' alone."""
         if len(outputs) == 1:
-            return metrics[0], losses[0]
+            metrics = self.get_metrics_dict(outputs[0], batches[0])
+            return metrics, self.get_loss_dict(outputs[0], batches[0], metrics)
+        metrics = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
+        losses = [self._camera_losses(o, b) for o, b in zip(outputs, batches)]
         mean = lambda dicts, key: torch.stack([d[key] for d in dicts]).mean()
-        loss_dict = {key: mean(losses, key) for key in losses[0]}
+        loss_dict = self._step_losses({key: mean(losses, key) for key in losses[0]})
         metrics_dict = {"psnr": mean(metrics, "psnr"), "gaussian_count": self.num_points}
         self._last_training_loss = (sum(loss_dict.values()).detach(), None)
         return metrics_dict, loss_dict
