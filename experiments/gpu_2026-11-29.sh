@@ -507,7 +507,7 @@ case "$plan" in
     # (1500) the bench's seconds. Then it waits as splatfacto-30k-wait; call that right after (the machine goes
     # back 30 s after a call) until it says done
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
-    rm -rf /tmp/splatfacto-30k /tmp/splatfacto-30k.done
+    rm -rf /tmp/splatfacto-30k /tmp/splatfacto-30k.done; : > /tmp/splatfacto-30k.log  # the wait below looks for it
     setsid bash -c "PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-1500} python3 -m experiments.bench \
       --output-dir /tmp/splatfacto-30k --scenes ${SCENES:-demo stress:outlier} --methods splatfacto \
       --seeds ${SEEDS:-3} --seed ${SEED:-0} --steps 30000 --num-downscales 1 --eval-at 5000 15000 30000 \
