@@ -53,6 +53,10 @@
 # which splatfacto-30k-wait now refuses at once. Nothing of splatfacto at 30k on the generated scenes is kept: the
 # 18 runs need about 2,300 s of one GPU at any side-by-side count tried, more than a session's device time when a
 # one-GPU machine counts in full; a host of 2 GPUs halves it.
+# A fourteenth (2026-12-03): after install, install-extra and SCENES="demo stress:drift" SEEDS=3 RUNS=6 LIMIT=1000
+# WAIT=560 TAG=-a splatfacto-30k-bg in one call (6 runs side by side, 27.7 ms/step, 830-835 s), then WAIT=480 TAG=-a
+# splatfacto-30k-wait: kept (docs/results/splatfacto_30k_generated_h200). Still to run: stress:ffc stress:outlier
+# stress:clean stress:vignetting (two calls of 6 runs, or 12 side by side: about 1,550 s).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated, full-prune-dunr, splatfacto-30k-generated, splatfacto-30k-bg, splatfacto-30k-wait}
 OUT=${OUT:-/tmp/out}
