@@ -7,7 +7,8 @@
 #         # .data/dunr .data/cache/triangulation-c639ec94ec8782da; then SEED=1, SEED=2
 #     SEED=0 bash experiments/gpu_2026-12-03.sh cameras-per-step flight2
 #         # .data/flight2/rjpeg .data/flight2/metashape .data/cache/triangulation-ff4070e3f7030d32
-# Not run yet (2026-12-03: the session's device time went to splatfacto-30k-bg, lost; see gpu_2026-11-29.sh).
+# 2026-12-03, a second session: cameras-probe-demo after splatfacto-30k-bg on one warm machine (docs/results/
+# cameras_probe_h200): it found CUDA graphs replayed across a step's cameras (fixed since); cameras-per-step not run.
 set -uo pipefail
 plan=${1:?plan: cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}

@@ -197,6 +197,39 @@ def test_the_loss_replayed_as_cuda_graphs_equals_the_loss_run_kernel_by_kernel()
     assert len(graphed.graphed.graphs) == 2 and all(graphs is not None for graphs in graphed.graphed.graphs.values())
 
 
+def test_two_cameras_of_one_step_replay_graphs_of_their_own():
+    """Two frames' loss terms through `GraphedCalls` before one backward (several cameras per step):
+    each camera's slot replays its own recording, so the second call overwrites none of the first's
+    outputs or activations: terms and gradients as kernel by kernel."""
+    from thermal_wild_ns.model.thermal_loss import ThermalLoss
+    from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
+
+    graphed = ThermalLoss(WildThermalModelConfig(graphed_loss=True), None)
+    eager = ThermalLoss(WildThermalModelConfig(graphed_loss=False), None)
+    generator = torch.Generator("cuda").manual_seed(0)
+    frames = [torch.rand(64, 80, 1, device="cuda", generator=generator) for _ in range(2)]
+    renders = [torch.rand_like(frame) for frame in frames]
+    results = []
+    for loss in (graphed, eager):
+        for _ in range(2):  # the first records, the second replays
+            preds = [render.clone().requires_grad_() for render in renders]
+            terms = []
+            for slot, (frame, pred) in enumerate(zip(frames, preds)):
+                outputs = {"thermal": pred * 1.0, "accumulation": pred * 0.5, "background": frame * 0.0}
+                gt, contrast = loss.ground_truth(frame, outputs["thermal"], image=slot)
+                terms.append(loss(outputs, gt, contrast, image=slot, slot=slot))
+            sum(sum(t.values()) for t in terms).backward()
+        results.append(([{k: v.detach().clone() for k, v in t.items()} for t in terms], [p.grad for p in preds]))
+    (graphed_terms, graphed_grads), (eager_terms, eager_grads) = results
+    for ours, reference in zip(graphed_terms, eager_terms):
+        for name in reference:
+            assert torch.allclose(ours[name], reference[name], rtol=1e-6, atol=0), name
+    assert not torch.equal(eager_terms[0]["l1_loss"], eager_terms[1]["l1_loss"])  # two frames, two answers
+    for ours, reference in zip(graphed_grads, eager_grads):
+        assert torch.allclose(ours, reference, rtol=1e-5, atol=1e-9)
+    assert sorted(key[0] for key in graphed.graphed.graphs) == [0, 1]
+
+
 @pytest.mark.parametrize("coupling", ["affine", "mlp"])
 def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel(coupling):
     """Training renders' background through `GraphedCalls` (`graphed_background`): the same background

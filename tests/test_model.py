@@ -7,6 +7,7 @@ import pytest
 import torch
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.scene_box import SceneBox
+from torch import Tensor
 
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model import wild_thermal
@@ -1328,10 +1329,54 @@ def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(m
         assert torch.equal(module.frames_seeing(means, log_scales, viewmats, Ks, sizes), alone)
 
 
-def test_several_cameras_per_step_render_train_and_count_as_their_steps_would():
+class StaticBufferRecording(torch.autograd.Function):
+    """A CPU stand-in for a CUDA graph of `torch.cuda.make_graphed_callables`: its outputs are one
+    buffer per recording and its backward reads the latest call's activations, so a second call
+    before the backward overwrites the first's, as a replayed graph does."""
+
+    @staticmethod
+    def forward(ctx, recording, *inputs):
+        ctx.recording = recording
+        with torch.enable_grad():
+            for static, value in zip(recording.inputs, inputs):
+                static.detach().copy_(value)
+            outputs = recording.fn(*recording.inputs)
+        recording.outputs = (outputs,) if isinstance(outputs, Tensor) else tuple(outputs)
+        if recording.buffers is None:
+            recording.buffers = tuple(torch.empty_like(o) for o in recording.outputs)
+        for buffer, output in zip(recording.buffers, recording.outputs):
+            buffer.copy_(output.detach())
+        return tuple(buffer.detach() for buffer in recording.buffers)
+
+    @staticmethod
+    def backward(ctx, *grads):
+        recording = ctx.recording
+        wanted = [t for t in recording.inputs if t.requires_grad]
+        found = iter(torch.autograd.grad(recording.outputs, wanted, grads, retain_graph=True, allow_unused=True))
+        return (None, *(next(found) if t.requires_grad else None for t in recording.inputs))
+
+
+class StaticBufferGraph:
+    def __init__(self, fn, samples):
+        self.fn, self.inputs, self.buffers = fn, samples, None
+
+    def __call__(self, *inputs):
+        outputs = StaticBufferRecording.apply(self, *inputs)
+        return outputs[0] if len(outputs) == 1 else outputs
+
+
+@pytest.mark.parametrize("recorded", [False, True], ids=["plain", "graph-like"])
+def test_several_cameras_per_step_render_train_and_count_as_their_steps_would(recorded, monkeypatch):
     """`get_training_outputs` of two cameras renders each as `get_outputs` does alone; the step's losses are
     the two steps' means, its gradients the mean of theirs, and the densification statistics those of the
-    two steps added (gsplat's scaling by the camera count undoes the mean)."""
+    two steps added (gsplat's scaling by the camera count undoes the mean). `graph-like`: the step's
+    recorded pieces (loss, background) replay recordings whose buffers a second call would overwrite,
+    as CUDA graphs do: each camera of a step needs recordings of its own."""
+    if recorded:
+        from thermal_wild_ns.model.graphed import GraphedCalls
+
+        monkeypatch.setattr(GraphedCalls, "records", staticmethod(lambda inputs: True))
+        monkeypatch.setattr(GraphedCalls, "_record", staticmethod(StaticBufferGraph))
 
     def camera(idx, x):
         shifted = make_camera(idx)
@@ -1355,7 +1400,7 @@ def test_several_cameras_per_step_render_train_and_count_as_their_steps_would():
         means2d = alone.info["means2d"]  # each step of its own has its whole loss, not half
         (means2d.absgrad if alone.strategy.absgrad else means2d.grad).mul_(2)
         alone.strategy.update_statistics(alone.gauss_params, alone.strategy_state, alone.info, packed=False)
-        singles.append((outputs["thermal"].detach(), {k: v.detach() for k, v in losses.items()}))
+        singles.append((outputs["thermal"].detach().clone(), {k: v.detach().clone() for k, v in losses.items()}))
     together = fresh()
     outputs = together.get_training_outputs(cameras)
     metrics, losses = together.get_training_metrics_and_losses(outputs, batches)

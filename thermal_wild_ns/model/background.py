@@ -137,9 +137,11 @@ class ThermalBackground:
         *,
         training: bool,
         step: int,
+        slot: int = 0,
     ) -> Tensor:
         """[H, W, 1] for intrinsics `K` [3, 3] and pose `camera_to_world` [3, 4]; `pinhole`: `K`'s fx,
-        fy, cx, cy on the host, where the caller has them (else they are read from `K`)."""
+        fy, cx, cy on the host, where the caller has them (else they are read from `K`); `slot`: the
+        camera's place among a training step's cameras (`GraphedCalls`)."""
         device = K.device
         if self.mlp is None:
             if training and self.config.random_background:
@@ -161,7 +163,7 @@ class ThermalBackground:
         grid = self._grids.get((width, height))
         if grid is None:
             grid = self._grids[(width, height)] = BackgroundGrid(self.mlp, width, height)
-        return self.graphed((width, height), grid, encoded, frame_embed)  # the same kernels, replayed
+        return self.graphed((width, height), grid, encoded, frame_embed, slot=slot)  # the same kernels, replayed
 
     def frame_directions(
         self, K: Tensor, width: int, height: int, pinhole: Optional[Tuple[float, float, float, float]] = None

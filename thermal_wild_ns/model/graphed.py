@@ -40,13 +40,18 @@ class GraphedCalls:
     from `inputs` and its own parameters, and the same `fn` comes with each key; the key names every
     other value `fn` depends on (a size). `latest_only`: keep the graph of the latest shapes alone (a
     piece whose shapes move on and do not come back, such as the Gaussian count: each recording holds
-    its activations' memory)."""
+    its activations' memory).
+
+    A recording's outputs and the activations its backward reads are static buffers: a second call
+    before the backward would overwrite the first call's. Calls of one step that all reach one
+    backward (several cameras per step) therefore each name their `slot`, their place in the step,
+    and each slot replays recordings of its own."""
 
     def __init__(self, name: str, latest_only: bool = False) -> None:
         self.name = name  # how a message names the piece
         self.latest_only = latest_only
         self.graphs: Dict[Hashable, Optional[Callable]] = {}
-        """key, input shapes and grad flags -> the graphed `fn` (None: it could not be recorded)"""
+        """slot, key, input shapes and grad flags -> the graphed `fn` (None: it could not be recorded)"""
 
     @staticmethod
     def records(inputs: Tuple[Tensor, ...]) -> bool:
@@ -57,13 +62,13 @@ class GraphedCalls:
     def _record(fn: Callable, samples: Tuple[Tensor, ...]) -> Callable:
         return torch.cuda.make_graphed_callables(RecordedCall(fn), samples, allow_unused_input=True)
 
-    def __call__(self, key: Hashable, fn: Callable[..., Tuple[Tensor, ...]], *inputs: Tensor):
+    def __call__(self, key: Hashable, fn: Callable[..., Tuple[Tensor, ...]], *inputs: Tensor, slot: int = 0):
         if not self.records(inputs):
             return fn(*inputs)
-        full_key = (key, tuple((tuple(t.shape), t.requires_grad) for t in inputs))
+        full_key = (slot, key, tuple((tuple(t.shape), t.requires_grad) for t in inputs))
         if full_key not in self.graphs:
-            if self.latest_only:
-                self.graphs.clear()  # the older recordings' memory goes before the new one takes its own
+            if self.latest_only:  # the slot's older recordings' memory goes before the new one takes its own
+                self.graphs = {k: v for k, v in self.graphs.items() if k[0] != slot}
             # leaf copies with the inputs' grad flags: torch warms up and records on these
             samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in inputs)
             try:

@@ -93,9 +93,12 @@ class ThermalLoss(nn.Module):
             gt = torch.where(finite, gt, render.detach())
         return gt, contrast
 
-    def forward(self, outputs: Dict, gt: Tensor, contrast: Optional[Tensor], image: Optional[int]) -> Dict[str, Tensor]:
+    def forward(
+        self, outputs: Dict, gt: Tensor, contrast: Optional[Tensor], image: Optional[int], slot: int = 0
+    ) -> Dict[str, Tensor]:
         """The weighted loss terms of `outputs` (thermal, accumulation, background) against `gt`
-        (from `ground_truth`); `image`: the training image, None outside training."""
+        (from `ground_truth`); `image`: the training image, None outside training; `slot`: the
+        camera's place among a training step's cameras (`GraphedCalls`)."""
         pred = outputs["thermal"]
         cfg = self.config
         compared_pred, compared_gt, l1_scale = pred, gt, 1.0
@@ -110,7 +113,7 @@ class ThermalLoss(nn.Module):
         inputs = (compared_pred, compared_gt.detach(), contrast, outputs["accumulation"], background)
         graphable = image is not None and compared_pred is pred and contrast is not None and torch.is_grad_enabled()
         if self.graphed is not None and graphable:
-            terms = self.graphed(None, self.terms, *inputs)  # the training step's: the same kernels, replayed
+            terms = self.graphed(None, self.terms, *inputs, slot=slot)  # the training step's: kernels replayed
         else:
             terms = self.terms(*inputs, alpha_target=gt, l1_scale=l1_scale)
         return dict(zip(self.term_names, terms))

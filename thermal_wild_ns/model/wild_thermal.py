@@ -490,10 +490,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         weight = torch.sigmoid(self.opacities[pick].detach()).squeeze(-1)  # [n]
         return lambda state: self.emission_mlp(base, embed, state).squeeze(-1) * weight
 
-    def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
+    def gaussian_emission(self, frame_embed: Tensor, ids: Optional[Tensor] = None, slot: int = 0) -> Tensor:
         """Scalar emission of every (or the selected) Gaussian in the frame [N, 1]. Outside
         training and autograd the MLP's output is baked: computed once per (frame embedding,
-        parameter state) and reused, so viewing costs what plain splatting costs."""
+        parameter state) and reused, so viewing costs what plain splatting costs. `slot`: the
+        camera's place among a training step's cameras (`GraphedCalls`)."""
         if self.emission_mlp is None:
             return self.emission if ids is None else self.emission[ids]
         if not self.training and not torch.is_grad_enabled():
@@ -502,7 +503,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         base = self.emission if ids is None else self.emission[ids]
         embed = self.gauss_params["gauss_embed"]
         if self.graphed_emission is not None and ids is None and self.training and torch.is_grad_enabled():
-            return self.graphed_emission(None, self.emission_mlp, base, embed, frame_embed)
+            return self.graphed_emission(None, self.emission_mlp, base, embed, frame_embed, slot=slot)
         return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
 
     def radiance(self, emission: Tensor) -> Tensor:
@@ -611,15 +612,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if not self.training or self.ranks.split:
             raise RuntimeError("several cameras per render: training on one GPU only")
         views, backgrounds, colors = [], [], []
-        for camera in cameras:
+        for slot, camera in enumerate(cameras):  # a slot each: CUDA graphs replay per slot (`GraphedCalls`)
             cam_idx = self._fixed_pose_index(camera)
             frame_embed = self.frame_embedding(camera)
             view = self._posed_view(camera, cam_idx)
             with record_function("thermal/background"):
-                backgrounds.append(self._background(view, frame_embed, cam_idx))  # [H, W, 1]
+                backgrounds.append(self._background(view, frame_embed, cam_idx, slot))  # [H, W, 1]
             with record_function("thermal/emission"):
                 # every Gaussian's, whatever the model's size (`emission_in_view_above` picks those of one camera)
-                colors.append(self._emission(frame_embed, view.camera_to_world[0, :3, 3]))  # [N, 1]
+                colors.append(self._emission(frame_embed, view.camera_to_world[0, :3, 3], slot=slot))  # [N, 1]
             views.append(view)
         W, H = views[0].width, views[0].height
         sizes = sorted({(view.width, view.height) for view in views})
@@ -653,8 +654,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         pose = lambda: self.camera_optimizer.apply_to_camera(camera) if self.training else camera.camera_to_worlds
         return self.training_views.get(camera, pose, self._get_downscale_factor(), self.device, cam_idx)
 
-    def _background(self, view: View, frame_embed: Tensor, cam_idx: Optional[int]) -> Tensor:
-        """The background [H, W, 1] of a render at `view` and the state `frame_embed` [Df]."""
+    def _background(self, view: View, frame_embed: Tensor, cam_idx: Optional[int], slot: int = 0) -> Tensor:
+        """The background [H, W, 1] of a render at `view` and the state `frame_embed` [Df]; `slot`: the
+        camera's place among a training step's cameras."""
         return self.background_field(
             view.K[0],
             view.camera_to_world[0],
@@ -665,12 +667,16 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             view.pinhole,
             training=self.training,
             step=self.step,
+            slot=slot,
         )
 
-    def _emission(self, frame_embed: Tensor, camera_position: Tensor, ids: Optional[Tensor] = None) -> Tensor:
+    def _emission(
+        self, frame_embed: Tensor, camera_position: Tensor, ids: Optional[Tensor] = None, slot: int = 0
+    ) -> Tensor:
         """Every (or the selected) Gaussian's emission [N, 1] at `frame_embed` [Df], seen from
-        `camera_position` [3] where the view term renders (`view_emission.py`)."""
-        colors = self.gaussian_emission(frame_embed, ids)  # [N, 1]
+        `camera_position` [3] where the view term renders (`view_emission.py`); `slot`: the camera's
+        place among a training step's cameras."""
+        colors = self.gaussian_emission(frame_embed, ids, slot)  # [N, 1]
         if self.renders_view_term():
             means, view_sh = self.means, self.gauss_params["view_sh"]
             if ids is not None:
@@ -726,7 +732,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         part where it is penalised; `colors` [N, D], the Gaussians' radiance in that camera."""
         thermal, alpha, depth = composite(render[c : c + 1], alpha[c : c + 1], background)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
-            thermal = self.camera_response(thermal, view.K[0], view.pinhole)
+            thermal = self.camera_response(thermal, view.K[0], view.pinhole, slot=c)
         outputs = self._outputs(thermal, alpha, background, depth)
         if self.training and self.config.view_radial_penalty > 0 and self.renders_view_term() and not self.ranks.split:
             visible = self.info["radii"][c].reshape(self.num_points, -1).amax(-1) > 0  # [N]
@@ -741,10 +747,16 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return outputs
 
     def camera_response(
-        self, thermal: Tensor, K: Tensor, pinhole: Tuple[float, float, float, float], detach: bool = False
+        self,
+        thermal: Tensor,
+        K: Tensor,
+        pinhole: Tuple[float, float, float, float],
+        detach: bool = False,
+        slot: int = 0,
     ) -> Tensor:
         """A render `thermal` [H, W, 1] of a camera of intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on
-        the host) at that size, through the fitted fall-off and flat-field map (`camera_falloff.respond`)."""
+        the host) at that size, through the fitted fall-off and flat-field map (`camera_falloff.respond`);
+        `slot`: the camera's place among a training step's cameras (`GraphedCalls`)."""
         height, width = thermal.shape[:2]
         basis = self.camera_falloff_basis(K, pinhole, width, height, 1)  # [H, W, K], kept
         coefficients, flat_field = self.camera_falloff, self.camera_flat_field
@@ -755,8 +767,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             # the training step's: the same kernels, replayed (the key: what besides the inputs' shapes
             # picks the function, whether there is a map)
             if flat_field is None:
-                return self.graphed_camera(False, respond, thermal, coefficients, basis)
-            return self.graphed_camera(True, respond, thermal, coefficients, basis, flat_field)
+                return self.graphed_camera(False, respond, thermal, coefficients, basis, slot=slot)
+            return self.graphed_camera(True, respond, thermal, coefficients, basis, flat_field, slot=slot)
         return respond(thermal, coefficients, basis, flat_field)
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
@@ -895,11 +907,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             self._last_training_loss = (sum(losses.values()).detach(), self._training_image(batch))
         return losses
 
-    def _camera_losses(self, outputs, batch) -> Dict[str, Tensor]:
-        """The losses of one camera's render against its frame."""
+    def _camera_losses(self, outputs, batch, slot: int = 0) -> Dict[str, Tensor]:
+        """The losses of one camera's render against its frame; `slot`: the camera's place among a
+        training step's cameras (`GraphedCalls`)."""
         with record_function("thermal/loss"):
             gt, contrast = self._ground_truth(outputs, batch)
-            losses = self.thermal_loss(outputs, gt, contrast, self._training_image(batch))
+            losses = self.thermal_loss(outputs, gt, contrast, self._training_image(batch), slot)
         if "view_radial" in outputs:  # the view term's radial part (`view_radial_penalty`)
             losses["view_radial"] = self.config.view_radial_penalty * outputs["view_radial"]
         return losses
@@ -926,7 +939,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             metrics = self.get_metrics_dict(outputs[0], batches[0])
             return metrics, self.get_loss_dict(outputs[0], batches[0], metrics)
         metrics = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
-        losses = [self._camera_losses(o, b) for o, b in zip(outputs, batches)]
+        losses = [self._camera_losses(o, b, slot) for slot, (o, b) in enumerate(zip(outputs, batches))]
         mean = lambda dicts, key: torch.stack([d[key] for d in dicts]).mean()
         loss_dict = self._step_losses({key: mean(losses, key) for key in losses[0]})
         metrics_dict = {"psnr": mean(metrics, "psnr"), "gaussian_count": self.num_points}
