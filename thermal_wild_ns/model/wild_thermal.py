@@ -901,18 +901,19 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return {"psnr": psnr(outputs["thermal"].detach(), gt), "gaussian_count": self.num_points}
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
-        losses = self._camera_losses(outputs, batch)
+        image = self._training_image(batch)
+        losses = self._camera_losses(outputs, batch, image)
         if self.training:
             losses = self._step_losses(losses)
-            self._last_training_loss = (sum(losses.values()).detach(), self._training_image(batch))
+            self._last_training_loss = (sum(losses.values()).detach(), image)
         return losses
 
-    def _camera_losses(self, outputs, batch, slot: int = 0) -> Dict[str, Tensor]:
-        """The losses of one camera's render against its frame; `slot`: the camera's place among a
-        training step's cameras (`GraphedCalls`)."""
+    def _camera_losses(self, outputs, batch, image: Optional[int], slot: int = 0) -> Dict[str, Tensor]:
+        """The losses of one camera's render against its frame (`image`: its training image, None
+        outside training); `slot`: the camera's place among a training step's cameras (`GraphedCalls`)."""
         with record_function("thermal/loss"):
             gt, contrast = self._ground_truth(outputs, batch)
-            losses = self.thermal_loss(outputs, gt, contrast, self._training_image(batch), slot)
+            losses = self.thermal_loss(outputs, gt, contrast, image, slot)
         if "view_radial" in outputs:  # the view term's radial part (`view_radial_penalty`)
             losses["view_radial"] = self.config.view_radial_penalty * outputs["view_radial"]
         return losses
@@ -939,7 +940,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             metrics = self.get_metrics_dict(outputs[0], batches[0])
             return metrics, self.get_loss_dict(outputs[0], batches[0], metrics)
         metrics = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
-        losses = [self._camera_losses(o, b, slot) for slot, (o, b) in enumerate(zip(outputs, batches))]
+        images = [self._training_image(b) for b in batches]
+        losses = [self._camera_losses(*camera, slot) for slot, camera in enumerate(zip(outputs, batches, images))]
         mean = lambda dicts, key: torch.stack([d[key] for d in dicts]).mean()
         loss_dict = self._step_losses({key: mean(losses, key) for key in losses[0]})
         metrics_dict = {"psnr": mean(metrics, "psnr"), "gaussian_count": self.num_points}
