@@ -10,11 +10,18 @@
 # 2026-12-03, a second session: cameras-probe-demo after splatfacto-30k-bg on one warm machine (docs/results/
 # cameras_probe_h200): it found CUDA graphs replayed across a step's cameras (fixed since); cameras-per-step not run.
 set -uo pipefail
-plan=${1:?plan: cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
+plan=${1:?plan: gpu-tests, cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
 case "$plan" in
+  gpu-tests)  # the GPU parity tests (CUDA graphs against kernel by kernel, the slots of several cameras per step
+    # among them), each failure's first lines and the count to $OUT/gpu-tests.log
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    PYTHONPATH=$PWD:/tmp/site timeout 180 python3 -m pytest -q -p no:cacheprovider -rs tests/test_gpu_parity.py \
+      > "$OUT/gpu-tests.log" 2>&1
+    grep -E "^(E  |FAILED|SKIPPED|[0-9]+ (passed|failed))" "$OUT/gpu-tests.log" | head -20
+    ;;
   cameras-per-step)  # the full method at the scene table's protocol (the first 15,000 steps of the 30k schedule
     # asked, the stop on) with 1, 2 and 4 training frames per step (CAMERAS), one seed (SEED) per call, each run
     # alone on the GPU one after another (a speed measurement: no run beside it), curve points every 1,000 steps
