@@ -28,13 +28,16 @@ case "$plan" in
     # for accuracy against seconds (experiments.bench's speed_time chart after --merge)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${2:?scene: dunr or flight2}
+    # FRAMES=1: the schedule counts training frames, not steps (B cameras a step: 1/B of the steps asked, of the
+    # schedule and of the curve's steps, so every arm sees the same frames at each curve point)
     for count in ${CAMERAS:-1 2 4}; do
-      name=cameras-$scene-b$count-seed${SEED:-0}
+      name=cameras-$scene-b$count-seed${SEED:-0}${FRAMES:+-frames}
+      per=1; [ -n "${FRAMES:-}" ] && per=$count
       PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-190} python3 -m experiments.bench --output-dir "/tmp/$name" \
         --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 1 --seed "${SEED:-0}" --fps-frames 0 \
-        --cache-dir "$PWD/.data/cache" --fit-steps 20 --steps 15000 --schedule 30000 \
-        --eval-at 1000 2000 3000 4000 5000 6000 8000 10000 12000 15000 --set pipeline.cameras_per_step=$count \
-        > "$OUT/$name.log" 2>&1
+        --cache-dir "$PWD/.data/cache" --fit-steps 20 --steps $((15000 / per)) --schedule $((30000 / per)) \
+        --eval-at $(for step in 1000 2000 3000 4000 5000 6000 8000 10000 12000 15000; do echo $((step / per)); done) \
+        --set pipeline.cameras_per_step=$count > "$OUT/$name.log" 2>&1
       cp "/tmp/$name/bench.json" "$OUT/$name-bench.json" && tail -n 3 "$OUT/$name.log"
     done
     ;;
