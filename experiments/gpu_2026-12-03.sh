@@ -9,6 +9,8 @@
 #         # .data/flight2/rjpeg .data/flight2/metashape .data/cache/triangulation-ff4070e3f7030d32
 # 2026-12-03, a second session: cameras-probe-demo after splatfacto-30k-bg on one warm machine (docs/results/
 # cameras_probe_h200): it found CUDA graphs replayed across a step's cameras (fixed since); cameras-per-step not run.
+# A third session (2026-12-03): gpu-tests and cameras-probe-demo, then LIMIT=180 SEED=0 cameras-per-step dunr, then
+# FRAMES=1 CAMERAS=2 LIMIT=125 SEED=0 cameras-per-step dunr (docs/results/cameras_per_step_h200).
 set -uo pipefail
 plan=${1:?plan: gpu-tests, cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}
