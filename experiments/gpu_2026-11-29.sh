@@ -59,6 +59,9 @@
 # stress:clean stress:vignetting (two calls of 6 runs, or 12 side by side: about 1,550 s).
 # A fifteenth (2026-12-03): SCENES="stress:ffc stress:outlier" ... TAG=-b splatfacto-30k-bg ran at 32 ms/step (6 side by
 # side; LIMIT=1000 would have cut them near the end: give 1,150), lost with the machine between calls; not kept.
+# A sixteenth (2026-12-03): the same pair with LIMIT=1150 WAIT=555, then WAIT=570 splatfacto-30k-wait (done after
+# 355 s; 26 ms/step this time): kept (docs/results/splatfacto_30k_generated_h200). Still to run: stress:clean
+# stress:vignetting (one such pair of calls, about 1,000 s).
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated, full-prune-dunr, splatfacto-30k-generated, splatfacto-30k-bg, splatfacto-30k-wait}
 OUT=${OUT:-/tmp/out}
