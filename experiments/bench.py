@@ -41,9 +41,10 @@ from experiments.render_fps import measure_fps
 from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
-from thermal_wild_ns.model.wild_thermal import WildThermalModel, WildThermalModelConfig
+from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.pipeline.evaluation import CHEAP_PROTOCOLS, evaluate
+from thermal_wild_ns.training.schedule import FULL_SCHEDULE, cameras_per_step, scale_schedule, steps_for
 from thermal_wild_ns.training.trainer import seeded_trainer
 
 RUNS_PER_GPU_VARIABLE = "THERMAL_WILD_NS_RUNS_PER_GPU"
@@ -53,7 +54,6 @@ VARIANTS = ("splatfacto", *METHODS)
 """Stock splatfacto and every method this plugin registers."""
 STRIP_FRAMES = (10, 20, 30, 40, 50)
 """Path views shown in the stress scenes' PNG strips (of 60)."""
-FULL_SCHEDULE = 30_000
 """Splatfacto's schedule (warm-up, refinement, opacity reset, split stop) is defined for this many
 steps; shorter runs scale it proportionally, the same for every method."""
 HEADLINE_PROTOCOLS = ("novel", "time", "aligned", "half")
@@ -71,8 +71,11 @@ class BenchArgs:
     detected; 'LAYOUT:FOLDER' reads the folder with that layout, e.g. exif-gps:DATA)."""
     methods: Tuple[str, ...] = VARIANTS
     steps: int = 30_000
+    """Training frames of each run, as `--max-num-iterations` counts them (steps, where a step trains one;
+    with `pipeline.cameras_per_step=B` set, B a step)."""
     eval_at: Tuple[int, ...] = (1000, 2000, 5000, 10000, 20000, 30000)
-    """Steps at which the `novel`, `time` and `aligned` scores are recorded for the speed-accuracy chart."""
+    """Training frames at which the `novel`, `time` and `aligned` scores are recorded for the speed-accuracy
+    chart (as `--steps`; the curve's points are the trainer's steps)."""
     seeds: int = 1
     """Runs per scene and method, with seeds `seed`, `seed` + 1, ...: tables give their mean and spread."""
     seed: int = 0
@@ -120,20 +123,6 @@ class BenchArgs:
     machines) into one bench.json / bench.md / speed_accuracy.png / speed_time.png in `output_dir`."""
 
 
-def scale_schedule(model_config, steps: int) -> None:
-    """Scale the densification schedule (defined for 30k steps) to a run of `steps` steps."""
-    if steps >= FULL_SCHEDULE:
-        return
-    f = steps / FULL_SCHEDULE
-    model_config.warmup_length = max(int(model_config.warmup_length * f), 10)
-    model_config.refine_every = max(int(model_config.refine_every * f), 10)
-    model_config.stop_split_at = int(model_config.stop_split_at * f)
-    model_config.stop_screen_size_at = int(model_config.stop_screen_size_at * f)
-    if not isinstance(model_config, WildThermalModelConfig):  # splatfacto's; thermal models have no SH
-        model_config.sh_degree_interval = max(int(model_config.sh_degree_interval * f), 1)
-    model_config.resolution_schedule = max(int(model_config.resolution_schedule * f), 1)
-
-
 def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed: Optional[int] = None):
     """The method's registered config on this scene, with the shared bench schedule and `seed`
     (default: `args.seed`) for torch and for the order the training frames are visited in."""
@@ -175,7 +164,7 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     config.save_only_latest_checkpoint = True
     config.machine.device_type = "cuda" if torch.cuda.is_available() else "cpu"
     config.machine.seed = seed
-    scale_schedule(config.pipeline.model, args.schedule or args.steps)
+    scale_schedule(config.pipeline.model, (args.schedule or args.steps) / FULL_SCHEDULE)
     if hasattr(config, "auto_stop"):
         config.auto_stop.enabled = args.auto_stop
         config.auto_stop.scale_to(args.schedule or args.steps, FULL_SCHEDULE)
@@ -365,9 +354,12 @@ def run_one(method: str, scene: str, args: BenchArgs, seed: int) -> Dict:
     trainer = setup_trainer(config)
     pipeline = trainer.pipeline
     label = run_label(method, args)
-    checkpoints = sorted({s for s in args.eval_at if 0 < s <= args.steps} | {args.steps})
+    # --steps and --eval-at count training frames, as the schedule: the trainer's steps (each of
+    # `count` frames) hold them
+    count, steps_asked = cameras_per_step(config), trainer.config.max_num_iterations
+    checkpoints = sorted({steps_for(s, count) for s in args.eval_at if 0 < s <= args.steps} | {steps_asked})
     recorder = CurveRecorder(pipeline, checkpoints, args.time_limit, f"{label} on {scene_name(scene)} (seed {seed})")
-    train_with_hooks(trainer, args.steps, recorder, recorder.start)
+    train_with_hooks(trainer, steps_asked, recorder, recorder.start)
     renders = args.output_dir / "renders" / scene_name(scene) / f"{file_slug(label)}_seed{seed}"
     final = evaluate(pipeline, renders, fit_steps=args.fit_steps)
     path = None

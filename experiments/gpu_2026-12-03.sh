@@ -11,6 +11,9 @@
 # cameras_probe_h200): it found CUDA graphs replayed across a step's cameras (fixed since); cameras-per-step not run.
 # A third session (2026-12-03): gpu-tests and cameras-probe-demo, then LIMIT=180 SEED=0 cameras-per-step dunr, then
 # FRAMES=1 CAMERAS=2 LIMIT=125 SEED=0 cameras-per-step dunr (docs/results/cameras_per_step_h200).
+# A fourth (2026-12-03, on ad05288): after the installs, in one call, FRAMES=1 CAMERAS="1 2" LIMIT=140 SEED=1 and
+# SEED=2 cameras-per-step dunr (docs/results/cameras_per_step_h200). FRAMES is gone since: the schedule counts frames.
+# Next: CAMERAS="1 2" LIMIT=140 SEED=k cameras-per-step flight2, k = 0, 1, 2 (flight2's carry).
 set -uo pipefail
 plan=${1:?plan: gpu-tests, cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}
@@ -24,21 +27,20 @@ case "$plan" in
       > "$OUT/gpu-tests.log" 2>&1
     grep -E "^(E  |FAILED|SKIPPED|[0-9]+ (passed|failed))" "$OUT/gpu-tests.log" | head -20
     ;;
-  cameras-per-step)  # the full method at the scene table's protocol (the first 15,000 steps of the 30k schedule
+  cameras-per-step)  # the full method at the scene table's protocol (the first 15,000 frames of the 30k schedule
     # asked, the stop on) with 1, 2 and 4 training frames per step (CAMERAS), one seed (SEED) per call, each run
-    # alone on the GPU one after another (a speed measurement: no run beside it), curve points every 1,000 steps
+    # alone on the GPU one after another (a speed measurement: no run beside it), curve points every 1,000 frames
     # for accuracy against seconds (experiments.bench's speed_time chart after --merge)
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${2:?scene: dunr or flight2}
-    # FRAMES=1: the schedule counts training frames, not steps (B cameras a step: 1/B of the steps asked, of the
-    # schedule and of the curve's steps, so every arm sees the same frames at each curve point)
+    # the schedule counts training frames since the trainer does (training/schedule.py): B cameras a step train
+    # 1/B of the steps; FRAMES=1 did that here by hand before (--steps, --schedule and --eval-at over B)
     for count in ${CAMERAS:-1 2 4}; do
-      name=cameras-$scene-b$count-seed${SEED:-0}${FRAMES:+-frames}
-      per=1; [ -n "${FRAMES:-}" ] && per=$count
+      name=cameras-$scene-b$count-seed${SEED:-0}-frames
       PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-190} python3 -m experiments.bench --output-dir "/tmp/$name" \
         --scenes "$PWD/.data/$scene" --methods wild-thermal --seeds 1 --seed "${SEED:-0}" --fps-frames 0 \
-        --cache-dir "$PWD/.data/cache" --fit-steps 20 --steps $((15000 / per)) --schedule $((30000 / per)) \
-        --eval-at $(for step in 1000 2000 3000 4000 5000 6000 8000 10000 12000 15000; do echo $((step / per)); done) \
+        --cache-dir "$PWD/.data/cache" --fit-steps 20 --steps 15000 --schedule 30000 \
+        --eval-at 1000 2000 3000 4000 5000 6000 8000 10000 12000 15000 \
         --set pipeline.cameras_per_step=$count > "$OUT/$name.log" 2>&1
       cp "/tmp/$name/bench.json" "$OUT/$name-bench.json" && tail -n 3 "$OUT/$name.log"
     done

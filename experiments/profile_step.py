@@ -27,7 +27,8 @@ import torch
 import tyro
 
 from experiments import device_name, gpu_kernel_microseconds, python_profile_markdown, synchronize, train_with_hooks
-from experiments.bench import FULL_SCHEDULE, BenchArgs, setup_trainer, trainer_config
+from experiments.bench import BenchArgs, setup_trainer, trainer_config
+from thermal_wild_ns.training.schedule import FULL_SCHEDULE
 
 
 @dataclass
@@ -37,7 +38,8 @@ class ProfileArgs:
     method: str = "wild-thermal"
     """'splatfacto' or one of this plugin's methods."""
     warmup: int = 1500
-    """Steps trained before measuring (full 30k schedule)."""
+    """Steps trained before measuring (the full 30k schedule; with `pipeline.cameras_per_step=B` set the
+    schedule counts training frames, B a step)."""
     steps: int = 300
     """Steps timed without the profiler."""
     profile_steps: int = 20

@@ -1,11 +1,14 @@
 """Several training cameras per step (`--pipeline.cameras-per-step`): a run through `ns-train` with the
-method's defaults to its final checkpoint, each step trains that many distinct frames of the order, and
+method's defaults to its final checkpoint, each step trains that many distinct frames of the order (the
+schedule counting frames: `--max-num-iterations` of them in 1/that many steps, said in decisions.json), and
 the pipeline refuses what it cannot batch, saying why."""
 
+import json
 from types import SimpleNamespace
 
 import pytest
 import torch
+import yaml
 from nerfstudio.cameras.cameras import Cameras
 from ns_runs import STEPS, check_run_end_to_end, ns_train, run_args
 
@@ -27,12 +30,19 @@ def test_a_run_of_two_cameras_per_step_trains_to_its_final_checkpoint(tmp_path, 
 
     monkeypatch.setattr(ThermalDatamanager, "next_train_cameras", record)
     out = tmp_path / "out"
+    frames = 2 * STEPS  # the schedule counts training frames: STEPS steps of two
     config = ns_train(
-        [*run_args(out, STEPS, "--pipeline.cameras-per-step", "2"), "thermal-demo-data", "--data", str(demo_scene_dir)]
+        [*run_args(out, frames, "--pipeline.cameras-per-step", "2"), "thermal-demo-data", "--data", str(demo_scene_dir)]
     )
     assert config.pipeline.cameras_per_step == 2 and config.pipeline.model.num_downscales > 0  # the warm-up on
     assert len(steps) == STEPS and all(len(set(images)) == 2 for images in steps)
-    check_run_end_to_end(out / "x" / "wild-thermal" / "run", tmp_path)
+    run = out / "x" / "wild-thermal" / "run"
+    check_run_end_to_end(run, tmp_path, steps=STEPS)
+    saved = yaml.load((run / "config.yml").read_text(), Loader=yaml.Loader)
+    assert saved.max_num_iterations == frames  # config.yml holds the frames asked; the trainer ran them in steps
+    decisions = {d["part"]: d for d in json.loads((run / "decisions.json").read_text())}
+    assert decisions["training frames per step"]["choice"] == "2"
+    assert f"at most {STEPS:,} steps" in decisions["training frames per step"]["why"]
 
 
 def test_several_cameras_per_step_are_refused_where_they_cannot_be_batched():

@@ -66,8 +66,10 @@ class ThermalPipelineConfig(VanillaPipelineConfig):
     cameras_per_step: int = 1
     """Training frames per step, rendered together in one rasterization and their losses averaged:
     the step's fixed costs (launches, sorting, the Python around them) are paid once for all of them.
-    The schedule still counts steps, each of which now trains this many frames. One GPU, frames of
-    one size, the plugin's models only."""
+    The schedule counts training frames (`--max-num-iterations`, densification, the automatic stop's
+    checks: the trainer runs them in 1/this many steps; the optimizers' settings are kept), so a run
+    sees the frames a run of one camera per step sees at each point of its schedule. One GPU, frames
+    of one size, the plugin's models only."""
 
 
 def colour_bar(pipeline, state: PhotometricState, ticks: int = 5) -> str:

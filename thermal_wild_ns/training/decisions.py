@@ -21,6 +21,7 @@ from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_text_atomically
 from thermal_wild_ns.training.model_interface import GuardedModel
+from thermal_wild_ns.training.schedule import cameras_per_step
 from thermal_wild_ns.training.view_probe import verdict_check
 
 DECISIONS_FILE = "decisions.json"
@@ -48,6 +49,21 @@ def stop_decision(auto_stop, steps_asked: int, last_step: Optional[int] = None) 
     return Decision(
         "training length", f"{last_step + 1:,} steps", "--max-num-iterations reached first" + model, "config"
     )
+
+
+def cameras_decision(config) -> Optional[Decision]:
+    """Several training frames per step (`config` the trainer's, its schedule in steps): how the schedule
+    was laid out for them; None for one frame per step."""
+    count = cameras_per_step(config)
+    if count <= 1:
+        return None
+    model = config.pipeline.model
+    why = (
+        f"--pipeline.cameras-per-step: the schedule counts training frames, {count} a step: at most"
+        f" {config.max_num_iterations:,} steps, densification every {model.refine_every:,} steps until"
+        f" step {model.stop_split_at:,}; the optimizers' settings as given"
+    )
+    return Decision("training frames per step", str(count), why, "config")
 
 
 def budget_decision(budget, count: int, now: int, history, kept: Optional[int] = None) -> Decision:
@@ -104,6 +120,9 @@ class RunDecisions:
         if stop is not None and stop.decides_view_term:  # the data's entry replaces the config's
             entries = [d for d in entries if d.part != "view-dependent emission"]
             entries.append(view_term_decision(stop, last_step))
+        cameras = cameras_decision(trainer.config)
+        if cameras is not None:
+            entries.append(cameras)
         entries.append(stop_decision(trainer.auto_stop, trainer.config.max_num_iterations, last_step))
         budget = None if trainer.auto_stop is None else trainer.auto_stop.budget
         if budget is not None:  # the data's budget replaces the config's fixed one

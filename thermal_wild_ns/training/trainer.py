@@ -13,7 +13,9 @@
 - the run's decisions (`decisions.RunDecisions`): what the run chose and why (preprocessing, the
   model's size and parts, its length), printed at the start and the end and kept in `decisions.json`;
 - checkpoints (`checkpoints.py`) written atomically, at least `SAVES_PER_RUN` times a run, and
-  `--max-num-iterations` as the run's total step count, resumed or not.
+  `--max-num-iterations` as the run's total length, resumed or not;
+- the schedule in training frames (`schedule.in_steps`): with several cameras per step the trainer runs
+  the config's lengths divided by their count, the config itself (config.yml) as the user gave it.
 
 What the trainer asks of the model is one declared interface (`model_interface.GuardedModel`); a
 model without it (stock splatfacto) trains without those checks.
@@ -54,6 +56,7 @@ from thermal_wild_ns.training.decisions import RunDecisions
 from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
 from thermal_wild_ns.training.lean_step import lean_iteration, lean_step_unsupported
 from thermal_wild_ns.training.model_interface import GuardedModel
+from thermal_wild_ns.training.schedule import in_steps
 
 
 @dataclass
@@ -106,9 +109,13 @@ class GuardedTrainerConfig(TrainerConfig):
 
 class GuardedTrainer(TrainerAfterLoad):
     """nerfstudio's Trainer with the lean step, the divergence guard, the automatic stop and atomic
-    checkpoints, where `--max-num-iterations` is the run's total step count, resumed or not."""
+    checkpoints, where `--max-num-iterations` is the run's total length in training frames, resumed or not."""
 
     config: GuardedTrainerConfig
+
+    def __init__(self, config: GuardedTrainerConfig, local_rank: int = 0, world_size: int = 1) -> None:
+        # the trainer counts steps; the config counts frames (the same where a step trains one)
+        super().__init__(in_steps(config), local_rank, world_size)
 
     def setup(self, test_mode="val"):
         load_dir = self.config.load_dir
