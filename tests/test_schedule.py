@@ -56,3 +56,16 @@ def test_the_frame_schedule_is_the_one_the_bench_measured_in_steps():
     assert now.max_num_iterations == measured.max_num_iterations
     assert dataclasses.asdict(now.pipeline.model) == dataclasses.asdict(measured.pipeline.model)
     assert dataclasses.asdict(now.auto_stop) == dataclasses.asdict(measured.auto_stop)
+
+
+def test_a_short_schedule_scales_splatfactos_sh_interval_and_leaves_the_thermal_models_unused_one():
+    from nerfstudio.configs.method_configs import method_configs
+
+    splatfacto = method_configs["splatfacto"].pipeline.model
+    splatfacto = type(splatfacto)(**{f.name: getattr(splatfacto, f.name) for f in dataclasses.fields(splatfacto)})
+    scale_schedule(splatfacto, 0.5)
+    assert splatfacto.sh_degree_interval == 500
+    thermal = frames_config(1).pipeline.model
+    default = thermal.sh_degree_interval
+    scale_schedule(thermal, 0.5)
+    assert thermal.sh_degree_interval == default  # config_checks would refuse it changed

@@ -16,8 +16,6 @@ from __future__ import annotations
 import copy
 import math
 
-from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
-
 FULL_SCHEDULE = 30_000
 """The length (training frames) the model configs' schedule fields are given for, as splatfacto's."""
 
@@ -32,7 +30,10 @@ def scale_schedule(model_config, factor: float) -> None:
     model_config.stop_split_at = int(model_config.stop_split_at * factor)
     model_config.stop_screen_size_at = int(model_config.stop_screen_size_at * factor)
     model_config.resolution_schedule = max(int(model_config.resolution_schedule * factor), 1)
-    if isinstance(model_config, WildThermalModelConfig):  # no spherical harmonics; a view term's start
+    # the plugin's model configs (a view term's start; no spherical harmonics, so their SH interval must stay
+    # at its default: config_checks refuses it set), named by the field only they have; the training floor
+    # does not import the model's
+    if hasattr(model_config, "view_term_from_step"):
         model_config.view_term_from_step = int(model_config.view_term_from_step * factor)
     else:  # splatfacto's
         model_config.sh_degree_interval = max(int(model_config.sh_degree_interval * factor), 1)
