@@ -54,8 +54,6 @@ VARIANTS = ("splatfacto", *METHODS)
 """Stock splatfacto and every method this plugin registers."""
 STRIP_FRAMES = (10, 20, 30, 40, 50)
 """Path views shown in the stress scenes' PNG strips (of 60)."""
-"""Splatfacto's schedule (warm-up, refinement, opacity reset, split stop) is defined for this many
-steps; shorter runs scale it proportionally, the same for every method."""
 HEADLINE_PROTOCOLS = ("novel", "time", "aligned", "half")
 """The leak-free protocols the tables lead with; `oracle` is shown apart."""
 SCORE_PREFIXES = ("psnr_", "ssim_", "celsius_")
@@ -81,8 +79,9 @@ class BenchArgs:
     seed: int = 0
     """First seed (torch/numpy/random, and the order training frames are visited in)."""
     schedule: Optional[int] = None
-    """Length of run the densification schedule is laid out for (default: --steps, i.e. a short run
-    compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first 3000 steps of a full run."""
+    """Length of run (training frames, as --steps) the densification schedule is laid out for (default:
+    --steps, i.e. a short run compresses the 30k schedule); e.g. 30000 with --steps 3000 trains the first
+    3000 frames of a full run."""
     max_gaussians: Optional[int] = None
     """Gaussian budget of the wild-thermal variants (default: their config's): the budget the held-back
     frames start from where they set it (`auto_stop.grow_budget`, the default), else the fixed one."""

@@ -17,7 +17,8 @@ import copy
 import math
 
 FULL_SCHEDULE = 30_000
-"""The length (training frames) the model configs' schedule fields are given for, as splatfacto's."""
+"""The length (training frames) the model configs' schedule fields (warm-up, refinement, opacity reset, split
+stop) are given for, as splatfacto's; shorter runs scale them proportionally, the same for every method."""
 
 
 def scale_schedule(model_config, factor: float) -> None:
