@@ -67,8 +67,8 @@
 # fresh machine after the two installs, SCENES="stress:clean stress:vignetting" SEEDS=1 SEED=0 RUNS=2 LIMIT=555 TAG=-c
 # splatfacto-30k-generated: both runs done in one call (469 s, 12.7-13.0 ms/step), kept (docs/results/
 # splatfacto_30k_generated_h200). An eighteenth (2026-12-04, on 1deb34f): after install, install-extra and SEED=1 of
-# the same in one call (537 s, 14.9-15.1 ms/step), kept. Still to run: SEED=2 (one call; nothing left running between
-# calls, so nothing lost with a machine).
+# the same in one call (537 s, 14.9-15.1 ms/step), kept; then, a fresh machine after the two installs, SEED=2 in the
+# same way (467 s, 13.0-13.2 ms/step), kept: splatfacto at 30k complete on the generated scenes, 3 seeds each.
 set -uo pipefail
 plan=${1:?plan: install, install-extra, map-rate-dunr, map-rate-flight2, share-dunr, share-flight2, profile-dunr, speed-ab, growth-far-raw-flight2, view-cost-dunr, view-rule-flight2, render-ab, render-lean, growth-3dgs-fixed-flight2, table-generated, table-dunr, table-flight2, canonical-background, growth-3dgs-stab-flight2, affine-generated, affine-dunr, affine-table-dunr, affine-table-flight2, embed-dims-dunr, embed-dims-flight2, bg-size-dunr, bg-size-flight2, emission-size-dunr, emission-size-flight2, bg-layers-dunr, bg-layers-flight2, render-slices, few-view-3dgs-flight2, few-view-prune-flight2, few-view-prune-dunr, full-prune-flight2, batched-cameras-dunr, prune-default-dunr, prune-default-flight2, prune-default-generated, full-prune-dunr, splatfacto-30k-generated, splatfacto-30k-bg, splatfacto-30k-wait}
 OUT=${OUT:-/tmp/out}
