@@ -16,7 +16,8 @@
 # A fifth machine the same session (on 4c64ea4): CAMERAS=2 LIMIT=150 SEED=0 cameras-per-step dunr, the rerun through the
 # trainer's frame count (docs/results/cameras_per_step_h200).
 # 2026-12-04 (on 77d9eae), after splatfacto-30k-generated on the same warm machine: CAMERAS="1 2" LIMIT=140 SEED=0
-# cameras-per-step flight2 (216 s; docs/results/cameras_per_step_h200). Next: the same with SEED=1 and SEED=2.
+# cameras-per-step flight2 (216 s; docs/results/cameras_per_step_h200). The next session (on 2326485), after
+# splatfacto-30k-generated's seed-2 call on the same warm machine: the same with SEED=1 (212 s). Next: SEED=2.
 set -uo pipefail
 plan=${1:?plan: gpu-tests, cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}
