@@ -17,7 +17,8 @@
 # trainer's frame count (docs/results/cameras_per_step_h200).
 # 2026-12-04 (on 77d9eae), after splatfacto-30k-generated on the same warm machine: CAMERAS="1 2" LIMIT=140 SEED=0
 # cameras-per-step flight2 (216 s; docs/results/cameras_per_step_h200). The next session (on 2326485), after
-# splatfacto-30k-generated's seed-2 call on the same warm machine: the same with SEED=1 (212 s). Next: SEED=2.
+# splatfacto-30k-generated's seed-2 call on the same warm machine: the same with SEED=1 (212 s). The next (on d679d7b), right after
+# the two installs: SEED=2 (267 s). flight2's three seeds are complete.
 set -uo pipefail
 plan=${1:?plan: gpu-tests, cameras-per-step SCENE (dunr or flight2), cameras-probe-demo}
 OUT=${OUT:-/tmp/out}
