@@ -82,7 +82,7 @@ class _Phases:
         self.prof = torch_profile(activities=[ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else []))
         self.python_prof = cProfile.Profile()
         self.ms_per_step = self.profiled_ms = 0.0
-        self.measuring = False  # no checkpoint is written while True (a short run saves every tenth of its steps)
+        self.measuring = False  # no checkpoint is written while True (`train_measuring`)
         self.syncs: Dict[str, int] = collections.Counter()
 
     def __call__(self, step: int) -> None:
@@ -122,27 +122,55 @@ class _Phases:
             self.measuring = False
 
 
-def profile(args: ProfileArgs) -> Dict:
-    args.output_dir.mkdir(parents=True, exist_ok=True)
+def full_schedule_trainer(
+    scene: str, method: str, settings: Tuple[str, ...], output_dir: Path, cache_dir: Optional[Path], **bench
+):
+    """A method's trainer on a scene for the full 30k schedule with the stop off (every measured step is
+    a training step), as the bench builds it; its config saved under `output_dir/runs` (so
+    `python -m experiments.render_fps` can load the run). `bench`: further `BenchArgs` fields."""
+    output_dir.mkdir(parents=True, exist_ok=True)
     bench_args = BenchArgs(
-        scenes=(args.scene,),
-        methods=(args.method,),
+        scenes=(scene,),
+        methods=(method,),
         steps=FULL_SCHEDULE,
         schedule=FULL_SCHEDULE,
-        max_gaussians=args.max_gaussians,
-        set=args.set,
-        output_dir=args.output_dir,
-        cache_dir=args.cache_dir,
-        auto_stop=False,  # every profiled step is a training step
+        set=settings,
+        output_dir=output_dir,
+        cache_dir=cache_dir,
+        auto_stop=False,
+        **bench,
     )
-    config = trainer_config(args.method, args.scene, bench_args, args.output_dir / "runs")
-    config.save_config()  # python -m experiments.render_fps can then load the run
-    trainer = setup_trainer(config)
+    config = trainer_config(method, scene, bench_args, output_dir / "runs")
+    config.save_config()
+    return setup_trainer(config)
+
+
+def train_measuring(trainer, steps: int, hook) -> None:
+    """`steps` steps of `trainer` with `hook(step)` after each; the run's own checkpoints are written,
+    but none while `hook.measuring` is true (a short run saves every tenth of its steps)."""
+    save = trainer.save_checkpoint
+    trainer.save_checkpoint = lambda step: None if hook.measuring else save(step)
+    train_with_hooks(trainer, steps, hook)
+
+
+def measurement_header(args) -> Dict:
+    """What a measurement's file says first: the scene, the method, the device, torch, the warm-up."""
+    return {
+        "scene": args.scene,
+        "method": args.method,
+        "device": device_name(),
+        "torch": torch.__version__,
+        "warmup": args.warmup,
+    }
+
+
+def profile(args: ProfileArgs) -> Dict:
+    trainer = full_schedule_trainer(
+        args.scene, args.method, args.set, args.output_dir, args.cache_dir, max_gaussians=args.max_gaussians
+    )
     cuda = torch.cuda.is_available()
     phases = _Phases(args, cuda)
-    save = trainer.save_checkpoint  # the run's own checkpoints, but none inside the measured steps
-    trainer.save_checkpoint = lambda step: None if phases.measuring else save(step)
-    train_with_hooks(trainer, phases.total, phases)
+    train_measuring(trainer, phases.total, phases)
     prof, ms_per_step, profiled_ms = phases.prof, phases.ms_per_step, phases.profiled_ms
     syncs = dict(sorted(phases.syncs.items(), key=lambda kv: -kv[1]))
     events = prof.key_averages()
@@ -161,11 +189,7 @@ def profile(args: ProfileArgs) -> Dict:
         }
 
     result = {
-        "scene": args.scene,
-        "method": args.method,
-        "device": device_name(),
-        "torch": torch.__version__,
-        "warmup": args.warmup,
+        **measurement_header(args),
         "gaussians": int(trainer.pipeline.model.num_points),
         "ms_per_step": round(ms_per_step, 3),
         "profiled_ms_per_step": round(profiled_ms, 3),

@@ -700,3 +700,18 @@ def test_the_batched_cameras_probe_renders_a_batch_as_its_cameras_alone_and_time
     assert all(row["ms_per_camera"] * row["cameras"] == pytest.approx(row["ms_per_step"]) for row in result["rows"])
     assert json.loads((tmp_path / "batched_cameras.json").read_text()) == result
     assert "| 3 |" in (tmp_path / "batched_cameras.md").read_text()
+
+
+def test_the_step_floor_times_both_arms_alternated_and_its_floor_step_trains(tmp_path):
+    """The floor is a real training step (its L1 loss falls from the frames' mean level), measured in
+    every round beside the method's own steps on the same model."""
+    from experiments.step_floor import FloorArgs, main
+
+    result = main(FloorArgs(warmup=30, steps=8, rounds=2, cameras=3, output_dir=tmp_path / "floor"))
+    rounds = result["rounds"]
+    assert [r["last_step"] for r in rounds] == [37, 45]
+    for r in rounds:
+        assert r["method_ms_per_step"] > 0 and r["floor_ms_per_step"] > 0
+        first, last = r["floor_loss_first_last"]
+        assert last < first
+    assert "floor ms/step" in (tmp_path / "floor" / "step_floor.md").read_text()

@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Plans for the GPU, 2026-12-04 (issue 34: the host's floor under a training step). One H200 or H100, each call
+# right after the two installs of gpu_2026-11-29.sh on a warm machine (a machine stays warm 30 s):
+#     bash experiments/gpu_2026-11-29.sh install          # .devicebundle carried
+#     bash experiments/gpu_2026-11-29.sh install-extra    # .data/wheels_extra carried
+#     bash experiments/gpu_2026-12-04.sh step-floor dunr
+#         # .data/dunr .data/cache/triangulation-c639ec94ec8782da
+#     bash experiments/gpu_2026-12-04.sh step-floor flight2
+#         # .data/flight2/rjpeg .data/flight2/metashape .data/cache/triangulation-ff4070e3f7030d32
+#     rm -rf .baseline && mkdir .baseline && git archive c9217e0 thermal_wild_ns | tar -x -C .baseline
+#     bash experiments/gpu_2026-12-04.sh bilinear-ab     # .baseline .data/dunr .data/cache/triangulation-c639ec94ec8782da
+set -uo pipefail
+plan=${1:?plan: step-floor SCENE (dunr or flight2), bilinear-ab}
+OUT=${OUT:-/tmp/out}
+mkdir -p "$OUT"
+export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
+case "$plan" in
+  step-floor)  # the full method's step against gsplat's least step on the same Gaussians, cameras and frames
+    # (experiments.step_floor), after WARMUP steps, ROUNDS rounds of 500 steps each, alternated
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${2:?scene: dunr or flight2}
+    PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-200} python3 -m experiments.step_floor --scene "$PWD/.data/$scene" \
+      --cache-dir "$PWD/.data/cache" --warmup ${WARMUP:-3000} --rounds ${ROUNDS:-3} \
+      --output-dir "/tmp/floor-$scene" > "$OUT/step-floor-$scene.log" 2>&1
+    cp "/tmp/floor-$scene/step_floor.json" "$OUT/step-floor-$scene.json"
+    cp "/tmp/floor-$scene/step_floor.md" "$OUT/step-floor-$scene.md" && cat "$OUT/step-floor-$scene.md"
+    tail -n 5 "$OUT/step-floor-$scene.log"
+    ;;
+  bilinear-ab)  # the flat-field cells and the background grid resized by matrix products (model/bilinear.py) against
+    # torch's bilinear interpolation (.baseline: the package before): the GPU parity tests of the resize and of the
+    # CUDA graphs that hold it; profile_step on DUNR at step 7,000 (full resolution; 300 timed steps), before and
+    # after, alternated over ROUNDS rounds (1); then DUNR's default schedule (30k asked, the stop on), 3 seeds each
+    # side, all six runs side by side on the GPU: accuracy only (their seconds share one GPU)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    root=$PWD
+    PYTHONPATH=$PWD:/tmp/site timeout 150 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
+      -k "bilinear or camera_response or background_mlp" > "$OUT/gpu-tests.log" 2>&1
+    grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$OUT/gpu-tests.log" | head -20
+    rm -rf .baseline/experiments && cp -r experiments .baseline/
+    for round in $(seq ${ROUNDS:-1}); do
+      for arm in before after; do
+        dir=$root; [ $arm = before ] && dir=$root/.baseline
+        (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout 150 python3 -m experiments.profile_step --scene "$root/.data/dunr" \
+          --cache-dir "$root/.data/cache" --warmup 7000 --steps 300 --profile-steps 10 --python-steps 0 \
+          --output-dir "/tmp/profile-$arm-$round" > "/tmp/profile-$arm-$round.log" 2>&1) || tail -5 "/tmp/profile-$arm-$round.log"
+        cp "/tmp/profile-$arm-$round/profile.md" "$OUT/profile-$arm-$round.md" && echo "$arm $round: $(grep -m1 'ms/step' "$OUT/profile-$arm-$round.md")"
+      done
+    done
+    for arm in before after; do
+      dir=$root; [ $arm = before ] && dir=$root/.baseline
+      (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout ${LIMIT:-330} python3 -m experiments.bench --output-dir "/tmp/bench-$arm" \
+        --scenes "$root/.data/dunr" --methods wild-thermal --seeds 3 --seed 0 --fps-frames 0 --runs-per-gpu 3 \
+        --cache-dir "$root/.data/cache" > "$OUT/bench-$arm.log" 2>&1; cp "/tmp/bench-$arm/bench.json" "$OUT/bench-$arm.json") &
+    done
+    wait
+    for arm in before after; do tail -n 2 "$OUT/bench-$arm.log"; done
+    ;;
+  *) echo "unknown plan: $plan"; exit 2 ;;
+esac
