@@ -371,3 +371,29 @@ def test_the_camera_response_replayed_as_cuda_graphs_equals_it_run_kernel_by_ker
             coefficients.add_(0.01 * torch.randn_like(coefficients))
             cells.add_(0.01 * torch.randn_like(cells))
     assert len(graphed.graphs) == 4 and all(g is not None for g in graphed.graphs.values())
+
+
+def test_bilinear_resize_on_the_gpu_equals_torchs_interpolation_and_its_backward_repeats_exactly():
+    """The flat-field cells' and the background grid's resize (`model/bilinear.py`): torch's values and
+    gradients within float32 rounding (no TF32 in its products), and the same gradient bit for bit on
+    every run (torch's bilinear backward adds with atomics, in no fixed order)."""
+    import torch.nn.functional as F
+
+    from thermal_wild_ns.model.bilinear import bilinear_resize
+
+    generator = torch.Generator(device="cuda").manual_seed(0)
+    for shape in ((2, 8, 8), (1, 128, 160)):
+        grid = torch.randn(shape, device="cuda", generator=generator)
+        weight = torch.randn(shape[0], 512, 640, device="cuda", generator=generator)
+        theirs = grid.clone().requires_grad_(True)
+        expected = F.interpolate(theirs[None], size=(512, 640), mode="bilinear", align_corners=False)[0]
+        (expected * weight).sum().backward()
+        grads = []
+        for _ in range(2):
+            ours = grid.clone().requires_grad_(True)
+            resized = bilinear_resize(ours, 512, 640)
+            (resized * weight).sum().backward()
+            grads.append(ours.grad)
+        torch.testing.assert_close(resized, expected, rtol=0, atol=1e-5)
+        torch.testing.assert_close(grads[0], theirs.grad, rtol=1e-4, atol=1e-3 * float(theirs.grad.abs().max()))
+        assert torch.equal(grads[0], grads[1])

@@ -11,6 +11,7 @@ import torch
 from torch import Tensor, nn
 
 from thermal_wild_ns.model.bake import BakedValues
+from thermal_wild_ns.model.bilinear import bilinear_resize
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP
 from thermal_wild_ns.model.graphed import GraphedCalls
@@ -56,10 +57,8 @@ def upsampled(coarse: Tensor, width: int, height: int) -> Tensor:
     """The background on the `background_stride` grid [h, w, 1] at full resolution [H, W, 1]."""
     if coarse.shape[:2] == (height, width):
         return coarse
-    # align_corners=False: coarse samples sit at the centres of stride x stride pixel blocks
-    return torch.nn.functional.interpolate(
-        coarse.permute(2, 0, 1)[None], size=(height, width), mode="bilinear", align_corners=False
-    )[0].permute(1, 2, 0)
+    # coarse samples sit at the centres of stride x stride pixel blocks (align_corners=False)
+    return bilinear_resize(coarse[..., 0], height, width)[..., None]
 
 
 class CameraFrameDirections:

@@ -29,8 +29,9 @@ from __future__ import annotations
 from typing import Optional
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
+
+from thermal_wild_ns.model.bilinear import bilinear_resize
 
 FALLOFF_ORDER = 2
 """Powers of rho in the gain and in the offset (rho, rho^2): a smooth fall-off to the corners."""
@@ -52,7 +53,7 @@ def flat_field_maps(cells: Tensor, height: int, width: int) -> Tensor:
     """The flat-field map's gain and offset [2, H, W] at every pixel of a height x width image, from
     its cells [2, n, n] (row 0 the gain's, row 1 the offset's), each made zero-mean, bilinear between
     cell centres: the same places of the sensor at any render resolution."""
-    return F.interpolate(centred_cells(cells)[None], size=(height, width), mode="bilinear", align_corners=False)[0]
+    return bilinear_resize(centred_cells(cells), height, width)
 
 
 def falloff_basis(directions: Tensor, order: int = FALLOFF_ORDER) -> Tensor:
