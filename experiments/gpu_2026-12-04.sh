@@ -9,6 +9,10 @@
 #         # .data/flight2/rjpeg .data/flight2/metashape .data/cache/triangulation-ff4070e3f7030d32
 #     rm -rf .baseline && mkdir .baseline && git archive c9217e0 thermal_wild_ns | tar -x -C .baseline
 #     bash experiments/gpu_2026-12-04.sh bilinear-ab     # .baseline .data/dunr .data/cache/triangulation-c639ec94ec8782da
+# Ran 2026-12-04 (the nineteenth session), one H200: step-floor dunr, step-floor flight2 and WARMUP=7000 step-floor dunr
+# on one warm machine (code of c9217e0 plus step_floor.py), then on a fresh one after the installs experiments.profile_step
+# at step 7,000 by hand (docs/results/step_floor_h200), then on a third bilinear-ab (docs/results/bilinear_resize_h200).
+# Next: DUNR's and flight2's default schedules with each run alone (the full method and splatfacto in one bench run).
 set -uo pipefail
 plan=${1:?plan: step-floor SCENE (dunr or flight2), bilinear-ab}
 OUT=${OUT:-/tmp/out}
