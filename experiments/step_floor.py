@@ -1,7 +1,7 @@
-"""`python -m experiments.step_floor`: the host's floor under a training step, gsplat's own (issue 34).
+"""`python -m experiments.step_floor`: the floor under a training step, gsplat's own (issue 34).
 
-The full method's step is bound by host work, not by its kernels (`experiments.profile_step`). How much
-of that host time would any Gaussian-splatting step in Python pay? This trains a method on a scene for
+How much of the full method's step would any Gaussian-splatting step in Python pay, on the host and on
+the GPU, and how much is the method's own? This trains a method on a scene for
 `--warmup` steps of the full 30k schedule (as `profile_step`), then alternates, `--rounds` times,
 `--steps` of the method's own steps (nerfstudio's loop, as the bench runs it) with `--steps` of the least
 a splatting step does on the same Gaussians, training cameras, frames and resolution: gsplat's

@@ -52,3 +52,23 @@ def test_each_row_of_the_interpolation_weights_sums_to_one_and_the_matrices_are_
         bilinear.interpolation_weights(8, 200 + size, torch.device("cpu"), torch.float32)
     assert len(bilinear._weights) == bilinear.KEPT
     assert (8, 100, torch.device("cpu"), torch.float32) not in bilinear._weights
+
+
+def test_a_matrix_a_cuda_graph_read_while_recording_is_never_let_go(monkeypatch):
+    """A graph replays reads of the matrix's address: freeing it for another size would hand that memory
+    to something else under the graph. Recording is simulated (`_recording`); the matrix read then stays
+    however many sizes come after, while the others are still let go oldest first."""
+    bilinear._weights.clear()
+    cpu = torch.device("cpu")
+    kept = bilinear.interpolation_weights(8, 512, cpu, torch.float32)  # made before recording (a warm-up run)
+    monkeypatch.setattr(bilinear, "_recording", lambda device: True)
+    assert bilinear.interpolation_weights(8, 512, cpu, torch.float32) is kept  # read by the recording
+    made = bilinear.interpolation_weights(8, 300, cpu, torch.float32)  # made while recording: not kept
+    assert (8, 300, cpu, torch.float32) not in bilinear._weights and made.shape == (300, 8)
+    monkeypatch.setattr(bilinear, "_recording", lambda device: False)
+    for size in range(2 * bilinear.KEPT):
+        bilinear.interpolation_weights(8, 600 + size, cpu, torch.float32)
+    assert bilinear.interpolation_weights(8, 512, cpu, torch.float32) is kept
+    assert len(bilinear._weights) == bilinear.KEPT + 1
+    assert (8, 600, cpu, torch.float32) not in bilinear._weights
+    bilinear._recorded.discard((8, 512, cpu, torch.float32))
