@@ -12,9 +12,12 @@
 # Ran 2026-12-04 (the nineteenth session), one H200: step-floor dunr, step-floor flight2 and WARMUP=7000 step-floor dunr
 # on one warm machine (code of c9217e0 plus step_floor.py), then on a fresh one after the installs experiments.profile_step
 # at step 7,000 by hand (docs/results/step_floor_h200), then on a third bilinear-ab (docs/results/bilinear_resize_h200).
-# Next: DUNR's and flight2's default schedules with each run alone (the full method and splatfacto in one bench run).
+# A later session (2026-12-04): after the two installs, SEEDS=3 schedule dunr wild-thermal, schedule dunr splatfacto,
+# SEEDS=3 schedule flight2 wild-thermal, schedule flight2 splatfacto on one warm machine; a fresh one after the
+# installs, ROUNDS=2 profile-stop flight2 (docs/results/default_schedule_h200).
+# Next: profile-stop dunr and profile-stop flight2 in one lease (is flight2's slower host step the scene or the machine?).
 set -uo pipefail
-plan=${1:?plan: step-floor SCENE (dunr or flight2), bilinear-ab}
+plan=${1:?plan: step-floor SCENE (dunr or flight2), bilinear-ab, schedule SCENE METHOD..., profile-stop SCENE}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -58,6 +61,38 @@ case "$plan" in
     done
     wait
     for arm in before after; do tail -n 2 "$OUT/bench-$arm.log"; done
+    ;;
+  schedule)  # SCENE METHOD...: each method's default schedule (30k steps asked; the full method's automatic stop
+    # on), seeds SEED.. SEED+SEEDS-1 (default 0, 1), each run alone on the GPU (clean timings), checkpoints scored at
+    # the ttq steps; one call per splatfacto seed (its 30k take about 350 s); merged here with `bench --merge`
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${2:?scene: dunr or flight2}; shift 2
+    tag=$scene-${*// /-}-seed${SEED:-0}
+    PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-585} python3 -m experiments.bench --output-dir "/tmp/schedule-$tag" \
+      --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods "$@" --seeds ${SEEDS:-1} \
+      --seed ${SEED:-0} --runs-per-gpu 1 --fit-steps 20 --fps-frames 0 --steps 30000 \
+      --eval-at 1000 2000 5000 10000 20000 30000 --time-limit 540 > "$OUT/schedule-$tag.log" 2>&1
+    cp "/tmp/schedule-$tag/bench.json" "$OUT/schedule-$tag-bench.json"
+    python3 -c "import json, sys; [print(r['method'], r.get('seed'), r.get('steps'), r.get('train_seconds'), \
+      r.get('ms_per_step'), r.get('gaussians'), r.get('psnr_aligned')) for r in json.load(open(sys.argv[1]))['runs']]" \
+      "$OUT/schedule-$tag-bench.json"
+    tail -n 3 "$OUT/schedule-$tag.log"
+    ;;
+  profile-stop)  # SCENE: experiments.profile_step after WARMUP steps (3000) as the bench trains (the automatic
+    # stop's held-back frames and the budget they set) and with the stop off (every frame trains, the fixed budget),
+    # alternated over ROUNDS rounds (1): where a bench run's step goes that profile_step's usual run does not show
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${2:?scene: dunr or flight2}
+    for round in $(seq ${ROUNDS:-1}); do
+      for arm in stop no-stop; do
+        flag=--auto-stop; [ $arm = no-stop ] && flag=--no-auto-stop
+        PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.profile_step --scene "$PWD/.data/$scene" \
+          --cache-dir "$PWD/.data/cache" --warmup ${WARMUP:-3000} --steps 300 --profile-steps 10 --python-steps 50 \
+          $flag --output-dir "/tmp/profile-$arm-$round" > "/tmp/profile-$arm-$round.log" 2>&1 || tail -5 "/tmp/profile-$arm-$round.log"
+        cp "/tmp/profile-$arm-$round/profile.md" "$OUT/profile-$scene-$arm-$round.md" && \
+          echo "$arm $round: $(sed -n 1,3p "$OUT/profile-$scene-$arm-$round.md" | tr '\n' ' ')"
+      done
+    done
     ;;
   *) echo "unknown plan: $plan"; exit 2 ;;
 esac

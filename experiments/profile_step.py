@@ -47,6 +47,10 @@ class ProfileArgs:
     python_steps: int = 100
     """Steps recorded by cProfile (0: none)."""
     max_gaussians: Optional[int] = None
+    auto_stop: bool = False
+    """Train as the bench and `ns-train` do, with the automatic stop's held-back frames and the Gaussian
+    budget they set (off: every capture frame trains, under the fixed budget). A stop during the warm-up
+    ends the run before anything is measured."""
     set: Tuple[str, ...] = ()
     """Settings of the method's config, as the bench's `--set` (e.g. pipeline.model.graphed_loss=True)."""
     output_dir: Path = Path("outputs/profile")
@@ -123,11 +127,18 @@ class _Phases:
 
 
 def full_schedule_trainer(
-    scene: str, method: str, settings: Tuple[str, ...], output_dir: Path, cache_dir: Optional[Path], **bench
+    scene: str,
+    method: str,
+    settings: Tuple[str, ...],
+    output_dir: Path,
+    cache_dir: Optional[Path],
+    auto_stop: bool = False,
+    **bench,
 ):
-    """A method's trainer on a scene for the full 30k schedule with the stop off (every measured step is
-    a training step), as the bench builds it; its config saved under `output_dir/runs` (so
-    `python -m experiments.render_fps` can load the run). `bench`: further `BenchArgs` fields."""
+    """A method's trainer on a scene for the full 30k schedule, as the bench builds it; the stop off
+    unless `auto_stop` (then every measured step is a training step); its config saved under
+    `output_dir/runs` (so `python -m experiments.render_fps` can load the run). `bench`: further
+    `BenchArgs` fields."""
     output_dir.mkdir(parents=True, exist_ok=True)
     bench_args = BenchArgs(
         scenes=(scene,),
@@ -137,7 +148,7 @@ def full_schedule_trainer(
         set=settings,
         output_dir=output_dir,
         cache_dir=cache_dir,
-        auto_stop=False,
+        auto_stop=auto_stop,
         **bench,
     )
     config = trainer_config(method, scene, bench_args, output_dir / "runs")
@@ -166,7 +177,13 @@ def measurement_header(args) -> Dict:
 
 def profile(args: ProfileArgs) -> Dict:
     trainer = full_schedule_trainer(
-        args.scene, args.method, args.set, args.output_dir, args.cache_dir, max_gaussians=args.max_gaussians
+        args.scene,
+        args.method,
+        args.set,
+        args.output_dir,
+        args.cache_dir,
+        args.auto_stop,
+        max_gaussians=args.max_gaussians,
     )
     cuda = torch.cuda.is_available()
     phases = _Phases(args, cuda)
@@ -190,6 +207,7 @@ def profile(args: ProfileArgs) -> Dict:
 
     result = {
         **measurement_header(args),
+        "auto_stop": args.auto_stop,
         "gaussians": int(trainer.pipeline.model.num_points),
         "ms_per_step": round(ms_per_step, 3),
         "profiled_ms_per_step": round(profiled_ms, 3),
@@ -212,7 +230,7 @@ def profile(args: ProfileArgs) -> Dict:
 def _markdown(r: Dict) -> str:
     lines = [
         f"# {r['method']} on {r['scene']} ({r['device']}, torch {r['torch']}), after {r['warmup']} steps, "
-        f"{r['gaussians']} Gaussians",
+        f"{r['gaussians']} Gaussians" + (", the automatic stop on" if r.get("auto_stop") else ""),
         "",
         f"- {r['ms_per_step']:.2f} ms/step unprofiled; {r['profiled_ms_per_step']:.2f} ms/step profiled, of which "
         f"GPU kernels {r['gpu_kernel_ms_per_step']:.2f} ms",
