@@ -715,3 +715,19 @@ def test_the_step_floor_times_both_arms_alternated_and_its_floor_step_trains(tmp
         first, last = r["floor_loss_first_last"]
         assert last < first
     assert "floor ms/step" in (tmp_path / "floor" / "step_floor.md").read_text()
+
+
+def test_profile_step_with_the_stop_on_trains_as_the_bench_does(tmp_path):
+    """`--auto-stop` builds the trainer with the stop (its held-back frames, the budget they set), without
+    it none, and the files say which."""
+    from experiments.profile_step import ProfileArgs, full_schedule_trainer, profile
+
+    off = full_schedule_trainer("demo", "wild-thermal", (), tmp_path / "off", None)
+    assert off.auto_stop is None
+    result = profile(
+        ProfileArgs(warmup=30, steps=4, profile_steps=2, python_steps=0, auto_stop=True, output_dir=tmp_path / "p")
+    )
+    assert result["auto_stop"] is True and result["ms_per_step"] > 0
+    assert "the automatic stop on" in (tmp_path / "p" / "profile.md").read_text().splitlines()[0]
+    on = full_schedule_trainer("demo", "wild-thermal", (), tmp_path / "on", None, auto_stop=True)
+    assert on.auto_stop is not None and on.auto_stop.held_back_frames
