@@ -63,8 +63,8 @@ case "$plan" in
     for arm in before after; do tail -n 2 "$OUT/bench-$arm.log"; done
     ;;
   schedule)  # SCENE METHOD...: each method's default schedule (30k steps asked; the full method's automatic stop
-    # on), seeds SEED.. SEED+SEEDS-1 (default 0, 1), each run alone on the GPU (clean timings), checkpoints scored at
-    # the ttq steps; one call per splatfacto seed (its 30k take about 350 s); merged here with `bench --merge`
+    # on), SEEDS seeds from SEED (defaults SEEDS=1, SEED=0), each run alone on the GPU (clean timings), checkpoints
+    # scored at the ttq steps; one call per splatfacto seed (its 30k: 258-350 s on H200s); merged with `bench --merge`
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${2:?scene: dunr or flight2}; shift 2
     tag=$scene-${*// /-}-seed${SEED:-0}

@@ -49,8 +49,8 @@ class ProfileArgs:
     max_gaussians: Optional[int] = None
     auto_stop: bool = False
     """Train as the bench and `ns-train` do, with the automatic stop's held-back frames and the Gaussian
-    budget they set (off: every capture frame trains, under the fixed budget). A stop during the warm-up
-    ends the run before anything is measured."""
+    budget they set (off: every capture frame trains, under the fixed budget). A run the stop ends before
+    its measured steps are done is an error: lower `--warmup`."""
     set: Tuple[str, ...] = ()
     """Settings of the method's config, as the bench's `--set` (e.g. pipeline.model.graphed_loss=True)."""
     output_dir: Path = Path("outputs/profile")
@@ -88,9 +88,10 @@ class _Phases:
         self.ms_per_step = self.profiled_ms = 0.0
         self.measuring = False  # no checkpoint is written while True (`train_measuring`)
         self.syncs: Dict[str, int] = collections.Counter()
+        self.done = 0  # steps trained so far
 
     def __call__(self, step: int) -> None:
-        done = step + 1
+        done = self.done = step + 1
         if done == self.timed[0]:
             self.measuring = True
             synchronize()
@@ -136,7 +137,7 @@ def full_schedule_trainer(
     **bench,
 ):
     """A method's trainer on a scene for the full 30k schedule, as the bench builds it; the stop off
-    unless `auto_stop` (then every measured step is a training step); its config saved under
+    unless `auto_stop` (off, every step asked is trained); its config saved under
     `output_dir/runs` (so `python -m experiments.render_fps` can load the run). `bench`: further
     `BenchArgs` fields."""
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -188,6 +189,11 @@ def profile(args: ProfileArgs) -> Dict:
     cuda = torch.cuda.is_available()
     phases = _Phases(args, cuda)
     train_measuring(trainer, phases.total, phases)
+    if phases.done < phases.total:
+        raise RuntimeError(
+            f"{args.scene}: the automatic stop ended the run at step {phases.done}, before the {phases.total} "
+            "steps of the warm-up and the measurement; lower --warmup"
+        )
     prof, ms_per_step, profiled_ms = phases.prof, phases.ms_per_step, phases.profiled_ms
     syncs = dict(sorted(phases.syncs.items(), key=lambda kv: -kv[1]))
     events = prof.key_averages()
