@@ -731,3 +731,20 @@ def test_profile_step_with_the_stop_on_trains_as_the_bench_does(tmp_path):
     assert "the automatic stop on" in (tmp_path / "p" / "profile.md").read_text().splitlines()[0]
     on = full_schedule_trainer("demo", "wild-thermal", (), tmp_path / "on", None, auto_stop=True)
     assert on.auto_stop is not None and on.auto_stop.held_back_frames
+
+
+def test_step_ops_counts_each_part_inside_the_step_and_puts_the_methods_back(tmp_path):
+    """`experiments.step_ops` counts the operations of every part of the counted steps alone (a part
+    inside the step no more than the step), writes its files, and leaves the counted methods as they were."""
+    from experiments.step_ops import StepOpsArgs, count, markdown
+    from thermal_wild_ns.training.divergence import DivergenceGuard
+
+    verdict = DivergenceGuard.verdict
+    args = StepOpsArgs(warmup=20, steps=2, output_dir=tmp_path / "out", runs_dir=tmp_path / "runs")
+    result = count(args)
+    ops = result["ops_per_step"]
+    assert all(ops[part] > 0 for part in ("step", "render", "losses", "verdict", "adam", "statistics")), ops
+    assert max(ops["render"], ops["losses"], ops["verdict"], ops["adam"]) < ops["step"]
+    assert result["by_operation"]["adam"]["aten._fused_adam_.default"] >= 1  # one per parameter group
+    assert DivergenceGuard.verdict is verdict
+    assert "| verdict |" in markdown(result) and (tmp_path / "runs" / "runs").is_dir()

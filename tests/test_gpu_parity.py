@@ -397,3 +397,22 @@ def test_bilinear_resize_on_the_gpu_equals_torchs_interpolation_and_its_backward
         torch.testing.assert_close(resized, expected, rtol=0, atol=1e-5)
         torch.testing.assert_close(grads[0], theirs.grad, rtol=1e-4, atol=1e-3 * float(theirs.grad.abs().max()))
         assert torch.equal(grads[0], grads[1])
+
+
+def test_the_verdict_on_the_gpu_is_the_checks_it_stands_for_and_reads_back_its_own_step():
+    """The guard's verdict on CUDA (its values reach the host through one pinned buffer, reused from step
+    to step): the same checks as on the host, case by case, and a sequence of steps each reading back its
+    own loss, not a later one's."""
+    from test_guard import verdicts_match_the_reference
+
+    from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig
+
+    verdicts_match_the_reference("cuda")
+    guard = DivergenceGuard(DivergenceGuardConfig(spike_window=100))
+    param = torch.nn.Parameter(torch.ones(1000, device="cuda"))
+    for step in range(20):
+        param.grad = torch.full((1000,), float(step), device="cuda")
+        guard.verdict(torch.tensor(float(step + 1), device="cuda"), {"g": [param]}, ["g"], frame=step, step=step)
+    guard.settle()
+    assert list(guard.recent) == [float(s + 1) for s in range(20)]
+    assert guard.frame_loss == {s: float(s + 1) for s in range(20)}

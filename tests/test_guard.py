@@ -243,6 +243,59 @@ def test_the_verdict_is_decided_on_the_device_and_read_back_at_the_next_step():
         guard.settle()
 
 
+VERDICT_CASES = [  # (loss or None, each gradient or None, the losses before it)
+    (1.0, [[1.0, 2.0], [3.0]], []),
+    (float("nan"), [[1.0, 2.0], [3.0]], []),
+    (float("inf"), [[1.0, 2.0], [3.0]], []),
+    (-float("inf"), [[1.0, 2.0], [3.0]], []),
+    (-1.0, [[1.0, 2.0], [3.0]], []),
+    (1.0, [[1.0, float("nan")], [3.0]], []),
+    (1.0, [[1.0, 2.0], [-float("inf")]], []),
+    (1.0, [[3e38, 3e38], [3e38]], []),  # every norm finite, their sum not
+    (1.0, [[0.0, -0.0], None], []),
+    (None, [[1.0], [float("nan")]], []),
+    (None, [[1.0], [2.0]], []),
+    (5.0, None, []),
+    (float("nan"), None, []),
+    (50.0, [[1.0], [2.0]], [1.0, 1.0, 1.0]),  # a spike
+    (9.0, [[1.0], [2.0]], [1.0, 1.0, 1.0]),  # below it
+    (float("inf"), [[1.0], [2.0]], [1.0, 1.0, 1.0]),
+]
+
+
+def verdicts_match_the_reference(device: str) -> None:
+    """The guard's verdict on `device`, on every case of VERDICT_CASES, against the checks it stands for
+    computed plainly on the host (torch.isfinite of the loss and of the sum of the gradient norms, the loss
+    at most the spike threshold), and the values it reads back (the reason, the recorded losses)."""
+    for loss, grads, history in VERDICT_CASES:
+        guard = DivergenceGuard(DivergenceGuardConfig(spike_window=3, loss_spike_factor=10.0))
+        for previous in history:
+            guard.recent.append(previous)
+        params = [torch.nn.Parameter(torch.zeros(len(g) if g else 1, device=device)) for g in grads or [None]]
+        for param, grad in zip(params, grads or [None]):
+            param.grad = None if grad is None else torch.tensor(grad, device=device)
+        loss_tensor = None if loss is None else torch.tensor(loss, device=device)
+        threshold, _ = guard.spike_threshold(None)
+        norms = [torch.linalg.vector_norm(p.grad.double().cpu()) for p in params if p.grad is not None]
+        expected = [] if loss is None else [torch.isfinite(torch.tensor(loss)), torch.tensor(loss) <= threshold]
+        if norms:
+            expected.append(torch.isfinite(torch.stack(norms).float().sum()))
+        accepted = guard.verdict(loss_tensor, {"g": params}, ["g"])
+        if not expected:
+            assert accepted is None
+            continue
+        case = (loss, grads, history)
+        assert accepted.device.type == torch.device(device).type and accepted.dtype == torch.bool, case
+        assert bool(accepted) == all(bool(e) for e in expected), case
+        assert (guard.settle() is None) == bool(accepted), case
+        if loss is not None and torch.isfinite(torch.tensor(loss)) and bool(accepted):
+            assert guard.recent[-1] == loss, case
+
+
+def test_the_verdict_is_the_checks_it_stands_for():
+    verdicts_match_the_reference("cpu")
+
+
 def test_a_rejected_step_leaves_the_densification_statistics_as_they_were():
     """The guard's device verdict reaches the statistics: a rejected step's gradients are masked out
     (the plugin's masked sums, and gsplat's own for a packed render), an accepted one's are counted."""

@@ -644,11 +644,12 @@ def test_sync_free_densification_statistics_equal_gsplats():
         cls(absgrad=True, refine_scale2d_stop_iter=100) for cls in (BudgetedDefaultStrategy, DefaultStrategy)
     )
     states = [s.initialize_state() for s in (ours, theirs)]
-    for _ in range(3):  # accumulates over steps, as in training
+    for width, height in ((64, 48), (128, 96), (64, 48)):  # accumulates over steps, as in training, at two sizes
         means2d = torch.zeros(1, n, 2)
         means2d.absgrad = torch.rand(1, n, 2, generator=g)
         radii = (torch.rand(1, n, generator=g) * 20).int() * (torch.rand(1, n, generator=g) > 0.4)
-        info = {"width": 64, "height": 48, "n_cameras": 1, "radii": radii, "gaussian_ids": None, "means2d": means2d}
+        info = {"width": width, "height": height, "n_cameras": 1, "radii": radii, "gaussian_ids": None}
+        info["means2d"] = means2d
         for strategy, state in zip((ours, theirs), states):
             strategy._update_state(params, state, info)
     for key in ("grad2d", "count", "radii"):
@@ -1412,7 +1413,7 @@ def test_several_cameras_per_step_render_train_and_count_as_their_steps_would(re
         assert torch.allclose(out["thermal"], thermal, atol=1e-6)
     for key, value in losses.items():
         assert torch.allclose(value, (singles[0][1][key] + singles[1][1][key]) / 2, atol=1e-6), key
-    assert metrics["psnr"] > 0 and together.last_training_loss()[1] is None  # no one frame for the guard
+    assert metrics["psnr"] > 0 and together.last_training_losses()[1] is None  # no one frame for the guard
     grads = lambda m: {n: p.grad for n, p in m.named_parameters() if p.grad is not None}
     assert grads(alone).keys() == grads(together).keys()
     for name, grad in grads(together).items():

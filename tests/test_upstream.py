@@ -97,6 +97,7 @@ def test_step_timings_are_written_with_the_losses_every_other_event_at_once(monk
 
     monkeypatch.setattr(writer, "write_out_storage", writer.write_out_storage)  # put back after the test
     monkeypatch.setattr(writer, "EVENT_WRITERS", [Recorder()])
+    monkeypatch.setattr(writer, "EVENT_STORAGE", [])  # not what an earlier run in this process left unwritten
     monkeypatch.setattr(writer, "GLOBAL_BUFFER", {"steps_per_log": 10, "events": {}, "max_buffer_size": 20})
     log_step_timings_with_the_losses()
     log_step_timings_with_the_losses()  # a second trainer in the process: installed once
@@ -273,3 +274,38 @@ def test_fused_adam_step_does_not_wait_for_the_gpu():
         finally:
             torch.cuda.set_sync_debug_mode("default")
     assert float(optimizers[0].state[params[0]]["step"]) == 2  # three steps, one rejected
+
+
+def test_a_refinement_keeps_the_allocators_cache(monkeypatch):
+    """gsplat 1.4.0 empties torch's CUDA cache after every refinement; the plugin's strategy grows and
+    prunes as gsplat's does without that call, and leaves `torch.cuda.empty_cache` as it was, also
+    when the refinement fails."""
+    from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
+
+    calls = []
+    monkeypatch.setattr(torch.cuda, "empty_cache", lambda: calls.append(1))
+    original = torch.cuda.empty_cache
+    strategy = BudgetedDefaultStrategy(refine_start_iter=0, refine_every=10, reset_every=10_000, verbose=False)
+    n = 50
+    g = torch.Generator().manual_seed(0)
+    params = torch.nn.ParameterDict(
+        {
+            "means": torch.randn(n, 3, generator=g),
+            "scales": torch.full((n, 3), -2.0),
+            "quats": torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=-1),
+            "opacities": torch.full((n,), 0.5),
+        }
+    )
+    optimizers = {k: torch.optim.Adam([p], lr=1e-3) for k, p in params.items()}
+    state = strategy.initialize_state()
+    means2d = torch.zeros(1, n, 2)
+    means2d.grad = torch.full((1, n, 2), 1.0)  # every Gaussian far above the growth threshold
+    info = {"width": 64, "height": 48, "n_cameras": 1, "radii": torch.full((1, n), 3), "means2d": means2d}
+    strategy.step_post_backward(params, optimizers, state, 10, info)
+    assert params["means"].shape[0] > n  # it grew
+    assert not calls and torch.cuda.empty_cache is original
+    with pytest.raises(KeyError):
+        strategy.step_post_backward(params, optimizers, state, 20, {k: v for k, v in info.items() if k != "radii"})
+    assert torch.cuda.empty_cache is original
+    torch.cuda.empty_cache()
+    assert calls == [1]  # the function itself still works

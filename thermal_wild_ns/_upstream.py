@@ -124,11 +124,13 @@ def fused_adam_step(optimizers, accepted: Optional[torch.Tensor] = None) -> None
     if not work:
         return
     steps = [state["step"] for _, _, states in work for state in states]
+    found_inf = None
     if accepted is None:
         torch._foreach_add_(steps, 1)
     else:  # the list form: the 0-dim tensor form waited for the GPU at every step (a host sync, torch 2.11)
-        torch._foreach_add_(steps, [accepted.float()] * len(steps))
-    found_inf = None if accepted is None else (~accepted).float()
+        moved = accepted.float()  # [] 1 or 0
+        torch._foreach_add_(steps, [moved] * len(steps))
+        found_inf = 1.0 - moved  # [] 1 where the step is skipped
     for group, params, states in work:
         beta1, beta2 = group["betas"]
         kernel = torch._fused_adamw_ if group.get("decoupled_weight_decay", False) else torch._fused_adam_
@@ -354,7 +356,8 @@ class DefaultStrategyWithHooks(DefaultStrategy):
     `_prune_gs` and `_update_state`, with no public hook. This subclass calls `before_growth(params,
     state, step)` before gsplat grows (to leave candidates out), `prune_allowed(params, step)` before it
     prunes (False: no pruning this round) and `update_statistics(params, state, info, packed)` in place
-    of `_update_state` (return False to let gsplat's own run)."""
+    of `_update_state` (return False to let gsplat's own run), and keeps the allocator's cache across
+    refinements (`step_post_backward`)."""
 
     def before_growth(self, params, state, step) -> None:
         pass
@@ -373,6 +376,18 @@ class DefaultStrategyWithHooks(DefaultStrategy):
     def _grow_gs(self, params, optimizers, state, step):
         self.before_growth(params, state, step)
         return super()._grow_gs(params, optimizers, state, step)
+
+    def step_post_backward(self, params, optimizers, state, step, info, packed: bool = False):
+        """gsplat's, without the `torch.cuda.empty_cache()` it calls after every refinement (every
+        `refine_every` steps, most of a run): that hands every cached block back to the driver (a
+        device-wide wait in each free) and the next step allocates them again. torch's allocator frees
+        its cache by itself before a request would run out of memory, so the call saves no run."""
+        empty_cache = torch.cuda.empty_cache
+        torch.cuda.empty_cache = lambda: None  # gsplat's default.py looks it up at the call
+        try:
+            super().step_post_backward(params, optimizers, state, step, info, packed=packed)
+        finally:
+            torch.cuda.empty_cache = empty_cache
 
     def _update_state(self, params, state, info, packed: bool = False):
         if self.update_statistics(params, state, info, packed):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 import torch
@@ -80,6 +80,7 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     prunes nothing (with a message) rather than running out of memory halfway through."""
     prunes_skipped: int = 0
     """Refinements whose pruning `copies_fit` turned down (the first one says so on the console)."""
+    _pixel_scales: dict = field(default_factory=dict, repr=False)  # `_pixel_scale`'s, by render size
 
     @classmethod
     def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":
@@ -162,6 +163,18 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
             )
         return False
 
+    def _pixel_scale(self, info, device: torch.device) -> torch.Tensor:
+        """[2]: what turns gsplat's screen-space gradients into pixels (its `_update_state`: half the width and
+        height, times the cameras), kept per render size on the device (a new tensor would be a copy from
+        the host at every step)."""
+        key = (info["width"], info["height"], info["n_cameras"], device)
+        scale = self._pixel_scales.get(key)
+        if scale is None:
+            n = info["n_cameras"]
+            scale = torch.tensor([info["width"] / 2.0 * n, info["height"] / 2.0 * n], device=device)
+            self._pixel_scales[key] = scale
+        return scale
+
     def update_statistics(self, params, state, info, packed: bool) -> bool:
         """gsplat's running statistics, computed with masks instead of gathering the visible
         Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
@@ -174,9 +187,8 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
         if info["radii"].dim() != 2:  # a packed render said to be unpacked would be summed into every Gaussian
             raise ValueError(f"densification statistics: radii {tuple(info['radii'].shape)} are not [C, N]")
         gradient = info[self.key_for_gradient]
-        grads = (gradient.absgrad if self.absgrad else gradient.grad).clone()  # [C, N, 2], C: cameras or ranks
-        grads[..., 0] *= info["width"] / 2.0 * info["n_cameras"]
-        grads[..., 1] *= info["height"] / 2.0 * info["n_cameras"]
+        # [C, N, 2], C: cameras or ranks; to pixels as gsplat, in one kernel
+        grads = (gradient.absgrad if self.absgrad else gradient.grad) * self._pixel_scale(info, gradient.device)
         n = params["means"].shape[0]
         for key in ("grad2d", "count") + (("radii",) if self.refine_scale2d_stop_iter > 0 else ()):
             if state[key] is None:

@@ -321,7 +321,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         indices = self.kwargs.get("metadata", {}).get("frame_indices")
         # each training image's capture position (capture-order frame index): the photometric states' time axis
         self.frame_states = FrameStates(self.frame_embed, indices if indices is not None else range(num_frames))
-        self._last_training_loss: Tuple[Optional[Tensor], Optional[int]] = (None, None)  # `last_training_loss`
+        # `last_training_losses`
+        self._last_training_losses: Tuple[Optional[Dict[str, Tensor]], Optional[int]] = (None, None)
         self._discard_statistics = False  # `discard_step_statistics`
         self._step_accepted: Optional[Tensor] = None  # `weigh_step_statistics`
         self._view_term = "on" if "view_sh" in self.gauss_params else "off"  # `use_view_term`, `try_view_term`
@@ -905,7 +906,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         losses = self._camera_losses(outputs, batch, image)
         if self.training:
             losses = self._step_losses(losses)
-            self._last_training_loss = (sum(losses.values()).detach(), image)
+            self._last_training_losses = (losses, image)  # summed where needed: the step sums them anyway
         return losses
 
     def _camera_losses(self, outputs, batch, image: Optional[int], slot: int = 0) -> Dict[str, Tensor]:
@@ -945,13 +946,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         mean = lambda dicts, key: torch.stack([d[key] for d in dicts]).mean()
         loss_dict = self._step_losses({key: mean(losses, key) for key in losses[0]})
         metrics_dict = {"psnr": mean(metrics, "psnr"), "gaussian_count": self.num_points}
-        self._last_training_loss = (sum(loss_dict.values()).detach(), None)
+        self._last_training_losses = (loss_dict, None)
         return metrics_dict, loss_dict
 
     # ------------------------------------------------- the trainer's interface (training/model_interface.py)
-    def last_training_loss(self) -> Tuple[Optional[Tensor], Optional[int]]:
-        """The last training step's total loss (detached) and its training image (the divergence guard's)."""
-        return self._last_training_loss
+    def last_training_losses(self) -> Tuple[Optional[Dict[str, Tensor]], Optional[int]]:
+        """The last training step's losses and its training image (the divergence guard's)."""
+        return self._last_training_losses
 
     def decisions(self) -> List[Decision]:
         """The model's size and parts for this run, and why (`training/decisions.py` reports them):

@@ -76,6 +76,8 @@ class DivergenceGuard:
         self.consecutive = 0
         self.rollbacks = 0
         self.pending: Optional[PendingVerdict] = None  # the last verdict, not yet read back
+        self._host: Optional[torch.Tensor] = None  # pinned [3 + G]: where the verdicts reach the host
+        self._ready: Optional[torch.cuda.Event] = None
 
     def spike_threshold(self, frame: Optional[int]) -> Tuple[float, Optional[float]]:
         """(the loss above which this step is a spike, the recent median it comes from): inf before the
@@ -110,33 +112,42 @@ class DivergenceGuard:
             return None
         device = loss.device if loss is not None else grads[0][1].device
         threshold, median = self.spike_threshold(frame) if loss is not None else (math.inf, None)
-        checks = []  # [] bool each
+        # few kernels, none waited for: each one is host time in every training step
         if loss is not None:
-            value = loss.detach().float().reshape(1)  # [1]
-            checks += [torch.isfinite(value[0]), value[0] <= threshold]
+            value = loss.detach().reshape(1).float()  # [1]
         else:
             value = torch.full((1,), math.nan, device=device)
         if grads:  # one fused kernel for every gradient's norm; NaN/inf anywhere makes the sum non-finite
             norms = torch.stack(torch._foreach_norm([grad for _, grad in grads])).float()  # [G]
-            total = norms.sum().reshape(1)
-            checks.append(torch.isfinite(total[0]))
+            head = torch.cat([value, norms.sum().reshape(1)])  # [2] the loss, the sum of the norms
         else:
-            norms, total = torch.zeros(0, device=device), torch.zeros(1, device=device)
-        accepted = checks[0]
-        for check in checks[1:]:
-            accepted = accepted & check
+            norms = torch.zeros(0, device=device)
+            head = torch.cat([value, torch.zeros(1, device=device)])
+        checked = head if loss is not None else head[1:]  # what must be finite
+        accepted = (checked * 0 == 0).all()  # x * 0 is 0 for a finite x, NaN for inf and NaN: torch.isfinite
+        # in two kernels (torch's own is four), for both values at once
+        if loss is not None and threshold < math.inf:  # below an infinite threshold every finite loss lies
+            accepted = accepted & (head[0] <= threshold)
         accepted = agree(accepted)
-        values = torch.cat([accepted.float().reshape(1), value, total, norms])  # [3 + G]
+        values = torch.cat([accepted.float().reshape(1), head, norms])  # [3 + G]
         ready = None
         if values.is_cuda:  # behind the queued work, into pinned memory: no wait here
-            host = torch.empty(values.shape, dtype=values.dtype, pin_memory=True)
-            host.copy_(values, non_blocking=True)
-            values, ready = host, torch.cuda.Event()
-            ready.record()
+            values, ready = self._to_host(values)
         self.pending = PendingVerdict(
             step, frame, values, ready, [g for g, _ in grads], loss is not None, threshold, median
         )
         return accepted
+
+    def _to_host(self, values: torch.Tensor) -> Tuple[torch.Tensor, torch.cuda.Event]:
+        """`values` on their way to host memory behind the queued work, and the event that says they are
+        there. The pinned buffer and the event are the guard's own, reused from step to step: the last
+        step's values were read back (`settle`) before this copy is queued."""
+        if self._host is None or self._host.shape != values.shape:
+            self._host = torch.empty(values.shape, dtype=values.dtype, pin_memory=True)
+            self._ready = torch.cuda.Event()
+        self._host.copy_(values, non_blocking=True)
+        self._ready.record()
+        return self._host, self._ready
 
     def settle(self) -> Optional[str]:
         """Read the last verdict back: why its step was skipped (None: it was not, or nothing is

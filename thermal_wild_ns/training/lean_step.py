@@ -31,12 +31,13 @@ def lean_iteration(
     pipeline,
     optimizers,
     step: int,
-    accept: Optional[Callable[[list], Optional[torch.Tensor]]],
+    accept: Optional[Callable[[list, torch.Tensor], Optional[torch.Tensor]]],
     after_backward: Optional[Callable[[], None]] = None,
 ):
     """One training step; `after_backward()`, if given, runs right after backward (the gradient sum
-    across GPUs); `accept(param_groups)`, if given, decides then whether the optimizers step (the
-    divergence guard's verdict: [] bool on the device, None for yes), which they read on the device.
+    across GPUs); `accept(param_groups, loss)`, if given, decides then on the step's total `loss` whether
+    the optimizers step (the divergence guard's verdict: [] bool on the device, None for yes), which they
+    read on the device.
     Returns (loss, loss dict, metrics dict) as nerfstudio's."""
     adams = list(optimizers.optimizers.values())
     for optimizer in adams:
@@ -48,6 +49,6 @@ def lean_iteration(
     loss.backward()
     if after_backward is not None:
         after_backward()
-    fused_adam_step(adams, None if accept is None else accept(list(optimizers.parameters)))
+    fused_adam_step(adams, None if accept is None else accept(list(optimizers.parameters), loss))
     optimizers.scheduler_step_all(step)
     return loss, loss_dict, metrics_dict

@@ -5,7 +5,7 @@ model-side checks: no loss check per step, scores from step 0, no embeddings to 
 
 from __future__ import annotations
 
-from typing import List, Optional, Protocol, Sequence, Tuple, runtime_checkable
+from typing import Dict, List, Optional, Protocol, Sequence, Tuple, runtime_checkable
 
 from torch import Tensor
 
@@ -18,8 +18,9 @@ class GuardedModel(Protocol):
     """The first step past the schedule's start-up (full resolution, first opacity reset): the
     automatic stop scores no earlier."""
 
-    def last_training_loss(self) -> Tuple[Optional[Tensor], Optional[int]]:
-        """The last training step's total loss (detached, on the device) and its training image."""
+    def last_training_losses(self) -> Tuple[Optional[Dict[str, Tensor]], Optional[int]]:
+        """The last training step's losses (its loss dict, on the device; None before the first step) and its
+        training image (None where the step had no one image)."""
         ...
 
     def discard_step_statistics(self) -> None:

@@ -24,6 +24,7 @@ model without it (stock splatfacto) trains without those checks.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import random
 from dataclasses import dataclass, field
@@ -154,10 +155,16 @@ class GuardedTrainer(TrainerAfterLoad):
         self.decisions = RunDecisions(self.config.get_base_dir(), RankGroup.current().rank)
         self.decisions.start(self)
 
-    def _step_verdict(self, param_groups) -> Optional[torch.Tensor]:
+    def _step_verdict(self, param_groups, loss: Optional[torch.Tensor] = None) -> Optional[torch.Tensor]:
         """Whether this step's update may happen: the guard's checks on its loss and gradients, decided
-        on the device ([] bool; None: nothing to check), recorded by the guard a step later."""
-        loss, frame = self.pipeline.model.last_training_loss() if self.guarded_model else (None, None)
+        on the device ([] bool; None: nothing to check), recorded by the guard a step later. `loss`: the
+        step's total where the step summed it (the lean step), else the model's losses are summed here;
+        a model without the trainer's interface has no loss checked."""
+        losses, frame = self.pipeline.model.last_training_losses() if self.guarded_model else (None, None)
+        if losses is None:
+            loss = None
+        elif loss is None:
+            loss = functools.reduce(torch.add, losses.values())
         with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
             return self.guard.verdict(
                 loss, self.optimizers.parameters, param_groups, frame, step=self._step, agree=self._agree
@@ -171,10 +178,10 @@ class GuardedTrainer(TrainerAfterLoad):
         """The guard's check of the model itself (`TrainingDiverged` when broken)."""
         self.guard.check_model(self.pipeline.model, step)
 
-    def _accept_step(self, param_groups) -> Optional[torch.Tensor]:
-        """The lean step's verdict (`_step_verdict`), on the device: the optimizers take it as
-        `found_inf`, the model keeps a rejected step's gradients out of its densification statistics."""
-        accepted = self._step_verdict(param_groups)
+    def _accept_step(self, param_groups, loss: Optional[torch.Tensor] = None) -> Optional[torch.Tensor]:
+        """The lean step's verdict (`_step_verdict`) on the step's total `loss`, on the device: the optimizers
+        take it as `found_inf`, the model keeps a rejected step's gradients out of its densification statistics."""
+        accepted = self._step_verdict(param_groups, loss)
         if accepted is not None and self.guarded_model:
             self.pipeline.model.weigh_step_statistics(accepted)
         return accepted
