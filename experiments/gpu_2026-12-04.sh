@@ -15,9 +15,14 @@
 # A later session (2026-12-04): after the two installs, SEEDS=3 schedule dunr wild-thermal, schedule dunr splatfacto,
 # SEEDS=3 schedule flight2 wild-thermal, schedule flight2 splatfacto on one warm machine; a fresh one after the
 # installs, ROUNDS=2 profile-stop flight2 (docs/results/default_schedule_h200).
-# Next: profile-stop dunr and profile-stop flight2 in one lease (is flight2's slower host step the scene or the machine?).
+# Ready, not run (no GPU lent to the session of 2026-12-04 that wrote it): fewer host operations per step (the guard's
+# verdict, the densification statistics, no empty_cache at refinements; docs/results/step_ops_cpu) against the package
+# before them, after the two installs, on one warm machine (the scenes' carries do not fit one call together):
+#     rm -rf .baseline && mkdir .baseline && git archive 173dc9e thermal_wild_ns | tar -x -C .baseline
+#     ROUNDS=2 bash experiments/gpu_2026-12-04.sh host-ab dunr      # .baseline and DUNR's carry
+#     ROUNDS=2 bash experiments/gpu_2026-12-04.sh host-ab flight2   # .baseline and flight2's carry
 set -uo pipefail
-plan=${1:?plan: step-floor SCENE (dunr or flight2), bilinear-ab, schedule SCENE METHOD..., profile-stop SCENE}
+plan=${1:?plan: step-floor SCENE (dunr or flight2), bilinear-ab, schedule SCENE METHOD..., profile-stop SCENE, host-ab SCENE}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -91,6 +96,31 @@ case "$plan" in
           $flag --output-dir "/tmp/profile-$arm-$round" > "/tmp/profile-$arm-$round.log" 2>&1 || tail -5 "/tmp/profile-$arm-$round.log"
         cp "/tmp/profile-$arm-$round/profile.md" "$OUT/profile-$scene-$arm-$round.md" && \
           echo "$arm $round: $(sed -n 1,3p "$OUT/profile-$scene-$arm-$round.md" | tr '\n' ' ')"
+      done
+    done
+    ;;
+  host-ab)  # SCENE: experiments.profile_step as the bench trains (--auto-stop) after WARMUP steps (3000), the package
+    # before (.baseline) and now, alternated over ROUNDS rounds (1), the now-arm first in odd rounds; the GPU tests of
+    # the guard's verdict and of the CUDA graphs first (dunr only)
+    test -d /tmp/site/tensorly || { echo cold; exit 3; }
+    scene=${2:?scene: dunr or flight2}
+    root=$PWD
+    if [ "$scene" = dunr ]; then
+      PYTHONPATH=$PWD:/tmp/site timeout 200 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
+        > "$OUT/gpu-tests.log" 2>&1
+      grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$OUT/gpu-tests.log" | head -20
+    fi
+    rm -rf .baseline/experiments && cp -r experiments .baseline/
+    for round in $(seq ${ROUNDS:-1}); do
+      arms="after before"; [ $((round % 2)) = 0 ] && arms="before after"
+      for arm in $arms; do
+        dir=$root; [ $arm = before ] && dir=$root/.baseline
+        (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.profile_step \
+          --scene "$root/.data/$scene" --cache-dir "$root/.data/cache" --warmup ${WARMUP:-3000} --steps 500 \
+          --profile-steps 10 --python-steps 0 --auto-stop --output-dir "/tmp/host-$arm-$round" \
+          > "/tmp/host-$arm-$round.log" 2>&1) || tail -5 "/tmp/host-$arm-$round.log"
+        cp "/tmp/host-$arm-$round/profile.md" "$OUT/host-$scene-$arm-$round.md" && \
+          echo "$arm $round: $(sed -n 1,4p "$OUT/host-$scene-$arm-$round.md" | tr '\n' ' ')"
       done
     done
     ;;
