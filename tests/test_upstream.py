@@ -124,8 +124,9 @@ def test_step_timings_are_written_with_the_losses_every_other_event_at_once(monk
     ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA"))],
 )
 def test_fused_adam_step_is_adams_step(device):
-    """`fused_adam_step` over several optimizers (with and without weight decay, parameters without
-    gradients, a state created mid-way as densification creates one) against each optimizer's own
+    """`fused_adam_step` over several optimizers (with and without weight decay, two of the same settings,
+    which share one fused call, parameters without gradients, a state created mid-way as densification
+    creates one) against each optimizer's own
     `step()`, bit for bit over a few steps; a step the divergence guard rejects on the device
     (`accepted` False) is one torch never took, an accepted one is `step()`. On the CPU and, where
     there is one, a GPU (the training step's device: its fused kernel is another)."""
@@ -133,15 +134,16 @@ def test_fused_adam_step_is_adams_step(device):
 
     def build():
         torch.manual_seed(0)
-        params = [torch.nn.Parameter(torch.randn(n, 3, device=device)) for n in (5, 7, 2)]
+        params = [torch.nn.Parameter(torch.randn(n, 3, device=device)) for n in (5, 7, 4, 2)]
         return params, [
             torch.optim.Adam([params[0]], lr=1e-2, eps=1e-15, fused=True),
             torch.optim.Adam([params[1]], lr=3e-3, weight_decay=1e-2, fused=True),
-            torch.optim.AdamW([params[2]], lr=1e-3, weight_decay=1e-1, fused=True),
+            torch.optim.Adam([params[2]], lr=1e-2, eps=1e-15, fused=True),  # the first one's settings
+            torch.optim.AdamW([params[3]], lr=1e-3, weight_decay=1e-1, fused=True),
         ]
 
     mine, theirs = build(), build()
-    assert all(fused_adam_ready(o) for o in mine[1][:2]) and not fused_adam_ready(mine[1][2])  # AdamW: no
+    assert all(fused_adam_ready(o) for o in mine[1][:3]) and not fused_adam_ready(mine[1][3])  # AdamW: no
     assert not fused_adam_ready(torch.optim.Adam([torch.nn.Parameter(torch.ones(1))]))  # not fused
     verdicts = [None, torch.tensor(True), torch.tensor(False), None, torch.tensor(True)]  # step 2 rejected
     verdicts = [v if v is None else v.to(device) for v in verdicts]
@@ -151,9 +153,9 @@ def test_fused_adam_step_is_adams_step(device):
             for k, p in enumerate(params):
                 p.grad = None if (step == 0 and k == 1) else torch.randn_like(p)  # the second starts at step 1
             if stepper == "ours":
-                fused_adam_step(optimizers[:2], accepted)
+                fused_adam_step(optimizers[:3], accepted)
                 if accepted is None or bool(accepted):
-                    optimizers[2].step()
+                    optimizers[3].step()
             elif accepted is None or bool(accepted):
                 for optimizer in optimizers:
                     optimizer.step()
@@ -309,3 +311,53 @@ def test_a_refinement_keeps_the_allocators_cache(monkeypatch):
     assert torch.cuda.empty_cache is original
     torch.cuda.empty_cache()
     assert calls == [1]  # the function itself still works
+
+
+def test_adam_groups_of_the_same_settings_share_one_fused_call(monkeypatch):
+    """One `torch._fused_adam_` call per distinct (learning rate, betas, weight decay, eps), in the groups' order:
+    host work per call, the same numbers either way (`test_fused_adam_step_is_adams_step`)."""
+    from thermal_wild_ns._upstream import fused_adam_step
+
+    calls = []
+    fused = torch._fused_adam_
+    monkeypatch.setattr(
+        torch, "_fused_adam_", lambda params, *a, **k: calls.append((len(params), k["lr"])) or fused(params, *a, **k)
+    )
+    params = [torch.nn.Parameter(torch.ones(3)) for _ in range(4)]
+    for p in params:
+        p.grad = torch.ones(3)
+    optimizers = [
+        torch.optim.Adam([params[0]], lr=1e-3, fused=True),
+        torch.optim.Adam([params[1]], lr=1e-2, fused=True),
+        torch.optim.Adam([params[2]], lr=1e-3, fused=True),
+        torch.optim.Adam([params[3]], lr=1e-3, weight_decay=1e-6, fused=True),
+    ]
+    fused_adam_step(optimizers)
+    assert calls == [(2, 1e-3), (1, 1e-2), (1, 1e-3)]
+
+
+def test_a_profiled_section_costs_nothing_without_a_profiler_and_is_named_with_one():
+    """`profiled_section` dispatches no operation while no profiler records (torch's `record_function` does,
+    at every section of every step), and is the named range in a torch profiler's events while one does."""
+    from torch.profiler import ProfilerActivity, profile, record_function
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    from thermal_wild_ns._upstream import profiled_section
+
+    class Count(TorchDispatchMode):
+        ops = 0
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            Count.ops += 1
+            return func(*args, **(kwargs or {}))
+
+    for section, dispatches in ((record_function, True), (profiled_section, False)):
+        Count.ops = 0
+        with Count():
+            with section("thermal/test"):
+                pass
+        assert (Count.ops > 0) == dispatches, section
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        with profiled_section("thermal/test"):
+            torch.ones(4).sum()
+    assert "thermal/test" in {event.key for event in prof.key_averages()}

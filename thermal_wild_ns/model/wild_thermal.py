@@ -22,8 +22,8 @@ from nerfstudio.models.splatfacto import SplatfactoModel, SplatfactoModelConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
 from torch.nn import Parameter
-from torch.profiler import record_function
 
+from thermal_wild_ns._upstream import profiled_section
 from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.image_metrics import image_metrics_and_images, psnr
@@ -550,7 +550,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             view = self._posed_view(camera, cam_idx)
         W, H = view.width, view.height
         self.last_size = (H, W)
-        with record_function("thermal/background"):  # named sections for python -m experiments.profile_step
+        with profiled_section("thermal/background"):  # named sections for python -m experiments.profile_step
             if viewing:
                 viewmat, background = self.viewing_view_and_background(view, frame_embed)
             else:
@@ -567,7 +567,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         # the Gaussians are split across GPUs: every render is one of all ranks together (outside
         # training, the automatic stop's: every rank renders the same camera at the same state)
         split = self.ranks.split
-        with record_function("thermal/emission"):
+        with profiled_section("thermal/emission"):
             if split and self.training:  # one channel per rank: each rank's camera sees these Gaussians at its state
                 colors = self.emission_for_every_rank(frame_embed, cam_idx_of(camera), view)  # [N, W]
             elif self.training and self.num_points > self.config.emission_in_view_above:
@@ -575,7 +575,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             else:
                 colors = self._emission(frame_embed, camera_position, ids)  # [N, 1]
             colors = self.radiance(colors)
-        with record_function("thermal/rasterize"):
+        with profiled_section("thermal/rasterize"):
             if viewing:  # one camera, no autograd, every Gaussian
                 activated = self.baked.get("activated", (self.scales, self.opacities), self.step, self.activated_splats)
                 render, alpha = render_one_view(
@@ -617,9 +617,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             cam_idx = self._fixed_pose_index(camera)
             frame_embed = self.frame_embedding(camera)
             view = self._posed_view(camera, cam_idx)
-            with record_function("thermal/background"):
+            with profiled_section("thermal/background"):
                 backgrounds.append(self._background(view, frame_embed, cam_idx, slot))  # [H, W, 1]
-            with record_function("thermal/emission"):
+            with profiled_section("thermal/emission"):
                 # every Gaussian's, whatever the model's size (`emission_in_view_above` picks those of one camera)
                 colors.append(self._emission(frame_embed, view.camera_to_world[0, :3, 3], slot=slot))  # [N, 1]
             views.append(view)
@@ -631,7 +631,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if self.num_points == 0:
             raise RuntimeError(TRAINING_COLLAPSED)
         colors = self.radiance(torch.stack(colors))  # [B, N, 1]
-        with record_function("thermal/rasterize"):
+        with profiled_section("thermal/rasterize"):
             viewmats, Ks = torch.cat([view.viewmat for view in views]), torch.cat([view.K for view in views])
             render, alpha = self._rasterize(colors, viewmats, Ks, W, H, None)  # [B, H, W, 1(+1)], [B, H, W, 1]
         self._count_for_densification()
@@ -912,7 +912,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def _camera_losses(self, outputs, batch, image: Optional[int], slot: int = 0) -> Dict[str, Tensor]:
         """The losses of one camera's render against its frame (`image`: its training image, None
         outside training); `slot`: the camera's place among a training step's cameras (`GraphedCalls`)."""
-        with record_function("thermal/loss"):
+        with profiled_section("thermal/loss"):
             gt, contrast = self._ground_truth(outputs, batch)
             losses = self.thermal_loss(outputs, gt, contrast, image, slot)
         if "view_radial" in outputs:  # the view term's radial part (`view_radial_penalty`)
@@ -1149,7 +1149,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             return
         assert step == self.step
         info = self.info if accepted is None else {**self.info, "accepted": accepted}
-        with record_function("thermal/densify"):  # splatfacto's, but with the layout this model rendered
+        with profiled_section("thermal/densify"):  # splatfacto's, but with the layout this model rendered
             # splatfacto passes packed=False; across GPUs the render is packed ([nnz] per visible splat), and
             # statistics read as [C, N] summed every splat into every Gaussian: each rank's screen-size
             # rule then pruned all its Gaussians within a few refinements after the first opacity reset

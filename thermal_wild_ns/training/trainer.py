@@ -38,12 +38,12 @@ import yaml
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.decorators import check_main_thread
 from nerfstudio.utils.rich_utils import CONSOLE
-from torch.profiler import record_function
 
 from thermal_wild_ns._upstream import (
     TrainerAfterLoad,
     guard_optimizer_steps,
     log_step_timings_with_the_losses,
+    profiled_section,
     repoint_optimizers,
     trainer_checkpoint_state,
 )
@@ -165,7 +165,7 @@ class GuardedTrainer(TrainerAfterLoad):
             loss = None
         elif loss is None:
             loss = functools.reduce(torch.add, losses.values())
-        with record_function("thermal/guard_check"):  # named sections for python -m experiments.profile_step
+        with profiled_section("thermal/guard_check"):  # named sections for python -m experiments.profile_step
             return self.guard.verdict(
                 loss, self.optimizers.parameters, param_groups, frame, step=self._step, agree=self._agree
             )
