@@ -100,7 +100,7 @@ def count(args: StepOpsArgs) -> Dict:
         def after(step: int) -> None:
             counting["on"] = args.warmup <= step + 1 < args.warmup + args.steps
 
-        train_with_hooks(trainer, args.warmup + args.steps + 1, after)
+        train_with_hooks(trainer, args.warmup + args.steps, after)  # a step's statistics come before `after`
     finally:
         for owner, name, original in originals:
             setattr(owner, name, original)

@@ -110,8 +110,8 @@ def fused_adam_step(optimizers, accepted: Optional[torch.Tensor] = None) -> None
     `Adam.step` does with fused=True (state created at the first step as `Adam._init_group` creates
     it, the step counts raised, then `torch._fused_adam_` per param group with the arguments
     `torch.optim.adam._fused_adam` gives it), without the Python around it: the profiler range,
-    hooks, graph-capture checks and torch.compile guards of each `step()` call, nine of them per
-    training step here. The step counts of every parameter go up in one foreach kernel, and groups
+    hooks, graph-capture checks and torch.compile guards of each `step()` call, one per optimizer
+    and training step. The step counts of every parameter go up in one foreach kernel, and groups
     with the same settings (learning rate, betas, weight decay, eps) share one fused call.
     Checked against torch 2.11 (the GPU machines) and 2.13 (CPU): tests/test_upstream.py compares
     the parameters and optimizer states with `Optimizer.step`'s, bit for bit, and
@@ -148,10 +148,14 @@ def fused_adam_step(optimizers, accepted: Optional[torch.Tensor] = None) -> None
     # which call a tensor is in changes none of its numbers); a learning rate held as a tensor stays apart
     calls: Dict[tuple, Tuple[dict, list, list]] = {}
     for group, params, states in work:
-        decoupled = group.get("decoupled_weight_decay", False)
         lr = group["lr"]
-        settings = (decoupled, lr if isinstance(lr, float) else id(group), *group["betas"])
-        key = (*settings, group["weight_decay"], group["eps"])
+        key = (
+            group.get("decoupled_weight_decay", False),
+            lr if isinstance(lr, float) else id(group),
+            *group["betas"],
+            group["weight_decay"],
+            group["eps"],
+        )
         _, together, their_states = calls.setdefault(key, (group, [], []))
         together += params
         their_states += states

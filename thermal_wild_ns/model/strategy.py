@@ -80,7 +80,7 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     prunes nothing (with a message) rather than running out of memory halfway through."""
     prunes_skipped: int = 0
     """Refinements whose pruning `copies_fit` turned down (the first one says so on the console)."""
-    _pixel_scales: dict = field(default_factory=dict, repr=False)  # `_pixel_scale`'s, by render size
+    _pixel_scales: dict = field(default_factory=dict, repr=False, compare=False)  # `_pixel_scale`'s, by render size
 
     @classmethod
     def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":

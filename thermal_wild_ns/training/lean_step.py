@@ -27,6 +27,11 @@ def lean_step_unsupported(config, optimizers) -> Optional[str]:
     return None
 
 
+def total_loss(loss_dict) -> torch.Tensor:
+    """A step's loss dict summed in its order, as nerfstudio's `Trainer.train_iteration` sums it."""
+    return functools.reduce(torch.add, loss_dict.values())
+
+
 def lean_iteration(
     pipeline,
     optimizers,
@@ -45,7 +50,7 @@ def lean_iteration(
             for param in group["params"]:
                 param.grad = None
     _, loss_dict, metrics_dict = pipeline.get_train_loss_dict(step=step)
-    loss = functools.reduce(torch.add, loss_dict.values())
+    loss = total_loss(loss_dict)
     loss.backward()
     if after_backward is not None:
         after_backward()

@@ -24,7 +24,6 @@ model without it (stock splatfacto) trains without those checks.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import os
 import random
 from dataclasses import dataclass, field
@@ -55,7 +54,7 @@ from thermal_wild_ns.training.auto_stop import AutoStopConfig, AutoStopRun
 from thermal_wild_ns.training.checkpoints import SAVES_PER_RUN, restore, save_checkpoint, snapshot
 from thermal_wild_ns.training.decisions import RunDecisions
 from thermal_wild_ns.training.divergence import DivergenceGuard, DivergenceGuardConfig, TrainingDiverged
-from thermal_wild_ns.training.lean_step import lean_iteration, lean_step_unsupported
+from thermal_wild_ns.training.lean_step import lean_iteration, lean_step_unsupported, total_loss
 from thermal_wild_ns.training.model_interface import GuardedModel
 from thermal_wild_ns.training.schedule import in_steps
 
@@ -164,7 +163,7 @@ class GuardedTrainer(TrainerAfterLoad):
         if losses is None:
             loss = None
         elif loss is None:
-            loss = functools.reduce(torch.add, losses.values())
+            loss = total_loss(losses)
         with profiled_section("thermal/guard_check"):  # named sections for python -m experiments.profile_step
             return self.guard.verdict(
                 loss, self.optimizers.parameters, param_groups, frame, step=self._step, agree=self._agree
