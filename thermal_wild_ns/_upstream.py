@@ -20,7 +20,7 @@ import os
 import shutil
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Dict, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -304,15 +304,23 @@ def guard_optimizer_steps(optimizers, before_step: Callable[[list], bool]) -> No
     optimizers.optimizer_scaler_step_some = guarded
 
 
-def log_step_timings_with_the_losses() -> None:
-    """nerfstudio 1.1.5's `Trainer.train` puts three running timings (the iteration's time, the ETA,
-    rays per second) as scalar events at every step, and `writer.write_out_storage` hands each one to
-    every event writer (tensorboard: an `add_scalar` each): host work inside every training step.
-    From now on, in this process, they are written at the steps the losses are written
-    (`--logging.steps-per-log`, which `writer.GLOBAL_BUFFER` holds), where the terminal's table prints
-    them anyway; their running averages still take in every step, and every other event is written as
-    before. Installed once (each trainer's setup calls this)."""
-    if getattr(writer.write_out_storage, "keeps_step_timings_at_log_steps", False):
+def lighter_event_writes() -> None:
+    """Two host costs of nerfstudio 1.1.5's event writes inside training steps, from now on in this process:
+
+    - `Trainer.train` puts three running timings (the iteration's time, the ETA, rays per second) as
+      scalar events at every step, and `writer.write_out_storage` hands each one to every event writer
+      (tensorboard: an `add_scalar` each). They are written at the steps the losses are written
+      (`--logging.steps-per-log`, which `writer.GLOBAL_BUFFER` holds), where the terminal's table prints
+      them anyway; their running averages still take in every step, and every other event is written
+      as before.
+    - The losses and metrics it puts at those steps are the step's device tensors, and each writer
+      reads each one back on its own (`Writer.write_scalar_dict`'s `float(scalar)`, tensorboard's
+      `make_np`): a host sync per value and writer, and a warning per run for reading a tensor that
+      requires grad. Every tensor of the events is read back first in one transfer per device
+      (`host_event_values`), so the writers get Python floats of the same values.
+
+    Installed once (each trainer's setup calls this)."""
+    if getattr(writer.write_out_storage, "lighter_event_writes", False):
         return
     original = writer.write_out_storage
     per_step = {name.value for name in (writer.EventName.ITER_TRAIN_TIME, writer.EventName.ETA)}
@@ -320,13 +328,37 @@ def log_step_timings_with_the_losses() -> None:
 
     def write_out_storage() -> None:
         every = writer.GLOBAL_BUFFER.get("steps_per_log")
+        events = writer.EVENT_STORAGE
         if every:
-            events = writer.EVENT_STORAGE
             events[:] = [e for e in events if e["name"] not in per_step or e["step"] % every == 0]
+        host_event_values(events)
         original()
 
-    write_out_storage.keeps_step_timings_at_log_steps = True  # type: ignore[attr-defined]
+    write_out_storage.lighter_event_writes = True  # type: ignore[attr-defined]
     writer.write_out_storage = write_out_storage
+
+
+def host_event_values(events: List[dict]) -> None:
+    """Replace every one-element tensor of nerfstudio's scalar and dictionary `events` (its
+    `writer.EVENT_STORAGE` entries) by its value as a Python float, `float(tensor)`'s, read back in one
+    transfer per device and dtype (the step's losses: one). A dictionary event gets a new dictionary:
+    the trainer's own loss dict is left as it was."""
+    one_value = lambda value: isinstance(value, torch.Tensor) and value.numel() == 1
+    found: List[Tuple[dict, Optional[str]]] = []  # (the event or its new dictionary, the key there or None)
+    for event in events:
+        if event["write_type"] == writer.EventType.SCALAR and one_value(event["event"]):
+            found.append((event, None))
+        elif event["write_type"] == writer.EventType.DICT and any(map(one_value, event["event"].values())):
+            event["event"] = values = dict(event["event"])
+            found += [(values, key) for key, value in values.items() if one_value(value)]
+    tensor = lambda place: place[0]["event"] if place[1] is None else place[0][place[1]]
+    groups: Dict[Tuple[torch.device, torch.dtype], list] = {}
+    for place in found:
+        groups.setdefault((tensor(place).device, tensor(place).dtype), []).append(place)
+    for places in groups.values():
+        read = torch.stack([tensor(place).detach().reshape(()) for place in places]).tolist()
+        for (holder, key), value in zip(places, read):
+            holder["event" if key is None else key] = float(value)
 
 
 def replace_gaussians(pipeline, optimizers, values: Dict[str, torch.Tensor]) -> None:

@@ -52,6 +52,8 @@ class GraphedCalls:
         self.latest_only = latest_only
         self.graphs: Dict[Hashable, Optional[Callable]] = {}
         """slot, key, input shapes and grad flags -> the graphed `fn` (None: it could not be recorded)"""
+        self.accumulators: Dict[int, object] = {}
+        """id of a parameter of a recorded `fn` -> the autograd node that takes its gradient (`held_accumulators`)"""
 
     @staticmethod
     def records(inputs: Tuple[Tensor, ...]) -> bool:
@@ -69,6 +71,7 @@ class GraphedCalls:
         if full_key not in self.graphs:
             if self.latest_only:  # the slot's older recordings' memory goes before the new one takes its own
                 self.graphs = {k: v for k, v in self.graphs.items() if k[0] != slot}
+            self.accumulators.update(held_accumulators(fn))
             # leaf copies with the inputs' grad flags: torch warms up and records on these
             samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in inputs)
             try:
@@ -80,3 +83,17 @@ class GraphedCalls:
                 )
         graphed = self.graphs[full_key]
         return fn(*inputs) if graphed is None else graphed(*inputs)
+
+
+def held_accumulators(fn: Callable) -> Dict[int, object]:
+    """The autograd nodes that accumulate the gradients of `fn`'s parameters (a module's; a function has
+    none), made now, on the step's stream, for the caller to hold. Torch makes a parameter's node when a
+    graph first uses the parameter and keeps it while any graph does; `make_graphed_callables` (torch
+    2.11-2.13) warms up and records on streams of its own and keeps the recording's outputs, and with
+    them their graph: a node first made there stays on that stream, and every later step's backward
+    then waits across streams for each such parameter (torch warns once: "The AccumulateGrad node's
+    stream does not match the stream of the node that produced the incoming gradient"). Made first
+    on the step's stream and held, the recording uses the same node."""
+    parameters = fn.parameters() if isinstance(fn, nn.Module) else ()
+    with torch.enable_grad():  # a view's grad_fn leads to the parameter's node
+        return {id(p): p.view_as(p).grad_fn.next_functions[0][0] for p in parameters if p.requires_grad}

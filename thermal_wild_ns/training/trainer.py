@@ -41,7 +41,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from thermal_wild_ns._upstream import (
     TrainerAfterLoad,
     guard_optimizer_steps,
-    log_step_timings_with_the_losses,
+    lighter_event_writes,
     profiled_section,
     repoint_optimizers,
     trainer_checkpoint_state,
@@ -130,7 +130,7 @@ class GuardedTrainer(TrainerAfterLoad):
             except InputError as err:
                 raise SystemExit(f"--load-dir: {err}") from None
         super().setup(test_mode=test_mode)
-        log_step_timings_with_the_losses()  # host work at every step otherwise
+        lighter_event_writes()  # host work at every step otherwise
         self.guard = DivergenceGuard(self.config.guard)
         # once, not per step: a runtime protocol check is slow, and the model's class does not change
         self.guarded_model = isinstance(self.pipeline.model, GuardedModel)
