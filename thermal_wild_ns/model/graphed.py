@@ -88,12 +88,12 @@ class GraphedCalls:
 def held_accumulators(fn: Callable) -> Dict[int, object]:
     """The autograd nodes that accumulate the gradients of `fn`'s parameters (a module's; a function has
     none), made now, on the step's stream, for the caller to hold. Torch makes a parameter's node when a
-    graph first uses the parameter and keeps it while any graph does; `make_graphed_callables` (torch
-    2.11-2.13) warms up and records on streams of its own and keeps the recording's outputs, and with
-    them their graph: a node first made there stays on that stream, and every later step's backward
-    then waits across streams for each such parameter (torch warns once: "The AccumulateGrad node's
-    stream does not match the stream of the node that produced the incoming gradient"). Made first
-    on the step's stream and held, the recording uses the same node."""
+    graph first uses the parameter and keeps it while any graph does; `make_graphed_callables` (read in
+    torch 2.13's source) warms up and records on streams of its own and keeps the recording's outputs,
+    and with them their graph: a node first made there stays on that stream, and every later step's
+    backward may then wait across streams for each such parameter (torch 2.11 warns of it once in every
+    GPU run: "The AccumulateGrad node's stream does not match the stream of the node that produced the
+    incoming gradient"). Made first on the step's stream and held, the recording uses the same node."""
     parameters = fn.parameters() if isinstance(fn, nn.Module) else ()
     with torch.enable_grad():  # a view's grad_fn leads to the parameter's node
         return {id(p): p.view_as(p).grad_fn.next_functions[0][0] for p in parameters if p.requires_grad}
