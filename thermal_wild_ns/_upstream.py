@@ -316,8 +316,8 @@ def lighter_event_writes() -> None:
     - The losses and metrics it puts at those steps are the step's device tensors, and each writer
       reads each one back on its own (`Writer.write_scalar_dict`'s `float(scalar)`, tensorboard's
       `make_np`): a host sync per value and writer, and a warning per run for reading a tensor that
-      requires grad. Every tensor of the events is read back first in one transfer per device
-      (`host_event_values`), so the writers get Python floats of the same values.
+      requires grad. Every tensor of the events is read back first in one transfer per device and
+      dtype (`host_event_values`), so the writers get Python floats of the same values.
 
     Installed once (each trainer's setup calls this)."""
     if getattr(writer.write_out_storage, "lighter_event_writes", False):
@@ -344,21 +344,20 @@ def host_event_values(events: List[dict]) -> None:
     transfer per device and dtype (the step's losses: one). A dictionary event gets a new dictionary:
     the trainer's own loss dict is left as it was."""
     one_value = lambda value: isinstance(value, torch.Tensor) and value.numel() == 1
-    found: List[Tuple[dict, Optional[str]]] = []  # (the event or its new dictionary, the key there or None)
+    found: List[Tuple[dict, str]] = []  # (a dict, the key of a tensor there): the event's own or its new dictionary's
     for event in events:
         if event["write_type"] == writer.EventType.SCALAR and one_value(event["event"]):
-            found.append((event, None))
+            found.append((event, "event"))
         elif event["write_type"] == writer.EventType.DICT and any(map(one_value, event["event"].values())):
             event["event"] = values = dict(event["event"])
             found += [(values, key) for key, value in values.items() if one_value(value)]
-    tensor = lambda place: place[0]["event"] if place[1] is None else place[0][place[1]]
-    groups: Dict[Tuple[torch.device, torch.dtype], list] = {}
-    for place in found:
-        groups.setdefault((tensor(place).device, tensor(place).dtype), []).append(place)
+    groups: Dict[Tuple[torch.device, torch.dtype], List[Tuple[dict, str]]] = {}
+    for holder, key in found:
+        groups.setdefault((holder[key].device, holder[key].dtype), []).append((holder, key))
     for places in groups.values():
-        read = torch.stack([tensor(place).detach().reshape(()) for place in places]).tolist()
+        read = torch.stack([holder[key].detach().reshape(()) for holder, key in places]).tolist()
         for (holder, key), value in zip(places, read):
-            holder["event" if key is None else key] = float(value)
+            holder[key] = float(value)
 
 
 def replace_gaussians(pipeline, optimizers, values: Dict[str, torch.Tensor]) -> None:
