@@ -9,14 +9,17 @@ the model as in a real run by then), then
   top operators by GPU and by CPU time, and the model's own sections (`thermal/...` ranges);
 - profiles `--python-steps` steps with cProfile: the host's time by Python function (trainer,
   callbacks, model, optimizers), the part of a host-bound step that operator tables do not name.
-Writes `profile.json` and `profile.md` to `--output-dir`.
+Writes `profile.json` and `profile.md` to `--output-dir` (and with `--trace` the profiled steps'
+timeline, `trace.json.gz`).
 """
 
 from __future__ import annotations
 
 import collections
 import cProfile
+import gzip
 import json
+import shutil
 import time
 import warnings
 from dataclasses import dataclass
@@ -53,6 +56,9 @@ class ProfileArgs:
     its measured steps are done is an error: lower `--warmup`."""
     set: Tuple[str, ...] = ()
     """Settings of the method's config, as the bench's `--set` (e.g. pipeline.model.graphed_loss=True)."""
+    trace: bool = False
+    """Also write the profiled steps' timeline (`trace.json.gz`, chrome://tracing or Perfetto): where the
+    host waits and what it launches between kernels, which the operator tables do not show."""
     output_dir: Path = Path("outputs/profile")
     cache_dir: Optional[Path] = None
 
@@ -195,6 +201,12 @@ def profile(args: ProfileArgs) -> Dict:
             "steps of the warm-up and the measurement; lower --warmup"
         )
     prof, ms_per_step, profiled_ms = phases.prof, phases.ms_per_step, phases.profiled_ms
+    if args.trace:
+        trace = args.output_dir / "trace.json"
+        prof.export_chrome_trace(str(trace))
+        with trace.open("rb") as raw, gzip.open(trace.with_suffix(".json.gz"), "wb") as packed:
+            shutil.copyfileobj(raw, packed)
+        trace.unlink()
     syncs = dict(sorted(phases.syncs.items(), key=lambda kv: -kv[1]))
     events = prof.key_averages()
     n = args.profile_steps
