@@ -1,50 +1,74 @@
 #!/usr/bin/env bash
 # Plans for the GPU, 2026-12-05 (issue 34). One H100 (`nvidia-h100-x1`, the machine its targets name) or H200; each call
-# right after the last on one warm machine (a machine stays warm 30 s), after the two installs:
-#     bash experiments/gpu_2026-11-29.sh install          # .devicebundle carried
-#     bash experiments/gpu_2026-11-29.sh install-extra    # .data/wheels_extra carried
-#     rm -rf .baseline && mkdir .baseline && git archive 173dc9e thermal_wild_ns | tar -x -C .baseline
-#     bash experiments/gpu_2026-12-05.sh host-dunr        # .baseline .data/dunr .data/cache/triangulation-c639ec94ec8782da
-#     bash experiments/gpu_2026-12-05.sh host-flight2     # .baseline .data/flight2/rjpeg .data/flight2/metashape
-#                                                         # .data/cache/triangulation-ff4070e3f7030d32
+# right after the last on one warm machine (a machine stays warm 30 s):
+#     bash experiments/gpu_2026-11-29.sh install               # .devicebundle carried
+#     bash experiments/gpu_2026-12-05.sh tests                 # .data/wheels_extra carried (installs them first)
+#     rm -rf .baseline .baseline2 && mkdir .baseline .baseline2
+#     git archive 173dc9e thermal_wild_ns | tar -x -C .baseline     # before the host work of 2026-12-04
+#     git archive 6f4d57a thermal_wild_ns | tar -x -C .baseline2    # before today's
+#     bash experiments/gpu_2026-12-05.sh host-dunr             # .baseline .baseline2 .data/dunr .data/cache/triangulation-c639ec94ec8782da
+# then each method's default schedule, each run alone on the GPU, with the `schedule` plan of gpu_2026-12-04.sh:
+#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal      # .data/dunr .data/cache/triangulation-c639ec94ec8782da
+#     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                # the same
+#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal   # .data/flight2/rjpeg .data/flight2/metashape
+#                                                                                # .data/cache/triangulation-ff4070e3f7030d32
+#     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto             # the same
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
-plan=${1:?plan: host-dunr, host-flight2}
+plan=${1:?plan: tests, host-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
-test -d /tmp/site/tensorly || { echo cold; exit 3; }
+test -d /tmp/site || { echo cold; exit 3; }
 res=/tmp/res-$plan
 mkdir -p "$res"
 pack() { tar czf "$OUT/$plan.tgz" -C "$res" .; }
 
-traced() {  # SCENE: profile_step at step 3,000 as the bench trains (--auto-stop), its timeline kept (--trace)
-  local scene=$1
-  PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.profile_step --scene "$PWD/.data/$scene" \
-    --cache-dir "$PWD/.data/cache" --warmup 3000 --steps 500 --profile-steps 10 --python-steps 50 --auto-stop \
-    --trace --output-dir "/tmp/trace-$scene" > "/tmp/trace-$scene.log" 2>&1 || tail -5 "/tmp/trace-$scene.log"
-  cp "/tmp/trace-$scene/profile.md" "$res/trace-$scene.md"
-  cp "/tmp/trace-$scene/trace.json.gz" "$res/trace-$scene.json.gz"
-  echo "traced $scene: $(sed -n 3,4p "$res/trace-$scene.md" | tr '\n' ' ')"
+profiled() {  # ARM DIR ROUND [FLAG...]: profile_step on DUNR at step 3,000 as the bench trains (--auto-stop), the
+  # package of DIR, 500 timed steps; its profile to $res/profile-ARM-ROUND.md
+  local arm=$1 dir=$2 round=$3 root=$PWD
+  shift 3
+  (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.profile_step \
+    --scene "$root/.data/dunr" --cache-dir "$root/.data/cache" --warmup 3000 --steps 500 --profile-steps 10 \
+    --python-steps 0 --auto-stop --output-dir "/tmp/profile-$arm-$round" "$@" > "/tmp/profile-$arm-$round.log" 2>&1) \
+    || tail -5 "/tmp/profile-$arm-$round.log"
+  cp "/tmp/profile-$arm-$round/profile.md" "$res/profile-$arm-$round.md"
+  echo "$arm $round: $(sed -n 3,4p "$res/profile-$arm-$round.md" | tr '\n' ' ')"
 }
 
 case "$plan" in
-  host-dunr)  # every GPU test (the guard's verdict, the held gradient nodes of the CUDA graphs among them) and
-    # host-ab dunr (the host operations of 875022d-c67b74c against 173dc9e, alternated, 2 rounds), then render-slices
-    # (the frames per second through each render way, 3 rounds of 1,000 frames on a DUNR model of step 3,000), then
-    # a profile with its timeline
-    OUT=$res ROUNDS=2 bash experiments/gpu_2026-12-04.sh host-ab dunr
-    pack
-    OUT=$res ROUNDS=3 bash experiments/gpu_2026-11-29.sh render-slices
-    pack
-    traced dunr
+  tests)  # the extra wheels, then every GPU test (the training render through gsplat's functions, the emission
+    # MLP's padded recordings, the guard's verdict, the held gradient nodes of the CUDA graphs among them)
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
+      .data/wheels_extra/*.whl 2>&1 | grep -v WARNING
+    PYTHONPATH=$PWD:/tmp/site timeout 300 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
+      > "$res/gpu-tests.log" 2>&1
+    grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$res/gpu-tests.log" | head -30
     pack
     ;;
-  host-flight2)  # host-ab flight2 (2 rounds), then a profile with its timeline
-    OUT=$res ROUNDS=2 bash experiments/gpu_2026-12-04.sh host-ab flight2
+  host-dunr)  # the step before the host work of 2026-12-04 (.baseline, 173dc9e), before today's (.baseline2,
+    # 6f4d57a) and now, alternated, 2 rounds; then the render ways (experiments.render_fps, 3 rounds of 1,000
+    # frames) on the model now trains to step 3,500 as the bench does; then a profile with its timeline
+    rm -rf .baseline/experiments .baseline2/experiments && cp -r experiments .baseline/ && cp -r experiments .baseline2/
+    for round in 1 2; do
+      arms="now mid before"; [ $round = 2 ] && arms="before mid now"
+      for arm in $arms; do
+        dir=$PWD; [ $arm = before ] && dir=$PWD/.baseline; [ $arm = mid ] && dir=$PWD/.baseline2
+        profiled "$arm" "$dir" "$round"
+      done
+      pack
+    done
+    config=$(ls /tmp/profile-now-1/runs/*/wild-thermal/run/config.yml | head -1)
+    for round in 1 2 3; do
+      PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
+        --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
+      python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); print(json.dumps(r))" \
+        "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
+    done
     pack
-    traced flight2
+    profiled traced "$PWD" 1 --trace
+    cp /tmp/profile-traced-1/trace.json.gz "$res/trace-dunr.json.gz"
     pack
     ;;
   *) echo "unknown plan: $plan"; exit 2 ;;

@@ -374,10 +374,9 @@ def test_nonnegative_emission_renders_a_negative_gaussian_as_a_black_one():
         assert (render(False, -0.5, training) < black - 1e-3).any()  # unclamped, the Gaussians subtract
 
 
-def test_graphed_calls_keep_only_the_latest_shapes_recording_where_asked(monkeypatch):
+def test_graphed_calls_record_once_per_shape_and_replay_after(monkeypatch):
     """`GraphedCalls` bookkeeping, with a stand-in recording on a CPU: one recording per key and input
-    shapes, replayed after; with `latest_only` (the emission MLP, whose shapes follow the Gaussian
-    count) a new shape drops the older recordings, and a shape seen before is recorded again."""
+    shapes, replayed after."""
     from thermal_wild_ns.model.graphed import GraphedCalls
 
     recorded = []
@@ -392,14 +391,98 @@ def test_graphed_calls_keep_only_the_latest_shapes_recording_where_asked(monkeyp
     def fn(x):
         return (x + 1,)
 
-    for latest_only, kept in ((True, 1), (False, 2)):
-        recorded.clear()
-        calls = GraphedCalls("test", latest_only=latest_only)
-        for n in (5, 5, 7, 5):
-            (out,) = calls(None, fn, torch.zeros(n, 2))
-            assert torch.equal(out, torch.full((n, 2), 2.0))  # the recording's output, not fn's
-        assert recorded == ([(5,), (7,), (5,)] if latest_only else [(5,), (7,)])
-        assert len(calls.graphs) == kept
+    calls = GraphedCalls("test")
+    for n in (5, 5, 7, 5):
+        (out,) = calls(None, fn, torch.zeros(n, 2))
+        assert torch.equal(out, torch.full((n, 2), 2.0))  # the recording's output, not fn's
+    assert recorded == [(5,), (7,)]
+    assert len(calls.graphs) == 2
+
+
+def eager_rows_recording(fn, shapes, capacity, rows, shared, parameters):
+    """A stand-in for `PaddedRowCalls._record` on a CPU: a `RowsRecording` whose two replays run `fn` on
+    the static inputs and its backward into the static gradients, as the recorded graphs would."""
+    from thermal_wild_ns.model.graphed import RowsRecording
+
+    inputs = rows + shared
+    surface = inputs + parameters
+    with torch.enable_grad():
+        output = fn(*inputs)
+    grads = tuple(torch.zeros_like(t) if t.requires_grad else None for t in surface)
+    last = {}
+
+    def forward():
+        with torch.enable_grad():
+            last["out"] = fn(*inputs)
+        output.detach().copy_(last["out"])
+
+    def backward():
+        wanted = [t for t in surface if t.requires_grad]
+        found = iter(torch.autograd.grad(last["out"], wanted, grad_output, allow_unused=True))
+        for buffer, t in zip(grads, surface):
+            if t.requires_grad:
+                value = next(found)
+                buffer.copy_(torch.zeros_like(buffer) if value is None else value)
+
+    grad_output = torch.zeros_like(output)
+    return RowsRecording(
+        shapes, capacity, rows, shared, parameters, output.detach(), grad_output, grads, forward, backward
+    )
+
+
+def test_padded_row_calls_replay_one_recording_for_the_counts_densification_moves_through(monkeypatch):
+    """`PaddedRowCalls` (the emission MLP's graphs), with an eager stand-in recording on a CPU: the
+    Gaussian count grown, kept and pruned within a capacity replays one recording, and its emission and
+    every gradient (per-Gaussian scalars and embeddings, the frame embedding, the MLP's parameters) are the
+    plain MLP's; rows past the count are zero, so they add nothing to a gradient; a count past the
+    capacity, or under half of it, is recorded again (the latest alone kept), and each slot has its own."""
+    from thermal_wild_ns.model.fields import EmissionMLP
+    from thermal_wild_ns.model.graphed import PaddedRowCalls, row_capacity
+
+    recorded = []
+
+    def stand_in(fn, shapes, capacity, rows, shared, parameters):
+        recorded.append(capacity)
+        return eager_rows_recording(fn, shapes, capacity, rows, shared, parameters)
+
+    monkeypatch.setattr(PaddedRowCalls, "records", staticmethod(lambda inputs: True))
+    monkeypatch.setattr(PaddedRowCalls, "_record", staticmethod(stand_in))
+    torch.manual_seed(0)
+    mlp = EmissionMLP(4, 3, width=8, hidden_layers=2).double()
+    for parameter in mlp.parameters():  # the zero-initialised output layer would give zero gradients upstream
+        parameter.data.normal_(0.0, 0.5)
+    calls = PaddedRowCalls("emission MLP")
+    frames = torch.nn.Parameter(torch.randn(3, 3, dtype=torch.float64))
+    counts = (1500, 1600, 1450, 3000, 1200, 700)
+    for step, count in enumerate(counts):
+        base = torch.nn.Parameter(torch.rand(count, 1, dtype=torch.float64))
+        embed = torch.nn.Parameter(torch.randn(count, 4, dtype=torch.float64))
+        weights = torch.rand(count, 1, dtype=torch.float64)
+        results = []
+        for run in (lambda *x: calls(mlp, x[:2], x[2:]), mlp):
+            for leaf in (base, embed, frames, *mlp.parameters()):
+                leaf.grad = None
+            out = run(base, embed, frames[step % 3])
+            (out * weights).sum().backward()
+            grads = [base.grad.clone(), embed.grad.clone(), frames.grad.clone()]
+            results.append((out.detach().clone(), grads + [p.grad.clone() for p in mlp.parameters()]))
+        (ours, ours_grads), (reference, reference_grads) = results
+        assert ours.shape == (count, 1) and torch.allclose(ours, reference, rtol=1e-12, atol=1e-12), step
+        for mine, theirs in zip(ours_grads, reference_grads):
+            assert mine.shape == theirs.shape and torch.allclose(mine, theirs, rtol=1e-10, atol=1e-12), step
+        recording = calls.recordings[0]
+        assert float(recording.row_inputs[1][count:].detach().abs().sum()) == 0.0  # the padded rows
+        assert float(recording.grad_output[count:].abs().sum()) == 0.0
+    assert (row_capacity(1500), row_capacity(1600), row_capacity(3000), row_capacity(11585)) == (
+        1536,
+        2048,
+        3072,
+        11776,
+    )
+    # 1450 replays 2048's; 1200 is under half of 3072, 700 of 1536
+    assert recorded == [1536, 2048, 3072, 1536, 1024]
+    calls(mlp, (torch.zeros(10, 1, dtype=torch.float64), torch.zeros(10, 4, dtype=torch.float64)), (frames[0],), slot=1)
+    assert set(calls.recordings) == {0, 1} and recorded[-1] == 1024
 
 
 def test_a_recording_leaves_the_callers_module_as_it_was(monkeypatch):
@@ -422,7 +505,7 @@ def test_a_recording_leaves_the_callers_module_as_it_was(monkeypatch):
     monkeypatch.setattr(GraphedCalls, "records", staticmethod(lambda inputs: True))
     monkeypatch.setattr(torch.cuda, "make_graphed_callables", like_torch)
     mlp = torch.nn.Linear(2, 1)
-    calls = GraphedCalls("test", latest_only=True)
+    calls = GraphedCalls("test")
     for n in (5, 7):
         assert calls(None, mlp, torch.zeros(n, 2)).shape == (n, 1)
     assert mlp(torch.zeros(9, 2)).shape == (9, 1)  # the caller's module, called plainly
@@ -478,7 +561,7 @@ def test_graphed_emission_on_a_cpu_trains_as_without_it():
         results.append((outputs["thermal"].detach(), [p.grad.clone() for p in model.emission_mlp.parameters()], model))
     (ours, ours_grads, graphed_model), (reference, reference_grads, plain_model) = results
     assert torch.equal(ours, reference) and all(torch.equal(a, b) for a, b in zip(ours_grads, reference_grads))
-    assert graphed_model.graphed_emission is not None and not graphed_model.graphed_emission.graphs
+    assert graphed_model.graphed_emission is not None and not graphed_model.graphed_emission.recordings
     assert plain_model.graphed_emission is None
 
 

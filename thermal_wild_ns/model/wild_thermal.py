@@ -45,14 +45,22 @@ from thermal_wild_ns.model.config_checks import (
 from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
-from thermal_wild_ns.model.graphed import GraphedCalls
+from thermal_wild_ns.model.graphed import GraphedCalls, PaddedRowCalls
 from thermal_wild_ns.model.in_view import few_view_mask, in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.model.view_emission import radial_part, view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.rendering import FAR_PLANE, NEAR_PLANE, Backend, rasterization, render_one_view, world_to_camera
+from thermal_wild_ns.rendering import (
+    FAR_PLANE,
+    NEAR_PLANE,
+    Backend,
+    rasterization,
+    rasterize_unpacked,
+    render_one_view,
+    world_to_camera,
+)
 from thermal_wild_ns.rendering.captured import CapturedCalls
 from thermal_wild_ns.rendering.viewer_controls import ThermalViewerControls, thermal_rgb
 
@@ -212,12 +220,11 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     """On a GPU, replay the camera model's response (`camera_falloff`, `camera_flat_field`) in training,
     forward and backward, as CUDA graphs (one per frame size), as `graphed_loss` does for the loss: the
     same kernels, one launch each way instead of a score of small ones. Off: kernel by kernel."""
-    graphed_emission: bool = False
-    """On a GPU, replay the emission MLP's forward and backward in training as CUDA graphs, as
-    `graphed_background` does: recorded again whenever densification changes the Gaussian count (only
-    the latest recording is kept; it holds the MLP's activations for every Gaussian). Off: while
-    densification moves the count, recording again costs more than the replays save
-    (docs/results/emission_graphs_h100)."""
+    graphed_emission: bool = True
+    """On a GPU, replay the emission MLP's forward and backward in training as CUDA graphs, recorded for a
+    capacity of Gaussians (`graphed.PaddedRowCalls`): the Gaussians fill its first rows, so one recording
+    serves the counts densification moves through between half its capacity and all of it (only the
+    latest is kept; it holds the MLP's activations for every row). Off: kernel by kernel."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
@@ -334,9 +341,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             if cfg.use_emission_mlp
             else None
         )
-        # its shapes follow the Gaussian count, which moves on at every densification
+        # its rows follow the Gaussian count, which moves on at every densification
         graphs = cfg.graphed_emission and self.emission_mlp is not None
-        self.graphed_emission = GraphedCalls("emission MLP", latest_only=True) if graphs else None
+        self.graphed_emission = PaddedRowCalls("emission MLP") if graphs else None
         if cfg.random_background and cfg.use_background_mlp:
             raise InputError("random_background needs use_background_mlp False: the background MLP models it")
         self._build_background(cfg.background_frame_coupling)
@@ -504,7 +511,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         base = self.emission if ids is None else self.emission[ids]
         embed = self.gauss_params["gauss_embed"]
         if self.graphed_emission is not None and ids is None and self.training and torch.is_grad_enabled():
-            return self.graphed_emission(None, self.emission_mlp, base, embed, frame_embed, slot=slot)
+            return self.graphed_emission(self.emission_mlp, (base, embed), (frame_embed,), slot=slot)
         return self.emission_mlp(base, embed if ids is None else embed[ids], frame_embed)
 
     def radiance(self, emission: Tensor) -> Tensor:
@@ -693,7 +700,24 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         `info` kept for the densification after the step."""
         crop = lambda x: x if ids is None else x[ids]
         scales, opacities = self.activated_splats(ids)  # [N, 3], [N]
-        split = self.ranks.split
+        with_depth = self.config.output_depth_during_training or not self.training
+        if not self.ranks.split:  # one GPU: gsplat's kernels with the least host work around them
+            render, alpha, self.info = rasterize_unpacked(
+                crop(self.means),
+                crop(self.quats),  # normalised by the projection
+                scales,
+                opacities,
+                colors,
+                viewmats,
+                Ks,
+                width,
+                height,
+                with_depth,
+                self.strategy.absgrad,
+                self.config.rasterize_mode,
+                self.config.rasterizer,
+            )
+            return render, alpha
         render, alpha, self.info = rasterization(
             means=crop(self.means),
             quats=crop(self.quats),  # rasterization normalises internally
@@ -704,15 +728,15 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             Ks=Ks,
             width=width,
             height=height,
-            packed=split,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
+            packed=True,  # across GPUs only the visible splats travel (gsplat: memory per visible splat)
             near_plane=NEAR_PLANE,
             far_plane=FAR_PLANE,
-            render_mode="RGB+ED" if (self.config.output_depth_during_training or not self.training) else "RGB",
+            render_mode="RGB+ED" if with_depth else "RGB",
             sh_degree=None,
             sparse_grad=False,
             absgrad=self.strategy.absgrad,
             rasterize_mode=self.config.rasterize_mode,
-            distributed=split,
+            distributed=True,
             backend=self.config.rasterizer,
         )
         return render, alpha

@@ -8,7 +8,7 @@ import torch
 from gsplat.rendering import rasterization as gsplat_rasterization
 from torch import Tensor
 
-from thermal_wild_ns._upstream import gsplat_render_one_view
+from thermal_wild_ns._upstream import gsplat_render_one_view, gsplat_training_rasterization
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization as torch_rasterization
 
 Backend = Literal["auto", "gsplat", "torch"]
@@ -35,6 +35,42 @@ def rasterization(*args, backend: Backend = "auto", **kwargs) -> Tuple[Tensor, T
         return gsplat_rasterization(*args, **kwargs)
 
     return torch_rasterization(*args, **kwargs)
+
+
+def rasterize_unpacked(
+    means: Tensor,  # [N, 3]
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, D] or [C, N, D]
+    viewmats: Tensor,  # [C, 4, 4]
+    Ks: Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    with_depth: bool,
+    absgrad: bool,
+    rasterize_mode: Literal["classic", "antialiased"] = "classic",
+    backend: Backend = "auto",
+) -> Tuple[Tensor, Tensor, Dict]:
+    """`rasterization` of C cameras on one GPU with autograd (`packed=False`, `sh_degree=None`, `NEAR_PLANE`,
+    `FAR_PLANE`, render mode "RGB+ED" with the expected depth, else "RGB"): the render [C, H, W, D(+1)],
+    alpha [C, H, W, 1] and meta of a training step. On gsplat, its autograd functions and CUDA calls
+    directly (`_upstream.gsplat_training_rasterization`): the same kernels with less host work, which is
+    most of a training step's time."""
+    inputs = (means, quats, scales, opacities, colors, viewmats, Ks, width, height)  # gsplat's, in its order
+    if resolve_backend(backend, means.device) == "gsplat":
+        antialiased = rasterize_mode == "antialiased"
+        return gsplat_training_rasterization(*inputs, NEAR_PLANE, FAR_PLANE, antialiased, absgrad, with_depth)
+    return torch_rasterization(
+        *inputs,
+        packed=False,
+        near_plane=NEAR_PLANE,
+        far_plane=FAR_PLANE,
+        render_mode="RGB+ED" if with_depth else "RGB",
+        sh_degree=None,
+        absgrad=absgrad,
+        rasterize_mode=rasterize_mode,
+    )
 
 
 def render_one_view(
