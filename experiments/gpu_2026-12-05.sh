@@ -69,6 +69,8 @@ case "$plan" in
     pack
     profiled traced "$PWD" 1 --trace
     cp /tmp/profile-traced-1/trace.json.gz "$res/trace-dunr.json.gz"
+    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
+    head -30 "$res/trace-dunr.md"
     pack
     ;;
   *) echo "unknown plan: $plan"; exit 2 ;;

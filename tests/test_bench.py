@@ -748,3 +748,39 @@ def test_step_ops_counts_each_part_inside_the_step_and_puts_the_methods_back(tmp
     assert result["by_operation"]["adam"]["aten._fused_adam_.default"] >= 1  # one per parameter group
     assert DivergenceGuard.verdict is verdict
     assert "| verdict |" in markdown(result) and (tmp_path / "runs" / "runs").is_dir()
+
+
+def test_the_trace_summary_splits_a_threads_time_into_operations_and_the_gaps_between_them(tmp_path):
+    """`experiments.trace_summary` on a made-up timeline of two steps: top-level operations (a nested one
+    is inside its parent, not counted twice), the time between them named by its neighbours, runtime
+    calls and the GPU's busy time (overlapping kernels merged), each per step."""
+    import gzip
+
+    from experiments.trace_summary import TraceArgs, markdown, summarize
+
+    def op(name, ts, dur, cat="cpu_op", tid=1):
+        return {"ph": "X", "name": name, "ts": ts, "dur": dur, "cat": cat, "tid": tid}
+
+    events = [
+        op("aten::mm", 0, 100),
+        op("aten::addmm", 10, 50),  # inside aten::mm
+        op("cudaLaunchKernel", 20, 10, "cuda_runtime"),
+        op("aten::add", 300, 100),
+        op("cudaStreamSynchronize", 500, 400, "cuda_runtime"),
+        op("kernel_a", 0, 200, "kernel", 7),
+        op("kernel_b", 100, 200, "kernel", 7),  # overlaps kernel_a: 300 us busy in all
+        {"ph": "i", "name": "marker", "ts": 0},
+    ]
+    path = tmp_path / "trace.json.gz"
+    with gzip.open(path, "wt") as f:
+        json.dump({"traceEvents": events}, f)
+    summary = summarize(TraceArgs(trace=path, steps=2))
+    thread = summary["threads"]["1"]
+    assert thread["span_ms"] == 0.45  # 0..900 us over 2 steps
+    assert thread["in_operations_ms"] == 0.3  # mm 100, add 100, sync 400 (addmm and the launch are inside)
+    assert thread["between_operations_ms"] == 0.15
+    assert thread["operations"] == 1.5
+    assert thread["gaps"][0] == ("aten::mm", "aten::add", 0.1)
+    assert ("cudaStreamSynchronize", 0.2, 0.5) in summary["runtime"]
+    assert summary["gpu_busy_ms"] == 0.15
+    assert "between them" in markdown(summary)
