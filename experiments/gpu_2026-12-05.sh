@@ -2,11 +2,12 @@
 # Plans for the GPU, 2026-12-05 (issue 34). One H100 (`nvidia-h100-x1`, the machine its targets name) or H200; each call
 # right after the last on one warm machine (a machine stays warm 30 s):
 #     bash experiments/gpu_2026-11-29.sh install               # .devicebundle carried
-#     bash experiments/gpu_2026-12-05.sh tests                 # .data/wheels_extra carried (installs them first)
 #     rm -rf .baseline .baseline2 && mkdir .baseline .baseline2
 #     git archive 173dc9e thermal_wild_ns | tar -x -C .baseline     # before the host work of 2026-12-04
 #     git archive 6f4d57a thermal_wild_ns | tar -x -C .baseline2    # before today's
-#     bash experiments/gpu_2026-12-05.sh host-dunr             # .baseline .baseline2 .data/dunr .data/cache/triangulation-c639ec94ec8782da
+#     THEN=host-dunr bash experiments/gpu_2026-12-05.sh tests  # .data/wheels_extra .baseline .baseline2 .data/dunr
+#                                                              # .data/cache/triangulation-c639ec94ec8782da
+# (`tests` installs the extra wheels and runs the GPU tests; with THEN=host-dunr, if they pass, `host-dunr` after)
 # then each method's default schedule, each run alone on the GPU, with the `schedule` plan of gpu_2026-12-04.sh:
 #     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal      # .data/dunr .data/cache/triangulation-c639ec94ec8782da
 #     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                # the same
@@ -29,8 +30,8 @@ profiled() {  # ARM DIR ROUND [FLAG...]: profile_step on DUNR at step 3,000 as t
   # package of DIR, 500 timed steps; its profile to $res/profile-ARM-ROUND.md
   local arm=$1 dir=$2 round=$3 root=$PWD
   shift 3
-  (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout ${LIMIT:-150} python3 -m experiments.profile_step \
-    --scene "$root/.data/dunr" --cache-dir "$root/.data/cache" --warmup 3000 --steps 500 --profile-steps 10 \
+  (cd "$dir" && PYTHONPATH=$dir:/tmp/site timeout ${LIMIT:-100} python3 -m experiments.profile_step \
+    --scene "$root/.data/dunr" --cache-dir "$root/.data/cache" --warmup 3000 --steps 400 --profile-steps 10 \
     --python-steps 0 --auto-stop --output-dir "/tmp/profile-$arm-$round" "$@" > "/tmp/profile-$arm-$round.log" 2>&1) \
     || tail -5 "/tmp/profile-$arm-$round.log"
   cp "/tmp/profile-$arm-$round/profile.md" "$res/profile-$arm-$round.md"
@@ -46,6 +47,9 @@ case "$plan" in
       > "$res/gpu-tests.log" 2>&1
     grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$res/gpu-tests.log" | head -30
     pack
+    summary=$(grep -E "[0-9]+ (passed|failed)" "$res/gpu-tests.log" | tail -1)
+    case "$summary" in *failed*|*error*|"") echo "GPU tests not all passed: nothing else runs"; exit 1 ;; esac
+    [ "${THEN:-}" = host-dunr ] && OUT=$OUT bash "$0" host-dunr
     ;;
   host-dunr)  # the step before the host work of 2026-12-04 (.baseline, 173dc9e), before today's (.baseline2,
     # 6f4d57a) and now, alternated, 2 rounds; then the render ways (experiments.render_fps, 3 rounds of 1,000
