@@ -8,6 +8,8 @@
 #     THEN=host-dunr bash experiments/gpu_2026-12-05.sh tests  # .data/wheels_extra .baseline .baseline2 .data/dunr
 #                                                              # .data/cache/triangulation-c639ec94ec8782da
 # (`tests` installs the extra wheels and runs the GPU tests; with THEN=host-dunr, if they pass, `host-dunr` after)
+#     bash experiments/gpu_2026-12-05.sh trace-flight2         # .data/flight2/rjpeg .data/flight2/metashape
+#                                                              # .data/cache/triangulation-ff4070e3f7030d32
 # then each method's default schedule, each run alone on the GPU, with the `schedule` plan of gpu_2026-12-04.sh:
 #     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal      # .data/dunr .data/cache/triangulation-c639ec94ec8782da
 #     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                # the same
@@ -17,7 +19,7 @@
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
-plan=${1:?plan: tests, host-dunr}
+plan=${1:?plan: tests, host-dunr, trace-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -75,6 +77,17 @@ case "$plan" in
     cp /tmp/profile-traced-1/trace.json.gz "$res/trace-dunr.json.gz"
     PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
     head -30 "$res/trace-dunr.md"
+    pack
+    ;;
+  trace-flight2)  # flight2's step at step 3,000 as the bench trains, its timeline kept (flight2's carry)
+    root=$PWD
+    (PYTHONPATH=$root:/tmp/site timeout ${LIMIT:-100} python3 -m experiments.profile_step --scene "$root/.data/flight2" \
+      --cache-dir "$root/.data/cache" --warmup 3000 --steps 400 --profile-steps 10 --python-steps 0 --auto-stop --trace \
+      --output-dir /tmp/trace-flight2 > /tmp/trace-flight2.log 2>&1) || tail -5 /tmp/trace-flight2.log
+    cp /tmp/trace-flight2/profile.md "$res/profile-flight2.md"
+    cp /tmp/trace-flight2/trace.json.gz "$res/trace-flight2.json.gz"
+    PYTHONPATH=$root:/tmp/site python3 -m experiments.trace_summary "$res/trace-flight2.json.gz" > "$res/trace-flight2.md"
+    sed -n 3,4p "$res/profile-flight2.md"; head -30 "$res/trace-flight2.md"
     pack
     ;;
   *) echo "unknown plan: $plan"; exit 2 ;;
