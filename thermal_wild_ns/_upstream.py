@@ -25,7 +25,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 import numpy as np
 import torch
 import torchmetrics.image.lpip as lpip
-from gsplat.cuda._wrapper import _make_lazy_cuda_func, _make_lazy_cuda_obj
+from gsplat.cuda._wrapper import _FullyFusedProjection, _make_lazy_cuda_func, _make_lazy_cuda_obj, _RasterizeToPixels
 from gsplat.strategy import DefaultStrategy
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.data.datamanagers.full_images_datamanager import FullImageDatamanager, _undistort_image
@@ -266,8 +266,6 @@ def gsplat_training_rasterization(
     1.4.0 (`rendering.py`'s `rasterization`, `_wrapper.py`'s `fully_fused_projection`, `isect_tiles`,
     `isect_offset_encode`, `rasterize_to_pixels`); `tests/test_gpu_parity.py` compares the two, gradients
     included. Returns the render [C, H, W, D(+1)], alpha [C, H, W, 1] and gsplat's `meta`."""
-    from gsplat.cuda._wrapper import _FullyFusedProjection, _RasterizeToPixels
-
     C = viewmats.shape[0]
     channels = colors.shape[-1] + (1 if with_depth else 0)
     if channels not in GSPLAT_CHANNELS:
