@@ -53,18 +53,14 @@ case "$plan" in
     case "$summary" in *failed*|*error*|"") echo "GPU tests not all passed: nothing else runs"; exit 1 ;; esac
     [ "${THEN:-}" = host-dunr ] && OUT=$OUT bash "$0" host-dunr
     ;;
-  host-dunr)  # the step before the host work of 2026-12-04 (.baseline, 173dc9e), before today's (.baseline2,
-    # 6f4d57a) and now, alternated, 2 rounds; then the render ways (experiments.render_fps, 3 rounds of 1,000
-    # frames) on the model now trains to step 3,500 as the bench does; then a profile with its timeline
+  host-dunr)  # the step now (its timeline kept), then the render ways on the model it trained (experiments.render_fps,
+    # 3 rounds of 1,000 frames; DUNR to step 3,400 as the bench trains), then the step before the host work of
+    # 2026-12-04 (.baseline, 173dc9e) and before today's (.baseline2, 6f4d57a) against now, alternated, 2 rounds
     rm -rf .baseline/experiments .baseline2/experiments && cp -r experiments .baseline/ && cp -r experiments .baseline2/
-    for round in 1 2; do
-      arms="now mid before"; [ $round = 2 ] && arms="before mid now"
-      for arm in $arms; do
-        dir=$PWD; [ $arm = before ] && dir=$PWD/.baseline; [ $arm = mid ] && dir=$PWD/.baseline2
-        profiled "$arm" "$dir" "$round"
-      done
-      pack
-    done
+    profiled now "$PWD" 1 --trace
+    cp /tmp/profile-now-1/trace.json.gz "$res/trace-dunr.json.gz"
+    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
+    pack
     config=$(ls /tmp/profile-now-1/runs/*/wild-thermal/run/config.yml | head -1)
     for round in 1 2 3; do
       PYTHONPATH=$PWD:/tmp/site timeout 100 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
@@ -73,10 +69,12 @@ case "$plan" in
         "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
     done
     pack
-    profiled traced "$PWD" 1 --trace
-    cp /tmp/profile-traced-1/trace.json.gz "$res/trace-dunr.json.gz"
-    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
-    head -30 "$res/trace-dunr.md"
+    for arm in before mid; do profiled "$arm" "$PWD/.baseline$([ $arm = mid ] && echo 2)" 1; done
+    pack
+    for arm in before mid now; do
+      dir=$PWD; [ $arm = before ] && dir=$PWD/.baseline; [ $arm = mid ] && dir=$PWD/.baseline2
+      profiled "$arm" "$dir" 2
+    done
     pack
     ;;
   trace-flight2)  # flight2's step at step 3,000 as the bench trains, its timeline kept (flight2's carry)
