@@ -100,7 +100,7 @@ def held_accumulators(fn: Callable) -> Dict[int, object]:
 def row_capacity(rows: int) -> int:
     """The rows a recording of `PaddedRowCalls` holds for `rows` rows: the least 1024 * sqrt(2)^k at or
     above `rows`, a multiple of 256. Densification moves the Gaussian count by a few percent every hundred
-    steps: within a capacity the same recording replays, and the padding stays under half the rows."""
+    steps: within a capacity the same recording replays, and the padded rows stay under half of it."""
     k = 0
     while (capacity := _capacity(k)) < rows:
         k += 1
