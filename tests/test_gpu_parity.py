@@ -171,7 +171,11 @@ def test_a_training_render_through_gsplats_functions_is_gsplats_rasterization():
             assert ours[0].shape == reference[0].shape == (cameras, height, width, channels), case
             assert torch.equal(ours[0], reference[0]) and torch.equal(ours[1], reference[1]), case
             assert float(reference[1].max()) > 0.5, case  # the scene is in view
-            for key in ("radii", "means2d", "depths", "conics", "opacities", "isect_ids", "flatten_ids"):
+            drawn = reference[2]["radii"] > 0  # [C, N]: a culled Gaussian's projected values are never written
+            assert torch.equal(ours[2]["radii"], reference[2]["radii"]) and bool(drawn.any()), case
+            for key in ("means2d", "depths", "conics", "opacities"):
+                assert torch.equal(ours[2][key][drawn], reference[2][key][drawn]), (case, key)
+            for key in ("isect_ids", "flatten_ids"):
                 assert torch.equal(ours[2][key], reference[2][key]), (case, key)
             for key in ("width", "height", "n_cameras", "tile_width", "tile_height", "tile_size"):
                 assert ours[2][key] == reference[2][key], (case, key)
@@ -348,10 +352,11 @@ def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kern
     assert len(graphed.graphed.graphs) == 2 and all(g is not None for g in graphed.graphed.graphs.values())
 
 
-def test_a_graphed_piece_feeds_its_parameters_gradients_on_the_steps_stream():
-    """A module trained through `GraphedCalls` for a few steps in a fresh process (torch warns once per
-    process): its parameters' gradient nodes are the step's stream's (`held_accumulators`), so torch's
-    warning of a backward waiting across streams for them never comes, and the gradients arrive."""
+def test_a_graphed_piece_records_in_a_fresh_process_and_feeds_its_parameters_gradients():
+    """A module trained through `GraphedCalls` for a few steps in a fresh process: it is recorded (torch's
+    capture did not fail, which a gradient node of its parameters made beforehand on the default stream
+    made it do: c67b74c, every graph falling back to kernel by kernel) and its
+    parameters get their gradients."""
     code = textwrap.dedent(
         """
         import torch
@@ -370,7 +375,6 @@ def test_a_graphed_piece_feeds_its_parameters_gradients_on_the_steps_stream():
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=300)
     assert "recorded True grads True" in result.stdout, result.stderr[-2000:]
-    assert "AccumulateGrad node's stream" not in result.stderr, result.stderr[-2000:]
 
 
 def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel():

@@ -512,38 +512,6 @@ def test_a_recording_leaves_the_callers_module_as_it_was(monkeypatch):
     assert [p.requires_grad for p in mlp.parameters()] == [True, True]
 
 
-def test_a_recording_finds_its_parameters_gradient_nodes_made_before_it_and_held(monkeypatch):
-    """The autograd nodes that take a recorded module's parameter gradients exist before torch records
-    (so they are the step's stream's, not the recording's own streams': `held_accumulators`), and
-    `GraphedCalls` holds them: the nodes the recording saw are the nodes the step's backward feeds, also
-    once every other reference is gone. Recording is mimicked on a CPU (a function has no parameters)."""
-    import gc
-
-    from thermal_wild_ns.model.graphed import GraphedCalls
-
-    seen = {}
-
-    def record(fn, samples):  # what torch's recording would find for each parameter
-        with torch.enable_grad():
-            parameters = fn.parameters() if isinstance(fn, torch.nn.Module) else ()
-            seen.update({id(p): p.view_as(p).grad_fn.next_functions[0][0] for p in parameters})
-        return fn
-
-    monkeypatch.setattr(GraphedCalls, "records", staticmethod(lambda inputs: True))
-    monkeypatch.setattr(GraphedCalls, "_record", staticmethod(record))
-    mlp = torch.nn.Linear(3, 1)
-    calls = GraphedCalls("test")
-    calls(None, mlp, torch.rand(4, 3)).sum().backward()
-    calls(None, lambda x: (x * 2,), torch.rand(4, 3, requires_grad=True))
-    assert set(seen) == {id(mlp.weight), id(mlp.bias)} == set(calls.accumulators)
-    nodes = {key: id(node) for key, node in seen.items()}
-    seen.clear()
-    gc.collect()
-    with torch.enable_grad():
-        now = {id(p): id(p.view_as(p).grad_fn.next_functions[0][0]) for p in mlp.parameters()}
-    assert now == nodes  # the same nodes: held, not made again
-
-
 def test_graphed_emission_on_a_cpu_trains_as_without_it():
     """`graphed_emission` on a CPU: the same emission and gradients as without it, nothing recorded."""
     results = []

@@ -52,8 +52,6 @@ class GraphedCalls:
         self.name = name  # how a message names the piece
         self.graphs: Dict[Hashable, Optional[Callable]] = {}
         """slot, key, input shapes and grad flags -> the graphed `fn` (None: it could not be recorded)"""
-        self.accumulators: Dict[int, object] = {}
-        """id of a parameter of a recorded `fn` -> the autograd node that takes its gradient (`held_accumulators`)"""
 
     @staticmethod
     def records(inputs: Tuple[Tensor, ...]) -> bool:
@@ -69,7 +67,6 @@ class GraphedCalls:
             return fn(*inputs)
         full_key = (slot, key, tuple((tuple(t.shape), t.requires_grad) for t in inputs))
         if full_key not in self.graphs:
-            self.accumulators.update(held_accumulators(fn))
             # leaf copies with the inputs' grad flags: torch warms up and records on these
             samples = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in inputs)
             try:
@@ -81,20 +78,6 @@ class GraphedCalls:
                 )
         graphed = self.graphs[full_key]
         return fn(*inputs) if graphed is None else graphed(*inputs)
-
-
-def held_accumulators(fn: Callable) -> Dict[int, object]:
-    """The autograd nodes that accumulate the gradients of `fn`'s parameters (a module's; a function has
-    none), made now, on the step's stream, for the caller to hold. Torch makes a parameter's node when a
-    graph first uses the parameter and keeps it while any graph does; `make_graphed_callables` (read in
-    torch 2.13's source) warms up and records on streams of its own and keeps the recording's outputs,
-    and with them their graph: a node first made there stays on that stream, and every later step's
-    backward may then wait across streams for each such parameter (torch 2.11 warns of it once in every
-    GPU run: "The AccumulateGrad node's stream does not match the stream of the node that produced the
-    incoming gradient"). Made first on the step's stream and held, the recording uses the same node."""
-    parameters = fn.parameters() if isinstance(fn, nn.Module) else ()
-    with torch.enable_grad():  # a view's grad_fn leads to the parameter's node
-        return {id(p): p.view_as(p).grad_fn.next_functions[0][0] for p in parameters if p.requires_grad}
 
 
 def row_capacity(rows: int) -> int:
@@ -184,8 +167,6 @@ class PaddedRowCalls:
         self.recordings: Dict[int, Optional[RowsRecording]] = {}
         """slot -> its latest recording (None: the last one asked for could not be recorded)"""
         self.failed: set = set()  # (slot, shapes, capacity) that could not be recorded
-        self.accumulators: Dict[int, object] = {}
-        """id of a parameter of a recorded `fn` -> the autograd node that takes its gradient (`held_accumulators`)"""
 
     @staticmethod
     def records(inputs: Tuple[Tensor, ...]) -> bool:
@@ -213,7 +194,6 @@ class PaddedRowCalls:
         self.recordings.pop(slot, None)
         if (slot, shapes, capacity) in self.failed:
             return None
-        self.accumulators.update(held_accumulators(fn))
         rows = tuple(
             torch.zeros((capacity, *t.shape[1:]), dtype=t.dtype, device=t.device).requires_grad_(t.requires_grad)
             for t in row_inputs
