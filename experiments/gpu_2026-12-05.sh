@@ -7,7 +7,8 @@
 #     git archive 6f4d57a thermal_wild_ns | tar -x -C .baseline2    # before today's
 #     THEN=host-dunr bash experiments/gpu_2026-12-05.sh tests  # .data/wheels_extra .baseline .baseline2 .data/dunr
 #                                                              # .data/cache/triangulation-c639ec94ec8782da
-# (`tests` installs the extra wheels and runs the GPU tests; with THEN=host-dunr, if they pass, `host-dunr` after)
+# (`tests` installs the extra wheels and runs the GPU tests; with THEN=PLAN, if they pass, PLAN after: host-dunr, or
+# quick-dunr, its first part and the step before today's changes, for a session with little device time left)
 #     bash experiments/gpu_2026-12-05.sh trace-flight2         # .data/flight2/rjpeg .data/flight2/metashape
 #                                                              # .data/cache/triangulation-ff4070e3f7030d32
 # then each method's default schedule, each run alone on the GPU, with the `schedule` plan of gpu_2026-12-04.sh:
@@ -19,7 +20,7 @@
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
-plan=${1:?plan: tests, host-dunr, trace-flight2}
+plan=${1:?plan: tests, host-dunr, quick-dunr, trace-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -51,7 +52,26 @@ case "$plan" in
     pack
     summary=$(grep -E "[0-9]+ (passed|failed)" "$res/gpu-tests.log" | tail -1)
     case "$summary" in *failed*|*error*|"") echo "GPU tests not all passed: nothing else runs"; exit 1 ;; esac
-    [ "${THEN:-}" = host-dunr ] && OUT=$OUT bash "$0" host-dunr
+    [ -n "${THEN:-}" ] && OUT=$OUT bash "$0" "$THEN"
+    ;;
+  quick-dunr)  # host-dunr's first part (the step now with its timeline, the render ways on its model), then the step
+    # before the host work of 2026-12-04 (.baseline, 173dc9e; 6f4d57a's recordings fail: gpu_tests_h100), one round
+    # each: for a session with little device time left
+    rm -rf .baseline/experiments && cp -r experiments .baseline/
+    profiled now "$PWD" 1 --trace
+    cp /tmp/profile-now-1/trace.json.gz "$res/trace-dunr.json.gz"
+    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
+    pack
+    config=$(ls /tmp/profile-now-1/runs/*/wild-thermal/run/config.yml | head -1)
+    for round in 1 2 3; do
+      PYTHONPATH=$PWD:/tmp/site timeout 60 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
+        --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
+      python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); print(json.dumps(r))" \
+        "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
+    done
+    pack
+    profiled before "$PWD/.baseline" 1
+    pack
     ;;
   host-dunr)  # the step now (its timeline kept), then the render ways on the model it trained (experiments.render_fps,
     # 3 rounds of 1,000 frames; DUNR to step 3,400 as the bench trains), then the step before the host work of
