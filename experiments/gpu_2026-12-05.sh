@@ -4,7 +4,7 @@
 #     bash experiments/gpu_2026-11-29.sh install               # .devicebundle carried
 #     rm -rf .baseline .baseline2 && mkdir .baseline .baseline2
 #     git archive 173dc9e thermal_wild_ns | tar -x -C .baseline     # before the host work of 2026-12-04
-#     git archive 6f4d57a thermal_wild_ns | tar -x -C .baseline2    # before today's
+#     git archive 6f4d57a thermal_wild_ns | tar -x -C .baseline2    # before today's (its graphs fail: gpu_tests_h100)
 #     THEN=host-dunr bash experiments/gpu_2026-12-05.sh tests  # .data/wheels_extra .baseline .baseline2 .data/dunr
 #                                                              # .data/cache/triangulation-c639ec94ec8782da
 # (`tests` installs the extra wheels and runs the GPU tests; with THEN=PLAN, if they pass, PLAN after: host-dunr, or
