@@ -382,7 +382,9 @@ def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel
     (per-Gaussian scalars and embeddings, the frame embedding, the MLP's parameters) as kernel by kernel,
     up to the float rounding of cuBLAS's sums over padded rows, while the Gaussian count moves as
     densification moves it (grown and pruned within a capacity: one recording; past it and far under it: a
-    new one, the latest alone kept), the parameters changed in place between steps."""
+    new one, the latest alone kept), the parameters changed in place between steps, and each step's loss kept
+    into the next as the trainer keeps it (its graph holds the parameters' gradient nodes, made on the step's
+    stream: a recording that reached them failed its capture in training, 2026-12-05)."""
     from thermal_wild_ns.model.fields import EmissionMLP
     from thermal_wild_ns.model.graphed import PaddedRowCalls
 
@@ -394,7 +396,7 @@ def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel
     twin.load_state_dict(mlp.state_dict())
     graphed = PaddedRowCalls("emission MLP")
     frames = torch.nn.Parameter(torch.randn(3, 16, device="cuda"))
-    capacities = []
+    capacities, kept = [], {}
     for step, count in enumerate((4000, 4000, 3500, 6000, 5000, 2000)):
         base = torch.nn.Parameter(torch.rand(count, 1, device="cuda"))
         embed = torch.nn.Parameter(0.1 * torch.randn(count, 16, device="cuda"))
@@ -405,7 +407,9 @@ def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel
                 leaf.grad = None
             net.zero_grad(set_to_none=True)
             out = run(base, embed, frames[step % 3])
-            (out * weights).sum().backward()
+            loss = (out * weights).sum()
+            loss.backward()
+            kept[id(net)] = loss  # as nerfstudio's trainer keeps the step's loss (and its graph) into the next step
             grads = [
                 base.grad.clone(),
                 embed.grad.clone(),

@@ -399,13 +399,14 @@ def test_graphed_calls_record_once_per_shape_and_replay_after(monkeypatch):
     assert len(calls.graphs) == 2
 
 
-def eager_rows_recording(fn, shapes, capacity, rows, shared, parameters):
+def eager_rows_recording(fn, shapes, capacity, rows, shared, parameters, aliases):
     """A stand-in for `PaddedRowCalls._record` on a CPU: a `RowsRecording` whose two replays run `fn` on
-    the static inputs and its backward into the static gradients, as the recorded graphs would."""
+    the static inputs and the parameters' aliases, and its backward into the static gradients, as the
+    recorded graphs would."""
     from thermal_wild_ns.model.graphed import RowsRecording
 
     inputs = rows + shared
-    surface = inputs + parameters
+    surface = inputs + aliases
     with torch.enable_grad():
         output = fn(*inputs)
     grads = tuple(torch.zeros_like(t) if t.requires_grad else None for t in surface)
@@ -434,16 +435,23 @@ def test_padded_row_calls_replay_one_recording_for_the_counts_densification_move
     """`PaddedRowCalls` (the emission MLP's graphs), with an eager stand-in recording on a CPU: the
     Gaussian count grown, kept and pruned within a capacity replays one recording, and its emission and
     every gradient (per-Gaussian scalars and embeddings, the frame embedding, the MLP's parameters) are the
-    plain MLP's; rows past the count are zero, so they add nothing to a gradient; a count past the
-    capacity, or under half of it, is recorded again (the latest alone kept), and each slot has its own."""
+    plain MLP's, the parameters changed in place between steps; rows past the count are zero, so they add
+    nothing to a gradient; the recording reads the parameters through leaves that share their memory; a count
+    past the capacity, or under half of it, is recorded again (the latest alone kept), and each slot has its
+    own."""
     from thermal_wild_ns.model.fields import EmissionMLP
     from thermal_wild_ns.model.graphed import PaddedRowCalls, row_capacity
 
     recorded = []
 
-    def stand_in(fn, shapes, capacity, rows, shared, parameters):
+    def stand_in(fn, shapes, capacity, rows, shared, parameters, aliases):
         recorded.append(capacity)
-        return eager_rows_recording(fn, shapes, capacity, rows, shared, parameters)
+        # recorded on leaves of the parameters' memory, never on the parameters (whose gradient nodes the last
+        # step's loss keeps on the step's stream: a capture that reaches them fails on a GPU)
+        assert parameters == tuple(mlp.parameters()) and len(aliases) == len(parameters)
+        for alias, parameter in zip(aliases, parameters):
+            assert alias is not parameter and alias.is_leaf and alias.data_ptr() == parameter.data_ptr()
+        return eager_rows_recording(fn, shapes, capacity, rows, shared, parameters, aliases)
 
     monkeypatch.setattr(PaddedRowCalls, "records", staticmethod(lambda inputs: True))
     monkeypatch.setattr(PaddedRowCalls, "_record", staticmethod(stand_in))
@@ -473,6 +481,9 @@ def test_padded_row_calls_replay_one_recording_for_the_counts_densification_move
         recording = calls.recordings[0]
         assert float(recording.row_inputs[1][count:].detach().abs().sum()) == 0.0  # the padded rows
         assert float(recording.grad_output[count:].abs().sum()) == 0.0
+        with torch.no_grad():  # an optimizer step, in place: the recording reads the parameters where they live
+            for parameter in mlp.parameters():
+                parameter.add_(0.05 * torch.randn_like(parameter))
     assert (row_capacity(1500), row_capacity(1600), row_capacity(3000), row_capacity(11585)) == (
         1536,
         2048,

@@ -105,7 +105,7 @@ class RowsRecording:
     capacity: int
     row_inputs: Tuple[Tensor, ...]  # [capacity, ...] each
     shared_inputs: Tuple[Tensor, ...]
-    parameters: Tuple[Tensor, ...]
+    parameters: Tuple[Tensor, ...]  # the module's, whose gradients the backward replay gives (`grads`' last)
     output: Tensor  # [capacity, ...]
     grad_output: Tensor  # [capacity, ...]
     grads: Tuple[Optional[Tensor], ...]  # of the row inputs, the shared inputs and the parameters, in that order
@@ -199,8 +199,15 @@ class PaddedRowCalls:
             for t in row_inputs
         )
         shared = tuple(t.detach().clone().requires_grad_(t.requires_grad) for t in shared_inputs)
+        names, parameters = zip(*fn.named_parameters()) if any(True for _ in fn.parameters()) else ((), ())
+        # recorded on leaves that share the parameters' memory (an update in place reaches the replays), never on
+        # the parameters themselves: their gradient nodes, made on the step's stream and kept alive by the last
+        # step's loss, would make the recorded backward wait on that stream, which fails a capture (as c67b74c's
+        # held nodes did: docs/results/gpu_tests_h100)
+        aliases = tuple(p.detach().requires_grad_(p.requires_grad) for p in parameters)
+        recorded = lambda *inputs: torch.func.functional_call(fn, dict(zip(names, aliases)), inputs)
         try:
-            recording = self._record(fn, shapes, capacity, rows, shared, tuple(fn.parameters()))
+            recording = self._record(recorded, shapes, capacity, rows, shared, parameters, aliases)
         except RuntimeError as error:
             self.failed.add((slot, shapes, capacity))
             CONSOLE.log(f"[yellow]The {self.name} runs kernel by kernel: a CUDA graph could not record it ({error})")
@@ -209,11 +216,13 @@ class PaddedRowCalls:
         return recording
 
     @staticmethod
-    def _record(fn, shapes, capacity: int, rows, shared, parameters) -> RowsRecording:
-        """`fn` on these static inputs, forward and backward, recorded as torch's `make_graphed_callables`
-        records (torch 2.11-2.13: warmed up on a side stream, then both passes captured in one memory pool)."""
+    def _record(fn, shapes, capacity: int, rows, shared, parameters, aliases) -> RowsRecording:
+        """`fn` on these static inputs and the parameters' `aliases` (leaves sharing their memory), forward and
+        backward, recorded as torch's `make_graphed_callables` records (torch 2.11-2.13: warmed up on a side
+        stream, then both passes captured in one memory pool); the gradients of the aliases are the
+        parameters'."""
         inputs = rows + shared
-        surface = inputs + parameters
+        surface = inputs + aliases
         wanted = tuple(t for t in surface if t.requires_grad)
         torch.cuda.synchronize()
         with torch.cuda.stream(torch.cuda.Stream()):  # lazy initialisation outside the captures
