@@ -54,9 +54,9 @@ def rasterize_unpacked(
 ) -> Tuple[Tensor, Tensor, Dict]:
     """`rasterization` of C cameras on one GPU with autograd (`packed=False`, `sh_degree=None`, `NEAR_PLANE`,
     `FAR_PLANE`, render mode "RGB+ED" with the expected depth, else "RGB"): the render [C, H, W, D(+1)],
-    alpha [C, H, W, 1] and meta of a training step. On gsplat, its autograd functions and CUDA calls
-    directly (`_upstream.gsplat_training_rasterization`): the same kernels with less host work, which is
-    most of a training step's time."""
+    alpha [C, H, W, 1] and meta of a training step (or of a render that is not a viewer's: `render_one_view`).
+    On gsplat, its autograd functions and CUDA calls directly (`_upstream.gsplat_training_rasterization`): the
+    same kernels with less host work, which is most of a training step's time."""
     inputs = (means, quats, scales, opacities, colors, viewmats, Ks, width, height)  # gsplat's, in its order
     if resolve_backend(backend, means.device) == "gsplat":
         antialiased = rasterize_mode == "antialiased"
