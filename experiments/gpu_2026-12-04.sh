@@ -72,7 +72,7 @@ case "$plan" in
     # scored at the ttq steps; one call per splatfacto seed (its 30k: 258-350 s on H200s); merged with `bench --merge`
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${2:?scene: dunr or flight2}; shift 2
-    tag=$scene-${*// /-}-seed${SEED:-0}
+    tag=$scene-$(echo "$*" | tr " " -)-seed${SEED:-0}  # one name, no spaces: a name with one does not come back
     PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-585} python3 -m experiments.bench --output-dir "/tmp/schedule-$tag" \
       --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods "$@" --seeds ${SEEDS:-1} \
       --seed ${SEED:-0} --runs-per-gpu 1 --fit-steps 20 --fps-frames 0 --steps 30000 \

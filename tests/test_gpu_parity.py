@@ -377,6 +377,54 @@ def test_a_graphed_piece_records_in_a_fresh_process_and_feeds_its_parameters_gra
     assert "recorded True grads True" in result.stdout, result.stderr[-2000:]
 
 
+def test_after_a_failed_capture_each_piece_runs_kernel_by_kernel_and_random_draws_still_work():
+    """A capture that fails (here on a host read inside the recorded function, which no CUDA graph can hold)
+    in each of the three recorders: the call gives the function's own result, the failure is remembered, and
+    CUDA's random generator draws afterwards (a failed capture left it in capture mode: densification's
+    `randn` then raised, 2026-12-05). A fresh process: a failure here must not reach the other tests."""
+    code = textwrap.dedent(
+        """
+        import torch
+        from thermal_wild_ns.model.graphed import GraphedCalls, PaddedRowCalls
+        from thermal_wild_ns.rendering.captured import UNRECORDABLE, CapturedCalls
+
+        class HostRead(torch.nn.Module):  # reads a value back to the host: a capture of it fails
+            def __init__(self):
+                super().__init__()
+                self.linear = torch.nn.Linear(8, 1)
+            def forward(self, x, *shared):
+                out = self.linear(x)
+                return out * float(out.sum().item() != 12345.0)
+
+        torch.manual_seed(0)
+        module, x = HostRead().cuda(), torch.rand(1500, 8, device="cuda", requires_grad=True)
+        expected = module(x)
+        checks = []
+        graphed = GraphedCalls("test")
+        checks.append(torch.equal(graphed(None, module, x), expected))
+        checks.append(list(graphed.graphs.values()) == [None])
+        torch.randn(3, device="cuda")
+        padded = PaddedRowCalls("test")
+        checks.append(torch.equal(padded(module, (x,), ()), expected))
+        checks.append(len(padded.failed) == 1 and padded.recordings.get(0) is None)
+        torch.randn(3, device="cuda")
+        captured = CapturedCalls()
+        with torch.no_grad():
+            out = captured("key", lambda t: (module(t),), x)
+        checks.append(torch.equal(out[0], expected))
+        checks.append(captured.graphs["key"] is UNRECORDABLE)
+        draws = torch.randn(1000, device="cuda")
+        torch.cuda.synchronize()
+        print("checks", checks, "draws", bool(draws.std() > 0.5))
+        """
+    )
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=300)
+    assert "checks [True, True, True, True, True, True] draws True" in result.stdout, (
+        result.stdout[-2000:] + result.stderr[-3000:]
+    )
+
+
 def test_the_emission_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kernel():
     """The emission MLP through `PaddedRowCalls` (`graphed_emission`): the same emission and gradients
     (per-Gaussian scalars and embeddings, the frame embedding, the MLP's parameters) as kernel by kernel,

@@ -95,6 +95,23 @@ def profiled_section(name: str):
     return contextlib.nullcontext()
 
 
+def end_failed_capture() -> None:
+    """Let CUDA's random generators draw again after a CUDA graph capture failed. torch's
+    `CUDAGraph.capture_begin` puts the generators it records (the default one always) in capture mode,
+    and only a `capture_end` that succeeds takes them out of it: after a failed capture every later
+    random draw outside a capture raises "Offset increment outside graph capture encountered
+    unexpectedly" (densification's split, in training). A capture that succeeds, of one small kernel
+    on a side stream, takes them out. Checked against torch 2.11 (`CUDAGeneratorState::capturing_`,
+    `CUDAGraph::capture_end`)."""
+    side = torch.cuda.Stream()
+    side.wait_stream(torch.cuda.current_stream())
+    with torch.cuda.stream(side):
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph, stream=side, capture_error_mode="thread_local"):
+            torch.zeros(1, device=side.device)
+    torch.cuda.current_stream().wait_stream(side)
+
+
 def fused_adam_ready(optimizer) -> bool:
     """Whether `fused_adam_step` can step this optimizer: a torch Adam built with fused=True and
     none of the options that function leaves out (amsgrad, maximize, capturable, differentiable)."""

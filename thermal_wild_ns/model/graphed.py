@@ -6,7 +6,8 @@ terms of a frame size; the background MLP over a frame size's grid) are recorded
 `torch.cuda.make_graphed_callables` and replayed: the same kernels, on copies of the inputs, one launch
 each way. Recording happens inside a training step, under the trainer's lock, which the viewer's
 renders also take: torch records in its global mode, where another thread's CUDA calls would fail it.
-On a CPU, or where a graph cannot be recorded, the piece simply runs. (Renders outside training:
+On a CPU, or where a graph cannot be recorded, the piece simply runs (CUDA's random generators
+released from the failed capture: `_upstream.end_failed_capture`). (Renders outside training:
 `rendering/captured.py`.)
 """
 
@@ -19,6 +20,8 @@ from typing import Callable, Dict, Hashable, Optional, Tuple
 import torch
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor, nn
+
+from thermal_wild_ns._upstream import end_failed_capture
 
 
 class RecordedCall(nn.Module):
@@ -72,6 +75,7 @@ class GraphedCalls:
             try:
                 self.graphs[full_key] = self._record(fn, samples)
             except RuntimeError as error:
+                end_failed_capture()
                 self.graphs[full_key] = None
                 CONSOLE.log(
                     f"[yellow]The {self.name} runs kernel by kernel: a CUDA graph could not record it ({error})"
@@ -209,6 +213,7 @@ class PaddedRowCalls:
         try:
             recording = self._record(recorded, shapes, capacity, rows, shared, parameters, aliases)
         except RuntimeError as error:
+            end_failed_capture()
             self.failed.add((slot, shapes, capacity))
             CONSOLE.log(f"[yellow]The {self.name} runs kernel by kernel: a CUDA graph could not record it ({error})")
             return None

@@ -18,6 +18,8 @@ import torch
 from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 
+from thermal_wild_ns._upstream import end_failed_capture
+
 KEPT_GRAPHS = 4
 """Graphs kept per `CapturedCalls` and thread (a viewer switching between a few sizes replays them;
 each holds its own memory)."""
@@ -62,6 +64,7 @@ class CapturedCalls:
             try:
                 entry = self._capture(fn, inputs)
             except RuntimeError as error:  # a kernel this GPU's driver cannot record: run as is from now on
+                end_failed_capture()
                 entry = UNRECORDABLE
                 CONSOLE.log(f"[yellow]Renders run kernel by kernel: a CUDA graph could not record them ({error})")
         graphs[key] = entry
