@@ -19,10 +19,13 @@
 # c67b74c's held gradient nodes); on a second, after the fix, the install and THEN=quick-dunr tests with
 # graphed_emission set on in the tree (13 tests passed, the profile crashed at densification after a failed
 # re-recording of the emission MLP, the render ways ran on the checkpoint it left), stopped at the call's 195 s.
+# A third H100 the same day (docs/results/schedule_h100_graphed): the install, THEN=emission-dunr tests (14 passed),
+# then SEEDS=3 schedule dunr wild-thermal, schedule dunr splatfacto, schedule flight2 wild-thermal splatfacto of
+# gpu_2026-12-04.sh, one warm machine.
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
-plan=${1:?plan: tests, host-dunr, quick-dunr, trace-flight2}
+plan=${1:?plan: tests, emission-dunr, host-dunr, quick-dunr, trace-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -86,6 +89,29 @@ case "$plan" in
       profiled "$arm" "$dir" 2
     done
     cp /tmp/res-quick-dunr/* "$res/"
+    pack
+    ;;
+  emission-dunr)  # graphed_emission on (the tree's default) against off, the step as the bench trains DUNR to step
+    # 3,400 (profiled), alternated, ROUNDS rounds (2), the on-arm's first round with its timeline; then the render
+    # ways on the on-arm's model (3 rounds of 1,000 frames)
+    for round in $(seq ${ROUNDS:-2}); do
+      arms="on off"; [ $((round % 2)) = 0 ] && arms="off on"
+      for arm in $arms; do
+        flags=(); [ $arm = off ] && flags=(--set pipeline.model.graphed_emission=False)
+        [ $arm-$round = on-1 ] && flags=(--trace)
+        profiled "$arm" "$PWD" "$round" "${flags[@]}"
+        pack
+      done
+    done
+    cp /tmp/profile-on-1/trace.json.gz "$res/trace-dunr.json.gz"
+    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
+    config=$(ls /tmp/profile-on-1/runs/*/wild-thermal/run/config.yml | head -1)
+    for round in 1 2 3; do
+      PYTHONPATH=$PWD:/tmp/site timeout 60 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
+        --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
+      python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); print(json.dumps(r))" \
+        "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
+    done
     pack
     ;;
   trace-flight2)  # flight2's step at step 3,000 as the bench trains, its timeline kept (flight2's carry)
