@@ -22,6 +22,12 @@
 # A third H100 the same day (docs/results/schedule_h100_graphed): the install, THEN=emission-dunr tests (14 passed),
 # then SEEDS=3 schedule dunr wild-thermal, schedule dunr splatfacto, schedule flight2 wild-thermal splatfacto of
 # gpu_2026-12-04.sh, one warm machine.
+# Next (not run: no device time left that session): the training PSNR at log steps alone and the frames resized once
+# per warm-up size (docs/results/step_ops_metrics_cpu) against the package before them, then the default schedules:
+#     rm -rf .baseline && mkdir .baseline && git archive fd20c99 thermal_wild_ns | tar -x -C .baseline
+#     bash experiments/gpu_2026-11-29.sh install        # .devicebundle
+#     bash experiments/gpu_2026-11-29.sh install-extra  # .data/wheels_extra
+#     ROUNDS=2 bash experiments/gpu_2026-12-04.sh host-ab dunr      # .baseline and DUNR's carry
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail

@@ -113,3 +113,33 @@ def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu(coupling):
     graphed_field = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=True))
     graphed_field(K, pose, embedding, 40, 32, cam_idx=0, training=True, step=0)
     assert graphed_field.graphed is not None and not graphed_field.graphed.graphs
+
+
+def test_a_training_frame_is_resized_once_per_size_while_it_is_the_same_unchanged_tensor():
+    """`ResizedFrames`: a frame's second visit at one size gets the copy made at its first (no resize), a
+    frame changed in place or handed as another tensor is resized again, a new size drops the older copies,
+    and at full size nothing is kept (the frame itself, which the cache must not hold)."""
+    from thermal_wild_ns.model.thermal_loss import ResizedFrames
+
+    calls = []
+
+    def resize(frame):
+        calls.append(frame)
+        return frame[::2, ::2].clone()
+
+    frames = ResizedFrames()
+    frame = torch.rand(8, 6, 1)
+    first = frames.get(3, frame, 2, resize)
+    assert frames.get(3, frame, 2, resize) is first and len(calls) == 1
+    assert torch.equal(first, frame[::2, ::2])
+    frame.mul_(2.0)  # changed in place: its version moves on
+    again = frames.get(3, frame, 2, resize)
+    assert len(calls) == 2 and torch.equal(again, frame[::2, ::2])
+    frames.get(3, frame.clone(), 2, resize)  # the same values in another tensor: resized, not trusted
+    assert len(calls) == 3
+    frames.get(4, frame, 2, resize)
+    assert sorted(frames.kept) == [3, 4]
+    frames.get(3, frame, 4, resize)  # a new size: the older copies go
+    assert sorted(frames.kept) == [3] and len(calls) == 5
+    full = frames.get(3, frame, 1, lambda f: f)
+    assert full is frame and not frames.kept

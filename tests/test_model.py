@@ -1182,8 +1182,9 @@ def test_the_viewer_opens_through_the_nearest_training_camera():
 
 def test_a_training_step_resizes_and_checks_its_frame_once(monkeypatch):
     """A training step asks for its frame at the render's size twice (metrics, loss): the frame is
-    resized once and both get the same answer a fresh resize gives; outside training every call
-    resizes (nothing is kept between renders there)."""
+    resized once and both get the same answer a fresh resize gives. The next step of the same frame (the
+    same tensor) uses the kept copy (`ResizedFrames`); the same values in another tensor are resized again,
+    to the same losses. Outside training every call resizes (nothing is kept between renders there)."""
     model = make_model()
     model.config.num_downscales = 1  # a warm-up step: the frame is resized to the half-size render
     model.train()
@@ -1197,7 +1198,10 @@ def test_a_training_step_resizes_and_checks_its_frame_once(monkeypatch):
     assert calls == [(32, 48, 1)]
     fresh = {key: value for key, value in outputs.items() if key != wild_thermal.GROUND_TRUTH_KEY}
     again = model.get_loss_dict(fresh, batch)
-    assert len(calls) == 2 and all(torch.equal(losses[key], again[key]) for key in losses)
+    assert len(calls) == 1 and all(torch.equal(losses[key], again[key]) for key in losses)
+    fresh = {key: value for key, value in outputs.items() if key != wild_thermal.GROUND_TRUTH_KEY}
+    copied = model.get_loss_dict(fresh, {**batch, "image": batch["image"].clone()})
+    assert len(calls) == 2 and all(torch.equal(losses[key], copied[key]) for key in losses)
     model.eval()
     with torch.no_grad():
         outputs = model.get_outputs(make_camera(1))

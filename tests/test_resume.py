@@ -74,6 +74,54 @@ def test_the_lean_step_trains_exactly_as_nerfstudios_step(tmp_path, demo_scene_d
                 assert torch.equal(value, reference.state[q][key]), (name, key)
 
 
+def test_the_lean_step_computes_metrics_at_log_steps_and_resizes_a_frame_once_per_size(
+    tmp_path, demo_scene_dir, monkeypatch
+):
+    """The lean step asks the pipeline for the step's metrics (the training PSNR) at nerfstudio's log steps
+    alone, and gets them there; during the resolution warm-up each training frame is resized once per size
+    (the datamanager hands the same tensor again), and the losses see the resized frame as splatfacto's
+    `get_gt_img` gives it."""
+    from thermal_wild_ns.pipeline.thermal_pipeline import ThermalPipeline
+
+    config = demo_trainer_config(tmp_path, steps=60, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    config.pipeline.model.num_downscales, config.pipeline.model.resolution_schedule = 1, 50  # 1/2 size to step 49
+    config.logging.steps_per_log = 5
+    config.auto_stop.enabled = False
+    asked, resized = [], []
+    original_losses = ThermalPipeline.get_train_loss_dict
+    original_resize = WildThermalModel.get_gt_img
+
+    def get_train_loss_dict(self, step, metrics=True):
+        outputs, losses, metrics_dict = original_losses(self, step, metrics=metrics)
+        asked.append((step, metrics, "psnr" in metrics_dict))
+        return outputs, losses, metrics_dict
+
+    def get_gt_img(self, image):
+        gt = original_resize(self, image)
+        if self.training:
+            resized.append((self.step, self._get_downscale_factor(), id(image), tuple(gt.shape)))
+        return gt
+
+    monkeypatch.setattr(ThermalPipeline, "get_train_loss_dict", get_train_loss_dict)
+    monkeypatch.setattr(WildThermalModel, "get_gt_img", get_gt_img)
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+    assert trainer.lean
+    assert [(step, metrics) for step, metrics, _ in asked] == [(s, s % 5 == 0) for s in range(60)]
+    assert all(found == metrics for _, metrics, found in asked)
+    half = [r for r in resized if r[1] == 2]
+    frames = {frame for _, _, frame, _ in half}
+    assert half and len(half) == len(frames) < 50  # 50 steps at 1/2 size revisit frames, each resized once
+    height, width = (
+        trainer.pipeline.datamanager.train_dataset.cameras[0].height,
+        trainer.pipeline.datamanager.train_dataset.cameras[0].width,
+    )
+    assert {shape for *_, shape in half} == {(int(height) // 2, int(width) // 2, 1)}
+    assert len([r for r in resized if r[1] == 1]) == 10  # full size: no copy kept, the frame itself each step
+
+
 def test_resume_continues_the_automatic_stop(tmp_path, demo_scene_dir, monkeypatch):
     """A run with the automatic stop, cut at step 29 (where it keeps its best model, of step 19) and
     resumed, trains on from the state it had trained, remembers its checks and its best model, and

@@ -5,7 +5,8 @@ contrast, its original-space image), computed once per frame and resolution (the
 
 from __future__ import annotations
 
-from typing import Dict, Optional, Sequence, Tuple, Union
+import weakref
+from typing import Callable, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import torch
@@ -38,6 +39,33 @@ def checked_thermal_image(batch: Dict) -> Tensor:
             f"has shape {tuple(image.shape)}. Use the thermal datamanager/dataparsers of thermal_wild_ns."
         )
     return image
+
+
+class ResizedFrames:
+    """Training frames at the resolution warm-up's smaller sizes, each resized once per size rather than at
+    every visit (splatfacto's `get_gt_img` box-filters the frame at every step, a handful of operations). A
+    kept copy serves while the frame asked for is the same tensor, unchanged (its version): the datamanager
+    hands each training frame's one tensor again (a frame it copies to the GPU at each visit is resized each
+    time, as before). Only the current size's copies are kept, none at full size; the frames themselves are
+    not held."""
+
+    def __init__(self) -> None:
+        self.scale = 1
+        self.kept: Dict[int, Tuple[weakref.ref, int, Tensor]] = {}  # training image -> (its frame, version, resized)
+
+    def get(self, image: int, frame: Tensor, scale: int, resize: Callable[[Tensor], Tensor]) -> Tensor:
+        """Training image `image`'s `frame` [H, W, 1] as `resize(frame)` gives it at 1/`scale` of its size."""
+        if scale != self.scale:
+            self.kept.clear()
+            self.scale = scale
+        if scale == 1:
+            return resize(frame)
+        kept = self.kept.get(image)
+        if kept is not None and kept[0]() is frame and kept[1] == frame._version:
+            return kept[2]
+        resized = resize(frame)
+        self.kept[image] = (weakref.ref(frame), frame._version, resized)
+        return resized
 
 
 class ThermalLoss(nn.Module):

@@ -49,7 +49,7 @@ from thermal_wild_ns.model.graphed import GraphedCalls, PaddedRowCalls
 from thermal_wild_ns.model.in_view import few_view_mask, in_view
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
-from thermal_wild_ns.model.thermal_loss import ThermalLoss, checked_thermal_image, inverse_lut_table
+from thermal_wild_ns.model.thermal_loss import ResizedFrames, ThermalLoss, checked_thermal_image, inverse_lut_table
 from thermal_wild_ns.model.view_emission import radial_part, view_term
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering import (
@@ -369,6 +369,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self.background_color = torch.tensor([cfg.background_value] * 3)
         self.baked = BakedValues()  # outside training: `baked_emission`
         self.training_views = TrainingViews()
+        self.resized_frames = ResizedFrames()  # the training frames at the warm-up's sizes: `_ground_truth`
         self.viewing_views = ViewingViews()  # outside training, with `captured`: `get_outputs`
         self.captured = CapturedCalls()  # outside training: `viewing_view_and_background`, `viewing_outputs`
         sequence = (self.kwargs.get("metadata") or {}).get("preprocessed")  # the training frames' LUTs
@@ -911,12 +912,17 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def _ground_truth(self, outputs: Dict, batch: Dict) -> Tuple[Tensor, Optional[Tensor]]:
         """The frame at the render's resolution and its contrast (`ThermalLoss.ground_truth`). A training
         step asks twice (its metrics, its loss): the first answer is kept in the step's `outputs`, so
-        the frame is resized and checked once per step."""
+        the frame is resized and checked once per step (and a training frame resized once per size of the
+        resolution warm-up: `ResizedFrames`)."""
         kept = outputs.get(GROUND_TRUTH_KEY)
         if kept is not None:
             return kept
-        gt = self.get_gt_img(checked_thermal_image(batch))
+        frame = checked_thermal_image(batch)
         image = self._training_image(batch)
+        if image is None:
+            gt = self.get_gt_img(frame)
+        else:
+            gt = self.resized_frames.get(image, frame, self._get_downscale_factor(), self.get_gt_img)
         answer = self.thermal_loss.ground_truth(gt, outputs["thermal"], image, batch.get("image_idx"))
         if image is not None:  # a training step's outputs (a render outside training is scored once)
             outputs[GROUND_TRUTH_KEY] = answer
@@ -955,22 +961,24 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         return losses
 
     def get_training_metrics_and_losses(
-        self, outputs: Sequence[Dict], batches: Sequence[Dict]
+        self, outputs: Sequence[Dict], batches: Sequence[Dict], metrics: bool = True
     ) -> Tuple[Dict[str, Tensor], Dict[str, Tensor]]:
         """The metrics and losses of a step of several cameras (`get_training_outputs`): each camera's
         as a step of its own, averaged over the cameras (the densification statistics scale each
         camera's share back by the camera count, as gsplat's), and the step's own terms once. The
         step's loss has no one training image: the divergence guard reads it against the recent
-        steps' alone."""
+        steps' alone. `metrics` off: no metrics (an empty dict), for the steps no one logs."""
         if len(outputs) == 1:
-            metrics = self.get_metrics_dict(outputs[0], batches[0])
-            return metrics, self.get_loss_dict(outputs[0], batches[0], metrics)
-        metrics = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
+            metrics_dict = self.get_metrics_dict(outputs[0], batches[0]) if metrics else {}
+            return metrics_dict, self.get_loss_dict(outputs[0], batches[0], metrics_dict)
         images = [self._training_image(b) for b in batches]
         losses = [self._camera_losses(*camera, slot) for slot, camera in enumerate(zip(outputs, batches, images))]
         mean = lambda dicts, key: torch.stack([d[key] for d in dicts]).mean()
         loss_dict = self._step_losses({key: mean(losses, key) for key in losses[0]})
-        metrics_dict = {"psnr": mean(metrics, "psnr"), "gaussian_count": self.num_points}
+        metrics_dict = {}
+        if metrics:
+            psnrs = [self.get_metrics_dict(o, b) for o, b in zip(outputs, batches)]
+            metrics_dict = {"psnr": mean(psnrs, "psnr"), "gaussian_count": self.num_points}
         self._last_training_losses = (loss_dict, None)
         return metrics_dict, loss_dict
 

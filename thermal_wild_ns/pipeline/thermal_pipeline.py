@@ -50,7 +50,7 @@ class SeveralCamerasModel(Protocol):
     def get_training_outputs(self, cameras: Sequence[Cameras]) -> List[Dict]: ...
 
     def get_training_metrics_and_losses(
-        self, outputs: Sequence[Dict], batches: Sequence[Dict]
+        self, outputs: Sequence[Dict], batches: Sequence[Dict], metrics: bool = True
     ) -> Tuple[Dict[str, Tensor], Dict[str, Tensor]]: ...
 
 
@@ -138,14 +138,22 @@ class ThermalPipeline(VanillaPipeline):
         if why is not None:
             raise InputError(f"--pipeline.cameras-per-step {count}: {why}")
 
-    def get_train_loss_dict(self, step: int):
-        """nerfstudio's step (one training frame), or `cameras_per_step` frames rendered together."""
+    def get_train_loss_dict(self, step: int, metrics: bool = True):
+        """nerfstudio's step (one training frame), or `cameras_per_step` frames rendered together.
+        `metrics`: whether the step's metrics (the training PSNR) are computed; nerfstudio's trainer logs
+        them at its log steps alone, and the plugin's trainer asks for them there (a model that renders
+        one camera per step computes them always)."""
         count = self.config.cameras_per_step
-        if count == 1:
+        if count == 1 and (metrics or not isinstance(self.model, SeveralCamerasModel)):
             return super().get_train_loss_dict(step)
+        if count == 1:  # VanillaPipeline's step, the metrics left out
+            camera, batch = self.datamanager.next_train(step)
+            outputs = self._model(camera)
+            metrics_dict, loss_dict = self.model.get_training_metrics_and_losses([outputs], [batch], metrics)
+            return outputs, loss_dict, metrics_dict
         cameras, batches = zip(*self.datamanager.next_train_cameras(step, count))
         outputs = self.model.get_training_outputs(cameras)
-        metrics_dict, loss_dict = self.model.get_training_metrics_and_losses(outputs, batches)
+        metrics_dict, loss_dict = self.model.get_training_metrics_and_losses(outputs, batches, metrics)
         return outputs, loss_dict, metrics_dict
 
     def _record_or_check_data(self, record: Path, loads_a_run: bool) -> None:

@@ -84,7 +84,12 @@ class DistributedTrainer(GuardedTrainer):
     def _iteration(self, step: int):
         accept = self._accept_step if self.config.guard.enabled else None
         return lean_iteration(
-            self.pipeline, self.optimizers, step, accept, after_backward=lambda: self.ranks.sum_gradients(self.shared)
+            self.pipeline,
+            self.optimizers,
+            step,
+            accept,
+            after_backward=lambda: self.ranks.sum_gradients(self.shared),
+            metrics=self._metrics_logged(step),
         )
 
     def _agree(self, accepted):

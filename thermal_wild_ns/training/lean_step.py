@@ -38,18 +38,22 @@ def lean_iteration(
     step: int,
     accept: Optional[Callable[[list, torch.Tensor], Optional[torch.Tensor]]],
     after_backward: Optional[Callable[[], None]] = None,
+    metrics: bool = True,
 ):
     """One training step; `after_backward()`, if given, runs right after backward (the gradient sum
     across GPUs); `accept(param_groups, loss)`, if given, decides then on the step's total `loss` whether
     the optimizers step (the divergence guard's verdict: [] bool on the device, None for yes), which they
-    read on the device.
+    read on the device. `metrics` off: the pipeline (a `ThermalPipeline`) leaves the step's metrics out.
     Returns (loss, loss dict, metrics dict) as nerfstudio's."""
     adams = list(optimizers.optimizers.values())
     for optimizer in adams:
         for group in optimizer.param_groups:
             for param in group["params"]:
                 param.grad = None
-    _, loss_dict, metrics_dict = pipeline.get_train_loss_dict(step=step)
+    if metrics:
+        _, loss_dict, metrics_dict = pipeline.get_train_loss_dict(step=step)
+    else:
+        _, loss_dict, metrics_dict = pipeline.get_train_loss_dict(step=step, metrics=False)
     loss = total_loss(loss_dict)
     loss.backward()
     if after_backward is not None:
