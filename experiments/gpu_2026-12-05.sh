@@ -28,6 +28,12 @@
 #     bash experiments/gpu_2026-11-29.sh install        # .devicebundle
 #     bash experiments/gpu_2026-11-29.sh install-extra  # .data/wheels_extra
 #     ROUNDS=2 bash experiments/gpu_2026-12-04.sh host-ab dunr      # .baseline and DUNR's carry
+# or, where the session's device time (1,800 s) must hold the targets' runs themselves, straight after the installs
+# (each call's seconds on the H100 of 2026-12-05; about 1,500 s in all):
+#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal     # DUNR's carry (282 s)
+#     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto               # the same (375 s)
+#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal  # flight2's carry (about 400 s)
+#     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto            # the same (about 420 s)
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
