@@ -59,6 +59,22 @@ profiled() {  # ARM DIR ROUND [FLAG...]: profile_step on DUNR at step 3,000 as t
   echo "$arm $round: $(sed -n 3,4p "$res/profile-$arm-$round.md" | tr '\n' ' ')"
 }
 
+timeline_and_renders() {  # DIR: the timeline of the profile in DIR (run with --trace) read by
+  # experiments.trace_summary, then the render ways on the model it trained, 3 rounds of 1,000 frames at 640x512
+  # (experiments.render_fps), each round a line of $res/fps_rounds.jsonl
+  local dir=$1 config round
+  cp "$dir/trace.json.gz" "$res/trace-dunr.json.gz"
+  PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
+  pack
+  config=$(ls "$dir"/runs/*/wild-thermal/run/config.yml | head -1)
+  for round in 1 2 3; do
+    PYTHONPATH=$PWD:/tmp/site timeout 60 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
+      --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
+    python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); print(json.dumps(r))" \
+      "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
+  done
+}
+
 case "$plan" in
   tests)  # the extra wheels, then every GPU test (the training render through gsplat's functions, the emission
     # MLP's padded recordings, the guard's verdict, the held gradient nodes of the CUDA graphs among them)
@@ -77,16 +93,7 @@ case "$plan" in
     # each: for a session with little device time left
     rm -rf .baseline/experiments && cp -r experiments .baseline/
     profiled now "$PWD" 1 --trace
-    cp /tmp/profile-now-1/trace.json.gz "$res/trace-dunr.json.gz"
-    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
-    pack
-    config=$(ls /tmp/profile-now-1/runs/*/wild-thermal/run/config.yml | head -1)
-    for round in 1 2 3; do
-      PYTHONPATH=$PWD:/tmp/site timeout 60 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
-        --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
-      python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); print(json.dumps(r))" \
-        "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
-    done
+    timeline_and_renders /tmp/profile-now-1
     pack
     profiled before "$PWD/.baseline" 1
     pack
@@ -115,15 +122,7 @@ case "$plan" in
         pack
       done
     done
-    cp /tmp/profile-on-1/trace.json.gz "$res/trace-dunr.json.gz"
-    PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
-    config=$(ls /tmp/profile-on-1/runs/*/wild-thermal/run/config.yml | head -1)
-    for round in 1 2 3; do
-      PYTHONPATH=$PWD:/tmp/site timeout 60 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
-        --output-dir "/tmp/render-$round" > "/tmp/render-$round.log" 2>&1 || tail -20 "/tmp/render-$round.log"
-      python3 -c "import json, sys; r = json.load(open(sys.argv[1])); r['round'] = int(sys.argv[2]); print(json.dumps(r))" \
-        "/tmp/render-$round/fps.json" "$round" | tee -a "$res/fps_rounds.jsonl"
-    done
+    timeline_and_renders /tmp/profile-on-1
     pack
     ;;
   trace-flight2)  # flight2's step at step 3,000 as the bench trains, its timeline kept (flight2's carry)

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
+from nerfstudio.utils import profiler
 from torch import Tensor
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
@@ -138,15 +139,16 @@ class ThermalPipeline(VanillaPipeline):
         if why is not None:
             raise InputError(f"--pipeline.cameras-per-step {count}: {why}")
 
+    @profiler.time_function
     def get_train_loss_dict(self, step: int, metrics: bool = True):
         """nerfstudio's step (one training frame), or `cameras_per_step` frames rendered together.
         `metrics`: whether the step's metrics (the training PSNR) are computed; nerfstudio's trainer logs
         them at its log steps alone, and the plugin's trainer asks for them there (a model that renders
         one camera per step computes them always)."""
-        count = self.config.cameras_per_step
-        if count == 1 and (metrics or not isinstance(self.model, SeveralCamerasModel)):
+        if not isinstance(self.model, SeveralCamerasModel):  # one camera a step (`_check_several_cameras`)
             return super().get_train_loss_dict(step)
-        if count == 1:  # VanillaPipeline's step, the metrics left out
+        count = self.config.cameras_per_step
+        if count == 1:  # VanillaPipeline's step (its `_model`: the model wrapped for several GPUs)
             camera, batch = self.datamanager.next_train(step)
             outputs = self._model(camera)
             metrics_dict, loss_dict = self.model.get_training_metrics_and_losses([outputs], [batch], metrics)
