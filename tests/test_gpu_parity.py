@@ -571,3 +571,39 @@ def test_the_verdict_on_the_gpu_is_the_checks_it_stands_for_and_reads_back_its_o
     guard.settle()
     assert list(guard.recent) == [float(s + 1) for s in range(20)]
     assert guard.frame_loss == {s: float(s + 1) for s in range(20)}
+
+
+def test_the_densification_statistics_replayed_as_a_cuda_graph_equal_them_run_kernel_by_kernel():
+    """`BudgetedDefaultStrategy.graphed`: over steps of one camera and of two, a rejected step among them (the
+    guard's verdict False: nothing added), at a size with screen radii and one without, and across a state
+    replaced as a refinement replaces it, the recorded statistics equal the ones summed kernel by kernel, bit
+    for bit; one recording per state and layout, the first step's share added once (not again by the
+    recording's warm-up)."""
+    from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
+
+    g = torch.Generator(device="cuda").manual_seed(5)
+    n = 3000
+    params = {"means": torch.zeros(n, 3, device="cuda")}
+    strategies = [BudgetedDefaultStrategy(graphed=graphed, refine_scale2d_stop_iter=100) for graphed in (True, False)]
+    states = [s.initialize_state() for s in strategies]
+    records = []
+    for step, (cameras, width, accepted) in enumerate(
+        [(1, 640, True), (1, 640, True), (1, 640, False), (2, 640, True), (1, 32, True), (1, 640, True)]
+    ):
+        if step == 5:  # a refinement's new state tensors
+            for state in states:
+                state.update({key: state[key] * 0.5 for key in ("grad2d", "count", "radii")})
+        means2d = torch.zeros(cameras, n, 2, device="cuda")
+        means2d.grad = torch.rand(cameras, n, 2, device="cuda", generator=g)
+        radii = (torch.rand(cameras, n, device="cuda", generator=g) * 30).int()
+        radii = radii * (torch.rand(cameras, n, device="cuda", generator=g) > 0.4)
+        info = {"width": width, "height": width * 3 // 4, "n_cameras": cameras, "radii": radii, "means2d": means2d}
+        info["accepted"] = torch.tensor(accepted, device="cuda")
+        for strategy, state in zip(strategies, states):
+            strategy._update_state(params, state, info)
+        records.append(strategies[0]._statistics)
+    for key in ("grad2d", "count", "radii"):
+        assert torch.equal(states[0][key], states[1][key]), key
+    assert records[0] is records[1] is records[2] and records[3] is not records[2] and records[5] is not records[4]
+    assert not strategies[0]._statistics_failed
+    assert states[1]["count"].max() >= 4  # every accepted camera counted

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, Hashable, Optional, Tuple
 
 import torch
 from gsplat.strategy.ops import remove
 from nerfstudio.utils.rich_utils import CONSOLE
+from torch import Tensor
 
-from thermal_wild_ns._upstream import DefaultStrategyWithHooks
+from thermal_wild_ns._upstream import DefaultStrategyWithHooks, end_failed_capture
 
 MIN_SCREEN_RADIUS_PX = 2.0
 """The smallest screen radius gsplat's unpacked projection (splatfacto's) gives a visible Gaussian:
@@ -59,6 +61,75 @@ def widest_row_bytes(params) -> int:
     return max(p[:1].numel() * p.element_size() for p in params.values())
 
 
+def accumulate_statistics(
+    scale: Tensor,
+    largest_side: int,
+    gradient: Tensor,
+    radii: Tensor,
+    accepted: Optional[Tensor],
+    grad2d: Tensor,
+    count: Tensor,
+    screen_radii: Optional[Tensor],
+) -> None:
+    """One render's share of gsplat's densification statistics, added in place: the screen-space
+    `gradient` [C, N, 2] of C cameras (or ranks) in pixels (times `scale` [2], as gsplat) into `grad2d`
+    [N] and the cameras that see each Gaussian (`radii` [C, N] > 0) into `count` [N], where the divergence
+    guard `accepted` the step ([] bool; None: no guard); the largest screen radius over `largest_side`
+    into `screen_radii` [N] (None: none recorded at this size). Tensors in, none out, no host read: one
+    CUDA graph can record it."""
+    grads = gradient * scale  # [C, N, 2] to pixels as gsplat, in one kernel
+    visible = radii > 0.0  # [C, N]
+    if accepted is not None:
+        visible = visible & accepted
+    # over the cameras: one camera's row is taken as it is (a view), not reduced over one row (a kernel and a
+    # host operation each, at every step), the same values
+    over_cameras = (lambda x, reduce: x[0]) if visible.shape[0] == 1 else (lambda x, reduce: reduce(x, 0))
+    grad2d += over_cameras(torch.where(visible, grads.norm(dim=-1), 0.0), torch.sum)
+    count += over_cameras(visible, torch.sum)
+    if screen_radii is not None:  # screen radius normalised to [0, 1], as gsplat
+        largest = over_cameras(torch.where(visible, radii, 0), torch.amax)  # [N]
+        torch.maximum(screen_radii, largest / float(largest_side), out=screen_radii)
+
+
+@dataclass(eq=False)
+class StatisticsRecording:
+    """`accumulate_statistics` recorded as one CUDA graph (`BudgetedDefaultStrategy.graphed`) for one layout
+    of its inputs and the state tensors it adds to, held here: the graph writes their memory, and while they
+    are held no other tensor takes their place. A step's gradients, radii and verdict are copied into the
+    static inputs, then the graph replays: one launch for the kernels a step would launch one by one."""
+
+    layout: Hashable
+    kept: Tuple[Optional[Tensor], ...]  # the state's tensors the graph adds to
+    inputs: Tuple[Optional[Tensor], ...]  # static: gradient [C, N, 2], radii [C, N], verdict [] (or None)
+    graph: torch.cuda.CUDAGraph
+
+    def serves(self, layout: Hashable, kept: Tuple[Optional[Tensor], ...]) -> bool:
+        return self.layout == layout and all(a is b for a, b in zip(self.kept, kept))
+
+    def replay(self, inputs: Tuple[Optional[Tensor], ...]) -> None:
+        for static, value in zip(self.inputs, inputs):
+            if static is not None:
+                static.copy_(value)
+        self.graph.replay()
+
+    @classmethod
+    def record(cls, layout: Hashable, update: Callable, inputs: tuple, kept: tuple) -> "StatisticsRecording":
+        """`update` recorded on static copies of `inputs` and on `kept` itself. Its first call (lazy
+        initialisations outside the capture) adds to copies of `kept`: the step's share is added once, by
+        the replay that follows."""
+        static = tuple(None if t is None else t.clone() for t in inputs)
+        scratch = tuple(None if t is None else t.clone() for t in kept)
+        side = torch.cuda.Stream()
+        side.wait_stream(torch.cuda.current_stream())
+        with torch.cuda.stream(side):
+            update(*static, *scratch)
+        torch.cuda.current_stream().wait_stream(side)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):  # recording runs nothing: the state is untouched until the replay
+            update(*static, *kept)
+        return cls(layout, kept, static, graph)
+
+
 @dataclass
 class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     """DefaultStrategy whose growth step keeps only the strongest candidates within `max_gaussians`.
@@ -80,7 +151,12 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
     prunes nothing (with a message) rather than running out of memory halfway through."""
     prunes_skipped: int = 0
     """Refinements whose pruning `copies_fit` turned down (the first one says so on the console)."""
+    graphed: bool = False
+    """On a GPU, replay the densification statistics of each step as one CUDA graph (`StatisticsRecording`,
+    recorded again after each refinement): the same kernels, one launch."""
     _pixel_scales: dict = field(default_factory=dict, repr=False, compare=False)  # `_pixel_scale`'s, by render size
+    _statistics: Optional[StatisticsRecording] = field(default=None, repr=False, compare=False)  # the latest
+    _statistics_failed: bool = field(default=False, repr=False, compare=False)  # a recording failed: none again
 
     @classmethod
     def for_splatfacto(cls, cfg, num_train_data: int, ranks: int = 1) -> "BudgetedDefaultStrategy":
@@ -104,6 +180,7 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
             absgrad=cfg.use_absgrad,
             revised_opacity=False,
             verbose=False,
+            graphed=cfg.graphed_statistics,
         )
 
     def before_growth(self, params, state, step) -> None:
@@ -177,31 +254,54 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
 
     def update_statistics(self, params, state, info, packed: bool) -> bool:
         """gsplat's running statistics, computed with masks instead of gathering the visible
-        Gaussians by boolean indexing, which costs two host syncs per step. Identical sums for
-        any number of cameras per render, except that a render too small for the screen-size rule
-        (`screen_size_rule_applies`) adds no screen radii, and that of several cameras the largest screen
-        radius is kept (gsplat keeps whichever camera its indexing writes last). A distributed render (one
-        camera per rank) gives this rank's Gaussians in every rank's camera [W, N, ...]: summed as gsplat."""
+        Gaussians by boolean indexing, which costs two host syncs per step (`accumulate_statistics`; on a
+        GPU replayed as one CUDA graph where `graphed`). Identical sums for any number of cameras per
+        render, except that a render too small for the screen-size rule (`screen_size_rule_applies`)
+        adds no screen radii, and that of several cameras the largest screen radius is kept (gsplat keeps
+        whichever camera its indexing writes last). A distributed render (one camera per rank) gives this
+        rank's Gaussians in every rank's camera [W, N, ...]: summed as gsplat."""
         if packed:
             return False  # gsplat's own
         if info["radii"].dim() != 2:  # a packed render said to be unpacked would be summed into every Gaussian
             raise ValueError(f"densification statistics: radii {tuple(info['radii'].shape)} are not [C, N]")
         gradient = info[self.key_for_gradient]
-        # [C, N, 2], C: cameras or ranks; to pixels as gsplat, in one kernel
-        grads = (gradient.absgrad if self.absgrad else gradient.grad) * self._pixel_scale(info, gradient.device)
+        gradient = gradient.absgrad if self.absgrad else gradient.grad  # [C, N, 2], C: cameras or ranks
         n = params["means"].shape[0]
         for key in ("grad2d", "count") + (("radii",) if self.refine_scale2d_stop_iter > 0 else ()):
             if state[key] is None:
-                state[key] = torch.zeros(n, device=grads.device)
-        visible = info["radii"] > 0.0  # [C, N]
-        if "accepted" in info:  # the divergence guard's verdict on this step, on the device
-            visible = visible & info["accepted"]
-        state["grad2d"] += torch.where(visible, grads.norm(dim=-1), 0.0).sum(0)
-        state["count"] += visible.sum(0)
-        if self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(
-            info["width"], info["height"], self.grow_scale2d
-        ):
-            # screen radius normalised to [0, 1], as gsplat
-            radii = torch.where(visible, info["radii"], 0).amax(0) / float(max(info["width"], info["height"]))
-            torch.maximum(state["radii"], radii, out=state["radii"])
+                state[key] = torch.zeros(n, device=gradient.device)
+        width, height = info["width"], info["height"]
+        with_radii = self.refine_scale2d_stop_iter > 0 and screen_size_rule_applies(width, height, self.grow_scale2d)
+        inputs = (gradient, info["radii"], info.get("accepted"))
+        kept = (state["grad2d"], state["count"], state["radii"] if with_radii else None)
+        update = functools.partial(accumulate_statistics, self._pixel_scale(info, gradient.device), max(width, height))
+        if self.graphed and gradient.is_cuda:
+            self.recorded_statistics(update, inputs, kept)
+        else:
+            update(*inputs, *kept)
         return True
+
+    def recorded_statistics(self, update: Callable, inputs: tuple, kept: tuple) -> None:
+        """`update(*inputs, *kept)` replayed as a CUDA graph: recorded once per layout of the inputs and per
+        set of `kept` tensors (the state it adds to, replaced at each refinement: one recording per
+        refinement interval); kernel by kernel from the first recording that fails on (said once)."""
+        scale, largest_side = update.args  # the scale: one kept tensor per render size (`_pixel_scale`)
+        layout = (id(scale), largest_side, tuple(None if t is None else (tuple(t.shape), t.dtype) for t in inputs))
+        recording = self._statistics
+        if recording is None or not recording.serves(layout, kept):
+            self._statistics = recording = None  # its memory let go before the next is recorded
+            if not self._statistics_failed:
+                try:
+                    recording = StatisticsRecording.record(layout, update, inputs, kept)
+                except RuntimeError as error:
+                    end_failed_capture()
+                    self._statistics_failed = True
+                    CONSOLE.log(
+                        "[yellow]The densification statistics run kernel by kernel: a CUDA graph could not "
+                        f"record them ({error})"
+                    )
+            self._statistics = recording
+        if recording is None:
+            update(*inputs, *kept)
+        else:
+            recording.replay(inputs)

@@ -79,15 +79,24 @@ GROUND_TRUTH_KEY = "_ground_truth"
 """Where a training step's outputs keep its frame as the loss compares it (`_ground_truth`)."""
 
 
-def composite(render: Tensor, alpha: Tensor, background: Tensor) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
-    """gsplat's render [1, H, W, 1(+1)] (emission, and depth where asked) with its alpha [1, H, W, 1]
-    over `background` [H, W, 1]: the thermal image (premultiplied render over the background), the
-    alpha [H, W, 1] and the depth [H, W, 1] (the farthest rendered depth where nothing was drawn) or None."""
-    alpha = alpha[0]
-    thermal = render[0, ..., :1] + (1.0 - alpha) * background
+def composite(
+    render: Tensor, alpha: Tensor, background: Tensor, camera: int = 0
+) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
+    """Camera `camera` of gsplat's render [C, H, W, 1(+1)] (emission, and depth where asked) with its alpha
+    [C, H, W, 1] over `background` [H, W, 1]: the thermal image (premultiplied render over the background),
+    the alpha [H, W, 1] and the depth [H, W, 1] (the farthest rendered depth where nothing was drawn) or None."""
+    # one camera's render as views autograd undoes as views (a squeeze; the whole last axis): an indexing
+    # view's backward (a select's, a slice's) fills a zero tensor and copies into it, kernels and host
+    # operations at every training step
+    if render.shape[0] == 1:
+        render, alpha = render.squeeze(0), alpha.squeeze(0)
+    else:
+        render, alpha = render[camera], alpha[camera]
+    emission = render if render.shape[-1] == 1 else render[..., :1]
+    thermal = emission + (1.0 - alpha) * background
     depth = None
     if render.shape[-1] > 1:
-        depth = render[0, ..., 1:2]
+        depth = render[..., 1:2]
         depth = torch.where(alpha > 0, depth, depth.detach().max())
     return thermal, alpha, depth
 
@@ -226,6 +235,10 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     serves the counts densification moves through between half its capacity and all of it (only the
     latest is kept; it holds the MLP's activations for every row): the same values up to float rounding,
     fewer launches. Off: kernel by kernel."""
+    graphed_statistics: bool = True
+    """On a GPU, replay each training step's densification statistics (the screen-space gradients and
+    radii summed per Gaussian) as one CUDA graph, recorded again after each refinement: the same kernels
+    and values, one launch instead of a dozen. Off: kernel by kernel."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2
@@ -757,7 +770,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """`_outputs` of camera `c` of a render (gsplat's render [C, H, W, D(+1)], alpha [C, H, W, 1]) over
         its `background` [H, W, 1]: in training as its camera records it, with the view term's radial
         part where it is penalised; `colors` [N, D], the Gaussians' radiance in that camera."""
-        thermal, alpha, depth = composite(render[c : c + 1], alpha[c : c + 1], background)
+        thermal, alpha, depth = composite(render, alpha, background, c)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
             thermal = self.camera_response(thermal, view.K[0], view.pinhole, slot=c)
         outputs = self._outputs(thermal, alpha, background, depth)
@@ -893,9 +906,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         self, thermal: Tensor, alpha: Tensor, background: Tensor, depth: Optional[Tensor], rgb: Optional[Tensor] = None
     ) -> Dict:
         # `rgb` where the caller coloured it already (`viewing_outputs`); nothing reads rgb while training:
-        # the cheapest grey view; else the colormap (viewer, ns-render)
-        if rgb is None:
-            rgb = thermal_rgb(thermal, None if self.training else self.viewer_controls.colormap)  # [H, W, 3]
+        # the render itself as grey, unclipped (views alone, no kernel); else the colormap (viewer, ns-render)
+        if rgb is None and self.training:
+            rgb = thermal.detach().expand(-1, -1, 3)  # [H, W, 3]
+        elif rgb is None:
+            rgb = thermal_rgb(thermal, self.viewer_controls.colormap)  # [H, W, 3]
         return {  # rgb first: the viewer shows the first output by default
             "rgb": rgb,
             "thermal": thermal,  # [H, W, 1], normalised dataset units (training space)

@@ -112,24 +112,24 @@ class DivergenceGuard:
             return None
         device = loss.device if loss is not None else grads[0][1].device
         threshold, median = self.spike_threshold(frame) if loss is not None else (math.inf, None)
-        # few kernels, none waited for: each one is host time in every training step
+        # few operations, none waited for: each one is host time in every training step
         if loss is not None:
-            value = loss.detach().reshape(1).float()  # [1]
+            value = loss.detach().float()  # []
         else:
-            value = torch.full((1,), math.nan, device=device)
+            value = torch.full((), math.nan, device=device)
         if grads:  # one fused kernel for every gradient's norm; NaN/inf anywhere makes the sum non-finite
             norms = torch.stack(torch._foreach_norm([grad for _, grad in grads])).float()  # [G]
-            head = torch.cat([value, norms.sum().reshape(1)])  # [2] the loss, the sum of the norms
+            head = torch.stack([value, norms.sum()])  # [2] the loss, the sum of the norms
         else:
             norms = torch.zeros(0, device=device)
-            head = torch.cat([value, torch.zeros(1, device=device)])
+            head = torch.stack([value, torch.zeros((), device=device)])
         checked = head if loss is not None else head[1:]  # what must be finite
         accepted = (checked * 0 == 0).all()  # x * 0 is 0 for a finite x, NaN for inf and NaN: torch.isfinite
         # in two kernels (torch's own is four), for both values at once
         if loss is not None and threshold < math.inf:  # below an infinite threshold every finite loss lies
-            accepted = accepted & (head[0] <= threshold)
+            accepted = accepted & (value <= threshold)
         accepted = agree(accepted)
-        values = torch.cat([accepted.float().reshape(1), head, norms])  # [3 + G]
+        values = torch.cat([accepted.reshape(1), head, norms])  # [3 + G] float: cat promotes the verdict
         ready = None
         if values.is_cuda:  # behind the queued work, into pinned memory: no wait here
             values, ready = self._to_host(values)
