@@ -34,6 +34,14 @@
 #     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto               # the same (375 s)
 #     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal  # flight2's carry (about 400 s)
 #     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto            # the same (about 420 s)
+# The day's fourth session (the step's host cuts of c244ee4 and of the session after it: the composite's views, the
+# guard's verdict in fewer operations, the densification statistics as one CUDA graph), one H100, one warm machine:
+#     bash experiments/gpu_2026-11-29.sh install && bash experiments/gpu_2026-12-05.sh tests && \
+#       SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal      # .devicebundle .data/wheels_extra
+#                                                                                  # and DUNR's carry
+#     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                # DUNR's carry
+#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal   # flight2's carry
+#     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto             # the same
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
