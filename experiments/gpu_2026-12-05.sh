@@ -36,7 +36,7 @@
 #     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto            # the same (about 420 s)
 # The day's fourth session (the step's host cuts of c244ee4 and of the session after it: the composite's views, the
 # guard's verdict in fewer operations, the densification statistics as one CUDA graph), one H100, one warm machine:
-#     bash experiments/gpu_2026-11-29.sh install && bash experiments/gpu_2026-12-05.sh tests && \
+#     bash experiments/gpu_2026-11-29.sh install && THEN=trace-dunr bash experiments/gpu_2026-12-05.sh tests && \
 #       SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal      # .devicebundle .data/wheels_extra
 #                                                                                  # and DUNR's carry
 #     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                # DUNR's carry
@@ -45,7 +45,7 @@
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
-plan=${1:?plan: tests, emission-dunr, host-dunr, quick-dunr, trace-flight2}
+plan=${1:?plan: tests, emission-dunr, host-dunr, quick-dunr, trace-dunr, trace-flight2}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -133,15 +133,16 @@ case "$plan" in
     timeline_and_renders /tmp/profile-on-1
     pack
     ;;
-  trace-flight2)  # flight2's step at step 3,000 as the bench trains, its timeline kept (flight2's carry)
+  trace-dunr|trace-flight2)  # the scene's step at step 3,000 as the bench trains, its timeline kept (the scene's carry)
+    scene=${plan#trace-}
     root=$PWD
-    (PYTHONPATH=$root:/tmp/site timeout ${LIMIT:-100} python3 -m experiments.profile_step --scene "$root/.data/flight2" \
+    (PYTHONPATH=$root:/tmp/site timeout ${LIMIT:-100} python3 -m experiments.profile_step --scene "$root/.data/$scene" \
       --cache-dir "$root/.data/cache" --warmup 3000 --steps 400 --profile-steps 10 --python-steps 0 --auto-stop --trace \
-      --output-dir /tmp/trace-flight2 > /tmp/trace-flight2.log 2>&1) || tail -5 /tmp/trace-flight2.log
-    cp /tmp/trace-flight2/profile.md "$res/profile-flight2.md"
-    cp /tmp/trace-flight2/trace.json.gz "$res/trace-flight2.json.gz"
-    PYTHONPATH=$root:/tmp/site python3 -m experiments.trace_summary "$res/trace-flight2.json.gz" > "$res/trace-flight2.md"
-    sed -n 3,4p "$res/profile-flight2.md"; head -30 "$res/trace-flight2.md"
+      --output-dir "/tmp/trace-$scene" > "/tmp/trace-$scene.log" 2>&1) || tail -5 "/tmp/trace-$scene.log"
+    cp "/tmp/trace-$scene/profile.md" "$res/profile-$scene.md"
+    cp "/tmp/trace-$scene/trace.json.gz" "$res/trace-$scene.json.gz"
+    PYTHONPATH=$root:/tmp/site python3 -m experiments.trace_summary "$res/trace-$scene.json.gz" > "$res/trace-$scene.md"
+    sed -n 3,4p "$res/profile-$scene.md"; head -30 "$res/trace-$scene.md"
     pack
     ;;
   *) echo "unknown plan: $plan"; exit 2 ;;
