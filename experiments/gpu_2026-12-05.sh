@@ -34,14 +34,19 @@
 #     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto               # the same (375 s)
 #     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal  # flight2's carry (about 400 s)
 #     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto            # the same (about 420 s)
-# The day's fourth session (the step's host cuts of c244ee4 and of the session after it: the composite's views, the
-# guard's verdict in fewer operations, the densification statistics as one CUDA graph), one H100, one warm machine:
-#     bash experiments/gpu_2026-11-29.sh install && THEN=trace-dunr bash experiments/gpu_2026-12-05.sh tests && \
-#       SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal      # .devicebundle .data/wheels_extra
-#                                                                                  # and DUNR's carry
-#     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                # DUNR's carry
-#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal   # flight2's carry
-#     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto             # the same
+# The day's fourth session (the step's host cuts of c244ee4 and 7abe446: the composite's views, the guard's verdict in
+# fewer operations, the densification statistics as one CUDA graph), one H100, one warm machine; ran in this order
+# (docs/results/schedule_h100_host_cuts; the tracked tree and the carry must stay within 64 MiB, so the install,
+# the tests and each scene went in calls of their own):
+#     bash experiments/gpu_2026-11-29.sh install                                     # .devicebundle
+#     bash experiments/gpu_2026-12-05.sh tests                                       # .data/wheels_extra
+#     bash experiments/gpu_2026-12-05.sh trace-dunr && \
+#       SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal        # DUNR's carry
+#     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                    # DUNR's carry
+#     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto                 # flight2's carry
+#     bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal               # the same; SEED=1 again
+# Next: flight2's third seed of the full method (SEED=2, about 125 s), and the package before these cuts (.baseline =
+# git archive fd20c99 thermal_wild_ns) against now on one machine (ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh).
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
