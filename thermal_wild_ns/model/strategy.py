@@ -121,12 +121,19 @@ class StatisticsRecording:
         scratch = tuple(None if t is None else t.clone() for t in kept)
         side = torch.cuda.Stream()
         side.wait_stream(torch.cuda.current_stream())
+        graph = torch.cuda.CUDAGraph()
         with torch.cuda.stream(side):
             update(*static, *scratch)
+            # what `torch.cuda.graph` does (a capture on a side stream into a private memory pool) without its
+            # entry's device sync and `empty_cache`: a recording per refinement would hand the allocator's cache
+            # back to the driver every hundred steps, for the next step to allocate again. A capture runs
+            # nothing: the state is untouched until the replay
+            graph.capture_begin()
+            try:
+                update(*static, *kept)
+            finally:
+                graph.capture_end()
         torch.cuda.current_stream().wait_stream(side)
-        graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):  # recording runs nothing: the state is untouched until the replay
-            update(*static, *kept)
         return cls(layout, kept, static, graph)
 
 
