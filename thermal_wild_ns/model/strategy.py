@@ -283,17 +283,18 @@ class BudgetedDefaultStrategy(DefaultStrategyWithHooks):
         kept = (state["grad2d"], state["count"], state["radii"] if with_radii else None)
         update = functools.partial(accumulate_statistics, self._pixel_scale(info, gradient.device), max(width, height))
         if self.graphed and gradient.is_cuda:
-            self.recorded_statistics(update, inputs, kept)
+            # the render size and camera count fix the constants `update` holds (the pixel scale, the side)
+            shapes = tuple(None if t is None else (tuple(t.shape), t.dtype) for t in inputs)
+            self.recorded_statistics((width, height, info["n_cameras"], shapes), update, inputs, kept)
         else:
             update(*inputs, *kept)
         return True
 
-    def recorded_statistics(self, update: Callable, inputs: tuple, kept: tuple) -> None:
-        """`update(*inputs, *kept)` replayed as a CUDA graph: recorded once per layout of the inputs and per
-        set of `kept` tensors (the state it adds to, replaced at each refinement: one recording per
-        refinement interval); kernel by kernel from the first recording that fails on (said once)."""
-        scale, largest_side = update.args  # the scale: one kept tensor per render size (`_pixel_scale`)
-        layout = (id(scale), largest_side, tuple(None if t is None else (tuple(t.shape), t.dtype) for t in inputs))
+    def recorded_statistics(self, layout: Hashable, update: Callable, inputs: tuple, kept: tuple) -> None:
+        """`update(*inputs, *kept)` replayed as a CUDA graph: recorded once per `layout` (what besides the
+        tensors `update` depends on, and the inputs' shapes) and per set of `kept` tensors (the state it adds
+        to, replaced at each refinement: one recording per refinement interval); kernel by kernel from the
+        first recording that fails on (said once)."""
         recording = self._statistics
         if recording is None or not recording.serves(layout, kept):
             self._statistics = recording = None  # its memory let go before the next is recorded
