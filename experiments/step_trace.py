@@ -43,7 +43,7 @@ def main() -> None:
     print("step, image, loss, render sum, accumulation sum")
     for step, row in enumerate(steps):
         print(step, *row)
-    print("background MLP last-layer weight sum", float(model.background_mlp.net[-1].weight.double().sum()))
+    print("background MLP last-layer weight sum", float(model.background_mlp.net.layers()[-1][0].double().sum()))
 
 
 if __name__ == "__main__":

@@ -37,8 +37,8 @@ def make_model(n=400, frames=5, metadata=None, **overrides):
 def perturb_output_layers(model):
     """As after a few steps: the zero-initialised MLP output layers have moved."""
     with torch.no_grad():
-        model.emission_mlp.net[-1].weight.normal_(0, 0.1)
-        model.background_mlp.net[-1].weight.normal_(0, 0.1)
+        model.emission_mlp.net.layers()[-1][0].normal_(0, 0.1)
+        model.background_mlp.net.layers()[-1][0].normal_(0, 0.1)
 
 
 def make_frame_dependent_model():
@@ -75,7 +75,8 @@ def test_forward_backward_reaches_every_parameter_group():
     for name in ("means", "emission", "opacities", "background_mlp"):
         assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in groups[name]), name
     # only the trained frame's embedding gets gradient
-    assert model.emission_mlp.net[-1].weight.grad.abs().sum() > 0
+    net = model.emission_mlp.net
+    assert net.layers(net.packed.grad)[-1][0].abs().sum() > 0  # the output layer's weights
     frame_grad = model.frame_embed.weight.grad
     assert frame_grad[1].abs().sum() > 0 and frame_grad[[0, 2, 3, 4]].abs().sum() == 0
 
@@ -98,9 +99,8 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
     for the next render."""
     model = make_frame_dependent_model()
     with torch.no_grad():
-        for layer in model.emission_mlp.net:  # a strongly non-linear emission of the state
-            if isinstance(layer, torch.nn.Linear):
-                layer.weight.normal_(0, 1.0)
+        for weight, _ in model.emission_mlp.net.layers():  # a strongly non-linear emission of the state
+            weight.normal_(0, 1.0)
     emission = model.typical_state_emission()
     frames = [emission(e).detach() for e in model.frame_embed.weight]
 
@@ -561,7 +561,7 @@ def test_baked_emission_matches_and_is_invalidated(monkeypatch):
     model, camera = make_model(use_background_mlp=False), make_camera()
     monkeypatch.setattr(wild_thermal, "BAKE_ROWS", model.num_points // 3 + 1)  # three parts, the last shorter
     with torch.no_grad():  # a zero output layer would make every embedding render alike
-        model.emission_mlp.net[-1].weight.normal_(0, 0.1)
+        model.emission_mlp.net.layers()[-1][0].normal_(0, 0.1)
     model.eval()
     with torch.enable_grad():  # autograd on: no baking, the MLP runs on every render
         unbaked = model.get_outputs(camera)["thermal"].detach()
@@ -571,7 +571,7 @@ def test_baked_emission_matches_and_is_invalidated(monkeypatch):
         assert model.get_outputs(camera)["thermal"].equal(baked) and model.baked.slots["emission"][2] is first  # reused
     torch.testing.assert_close(baked, unbaked, atol=1e-5, rtol=0)
     with torch.no_grad():
-        model.emission_mlp.net[0].weight.add_(0.01)  # an optimizer step changes parameters in place
+        model.emission_mlp.net.layers()[0][0].add_(0.01)  # an optimizer step changes parameters in place
         changed = model.get_outputs(camera)["thermal"]
         assert model.baked.slots["emission"][2] is not first and not changed.equal(baked)
         second = model.baked.slots["emission"][2]
@@ -605,7 +605,7 @@ def test_a_render_outside_training_equals_the_general_path():
             if model.background_mlp.frame_affine is not None:
                 model.background_mlp.frame_affine.weight.data.normal_(0, 0.1)
         else:
-            model.emission_mlp.net[-1].weight.data.normal_(0, 0.1)
+            model.emission_mlp.net.layers()[-1][0].data.normal_(0, 0.1)
         model.eval()
         everything = OrientedBox(R=torch.eye(3), T=torch.zeros(3), S=torch.full((3,), 100.0))
         for camera in (make_camera(1, width=64, height=48), make_camera(2, width=40, height=24)):
@@ -622,15 +622,66 @@ def test_a_render_outside_training_equals_the_general_path():
 def test_the_background_mlps_size_and_coupling_come_from_the_config():
     """`background_mlp_width`, `background_mlp_layers` and `background_frame_coupling` build the background
     MLP the model trains (what a size sweep varies), and the default couples the frame as a gain and offset."""
-    linears = lambda model: [m for m in model.background_mlp.net if isinstance(m, torch.nn.Linear)]
+    weights = lambda model: [tuple(weight.shape) for weight, _ in model.background_mlp.net.layers()]  # [out, in]
     default = make_model()
-    assert [layer.out_features for layer in linears(default)] == [64, 64, 1]
+    # 'affine' (the default) feeds the MLP the directions' encoding (16) only; 'mlp' the frame embedding (16) too
+    assert weights(default) == [(64, 16), (64, 64), (1, 64)]
     assert default.background_mlp.frame_affine is not None  # 'affine' by default
     small = make_model(background_mlp_width=16, background_mlp_layers=1, background_frame_coupling="mlp")
-    assert [layer.out_features for layer in linears(small)] == [16, 1]
+    assert weights(small) == [(16, 32), (1, 16)]
     assert small.background_mlp.frame_affine is None
-    # 'mlp' feeds the frame embedding (16) beside the directions' encoding (16); 'affine' the encoding only
-    assert linears(small)[0].in_features == 32 and linears(default)[0].in_features == 16
+
+
+def test_each_mlp_is_one_parameter_that_a_checkpoint_of_its_separate_layers_loads_into():
+    """An MLP's weights and biases are views of one parameter (`PackedMLP`: one gradient to accumulate and one
+    tensor for Adam each step), drawn as `nn.Linear` layers draw theirs; a checkpoint from before, whose MLPs
+    were `nn.Sequential` layers, loads into a model of now and renders the same."""
+    from torch import nn
+
+    from thermal_wild_ns.model.fields import PackedMLP
+
+    def separate(in_dim, width, hidden_layers):  # the MLP before the packing, as `mlp()` built it
+        layers = []
+        for dim in [in_dim] + [width] * (hidden_layers - 1):
+            layers += [nn.Linear(dim, width), nn.ReLU(inplace=True)]
+        out = nn.Linear(width, 1)
+        nn.init.zeros_(out.weight)
+        nn.init.zeros_(out.bias)
+        return nn.Sequential(*layers, out)
+
+    torch.manual_seed(0)
+    old = separate(24, 32, 3)
+    torch.manual_seed(0)
+    packed = PackedMLP(24, 32, 3)
+    assert [name for name, _ in packed.named_parameters()] == ["packed"]
+    assert torch.equal(packed.packed, torch.cat([p.detach().reshape(-1) for p in old.parameters()]))  # same draws
+    with torch.no_grad():
+        old[-1].weight.normal_()  # as after training
+    packed.load_state_dict(old.state_dict())
+    x = torch.randn(50, 24)
+    assert torch.equal(packed(x), old(x))
+    packed(x).square().sum().backward()
+    old(x).square().sum().backward()
+    assert torch.equal(packed.packed.grad, torch.cat([p.grad.reshape(-1) for p in old.parameters()]))
+
+    model = make_model()
+    perturb_output_layers(model)
+    state = model.state_dict()
+    for name in ("emission_mlp", "background_mlp"):
+        net = getattr(model, name).net
+        state.update(
+            {
+                f"{name}.net.{2 * i}.{part}": tensor.clone()
+                for i, layer in enumerate(net.layers(state.pop(f"{name}.net.packed")))
+                for part, tensor in zip(("weight", "bias"), layer)
+            }
+        )
+    before = make_model()
+    before.load_state_dict(state)
+    model.eval()
+    before.eval()
+    with torch.no_grad():
+        assert torch.equal(before.get_outputs(make_camera(2))["thermal"], model.get_outputs(make_camera(2))["thermal"])
 
 
 def test_an_affine_background_changes_every_direction_alike_from_frame_to_frame():

@@ -36,7 +36,38 @@ def _run(out, demo_scene_dir, steps, save_every, load_dir=None, auto_stop=False,
     return trainer
 
 
+def _as_before_the_mlps_were_packed(checkpoints, out, model):
+    """The last of `checkpoints` (a folder) written to `out` as a version before `PackedMLP` saved it: each
+    MLP's layers as tensors of their own, in the model's state (`net.0.weight`, `net.0.bias`, ...) and in
+    its optimizer's (a moment and a step count each, the optimizer's tensors numbered on)."""
+    path = sorted(checkpoints.glob("*.ckpt"))[-1]
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    for name in ("emission_mlp", "background_mlp"):
+        net = getattr(model, name).net
+        packed = state["pipeline"].pop(f"_model.{name}.net.packed")
+        for i, layer in enumerate(net.layers(packed)):
+            for part, tensor in zip(("weight", "bias"), layer):
+                state["pipeline"][f"_model.{name}.net.{2 * i}.{part}"] = tensor.clone()
+        adam = state["optimizers"][name]
+        (group,) = adam["param_groups"]
+        at = [p is net.packed for p in getattr(model, name).parameters()].index(True)  # after a background's offset
+        moments = [adam["state"][i] for i in group["params"]]
+        layers = {key: net.layers(moments[at][key]) for key in ("exp_avg", "exp_avg_sq")}
+        separate = [
+            {"step": moments[at]["step"].clone(), **{key: layers[key][i][j].clone() for key in layers}}
+            for i in range(len(net.shapes))
+            for j in range(2)
+        ]
+        adam["state"] = dict(enumerate(moments[:at] + separate + moments[at + 1 :]))
+        group["params"] = list(range(len(adam["state"])))
+    out.mkdir(parents=True)
+    torch.save(state, out / path.name)
+    return out
+
+
 def test_resume_reproduces_the_uninterrupted_run(tmp_path, demo_scene_dir):
+    """Also from a checkpoint of a version before each MLP was one parameter (`PackedMLP`): its model and
+    optimizer states load as they are now, and the run continues as the uninterrupted one."""
     torch.manual_seed(0)
     straight = _run(tmp_path / "a", demo_scene_dir, steps=60, save_every=1000)
     torch.manual_seed(0)
@@ -48,10 +79,15 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, demo_scene_dir):
     # --max-num-iterations is the total: resumed after step 29, the run trains steps 30..59
     resumed = _run(tmp_path / "c", demo_scene_dir, steps=60, save_every=1000, load_dir=checkpoints)
     assert resumed._start_step == 30
-    a, b = straight.pipeline.model, resumed.pipeline.model
-    assert a.num_points == b.num_points != 2340  # the refinement at step 50 grew and pruned alike
-    for (name, pa), (_, pb) in zip(a.named_parameters(), b.named_parameters()):
-        torch.testing.assert_close(pa, pb, msg=name)
+    before = _as_before_the_mlps_were_packed(checkpoints, tmp_path / "before", first.pipeline.model)
+    torch.manual_seed(123)
+    resumed_before = _run(tmp_path / "d", demo_scene_dir, steps=60, save_every=1000, load_dir=before)
+    assert resumed_before._start_step == 30
+    a = straight.pipeline.model
+    for b in (resumed.pipeline.model, resumed_before.pipeline.model):
+        assert a.num_points == b.num_points != 2340  # the refinement at step 50 grew and pruned alike
+        for (name, pa), (_, pb) in zip(a.named_parameters(), b.named_parameters()):
+            torch.testing.assert_close(pa, pb, msg=name)
 
 
 def test_the_lean_step_trains_exactly_as_nerfstudios_step(tmp_path, demo_scene_dir):

@@ -657,8 +657,14 @@ def training_state_kept(model):
 class TrainerAfterLoad(Trainer):
     """nerfstudio 1.1.5's `Trainer._load_checkpoint` (private) is the only place a resumed run's
     state arrives, and `Trainer._after_train` (private) saves the final checkpoint with no hook
-    before it. This subclass calls `after_checkpoint_load()` right after the first and
-    `before_final_checkpoint()` right before the second."""
+    before it. This subclass hands the checkpoint's optimizer states to `optimizer_states_loaded(states)`
+    before they load (`Optimizers.load_optimizers`, which `_load_checkpoint` calls), calls
+    `after_checkpoint_load()` right after the load and `before_final_checkpoint()` right before the final
+    checkpoint."""
+
+    def optimizer_states_loaded(self, states: dict) -> dict:
+        """The checkpoint's optimizer states (optimizer name -> its state dict) as they should load."""
+        return states
 
     def after_checkpoint_load(self) -> None:
         pass
@@ -667,7 +673,12 @@ class TrainerAfterLoad(Trainer):
         pass
 
     def _load_checkpoint(self) -> None:
-        super()._load_checkpoint()
+        load = self.optimizers.load_optimizers
+        self.optimizers.load_optimizers = lambda states: load(self.optimizer_states_loaded(states))
+        try:
+            super()._load_checkpoint()
+        finally:
+            del self.optimizers.load_optimizers  # the method again
         self.after_checkpoint_load()
 
     def _after_train(self) -> None:

@@ -2,22 +2,78 @@
 
 from __future__ import annotations
 
+from typing import List, Optional, Tuple
+
 import torch
 from nerfstudio.field_components.encodings import SHEncoding
 from torch import Tensor, nn
+from torch.nn import functional as F
 
 
-def mlp(in_dim: int, width: int, hidden_layers: int, out_dim: int = 1) -> nn.Sequential:
-    """`hidden_layers` Linear+ReLU layers of `width`, then a linear output initialised to zero,
-    so that a freshly added MLP is a no-op residual and training starts from the plain scalars."""
-    layers, dim = [], in_dim
-    for _ in range(hidden_layers):
-        layers += [nn.Linear(dim, width), nn.ReLU(inplace=True)]
-        dim = width
-    out = nn.Linear(dim, out_dim)
-    nn.init.zeros_(out.weight)
-    nn.init.zeros_(out.bias)
-    return nn.Sequential(*layers, out)
+class PackedMLP(nn.Module):
+    """`hidden_layers` Linear+ReLU layers of `width`, then a linear output initialised to zero, so that a
+    freshly added MLP is a no-op residual and training starts from the plain scalars.
+
+    Every weight and bias is a view of one parameter, `packed` (each layer's weight [out, in], then its
+    bias [out], layer after layer): a training step's backward accumulates one gradient for the MLP instead
+    of one per tensor, and Adam updates one tensor (each costs the host an operation every step; Adam is
+    elementwise, so the update is the same). Initialised as `nn.Linear` layers are, in the same order of
+    random draws; a checkpoint of the `nn.Sequential` this replaced (keys `0.weight`, `0.bias`, ...) loads
+    into it."""
+
+    def __init__(self, in_dim: int, width: int, hidden_layers: int, out_dim: int = 1):
+        super().__init__()
+        dims = [in_dim] + [width] * hidden_layers + [out_dim]
+        layers = [nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:])]
+        nn.init.zeros_(layers[-1].weight)
+        nn.init.zeros_(layers[-1].bias)
+        self.shapes = tuple((b, a) for a, b in zip(dims[:-1], dims[1:]))  # each layer's weight [out, in]
+        tensors = [t.detach().reshape(-1) for layer in layers for t in (layer.weight, layer.bias)]
+        self.packed = nn.Parameter(torch.cat(tensors))
+
+    def layers(self, packed: Optional[Tensor] = None) -> List[Tuple[Tensor, Tensor]]:
+        """Each layer's (weight [out, in], bias [out]): views of `packed` (by default the parameter, whose
+        gradient they take; or a tensor laid out as it is, such as its gradient)."""
+        packed = self.packed if packed is None else packed
+        # one split, whose backward is one concatenation (a slice's each fills a zero tensor of the whole size)
+        sizes = [n for out_dim, in_dim in self.shapes for n in (out_dim * in_dim, out_dim)]
+        chunks = packed.split(sizes)  # weight, bias, weight, bias, ...
+        return [(w.view(shape), b) for shape, w, b in zip(self.shapes, chunks[::2], chunks[1::2])]
+
+    def forward(self, x: Tensor) -> Tensor:
+        """x [P, in] -> [P, out]."""
+        layers = self.layers()
+        for weight, bias in layers[:-1]:
+            x = torch.relu_(F.linear(x, weight, bias))
+        weight, bias = layers[-1]
+        return F.linear(x, weight, bias)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        old = [f"{prefix}{2 * i}.{name}" for i in range(len(self.shapes)) for name in ("weight", "bias")]
+        if prefix + "packed" not in state_dict and all(k in state_dict for k in old):
+            # a checkpoint from before the packing: its layers in `packed`'s order
+            state_dict[prefix + "packed"] = torch.cat([state_dict.pop(k).reshape(-1) for k in old])
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def packed_adam_state(state: dict, start: int, count: int) -> dict:
+    """An Adam state dict (`Optimizer.state_dict()`, one param group) whose tensors `start` to `start + count`
+    are an MLP's separate weights and biases, as saved before the MLP was a `PackedMLP`, with those tensors as
+    one: their moments concatenated in `packed`'s order (Adam is elementwise: the same moments), the first
+    one's step count; the group's tensors numbered on from its first."""
+    (group,) = state["param_groups"]
+    ids = group["params"]
+    layers = [state["state"][i] for i in ids[start : start + count]]
+    packed = {
+        **layers[0],
+        **{key: torch.cat([m[key].reshape(-1) for m in layers]) for key in ("exp_avg", "exp_avg_sq")},
+    }
+    moments = (  # None: a tensor never stepped has no state
+        [state["state"].get(i) for i in ids[:start]] + [packed] + [state["state"].get(i) for i in ids[start + count :]]
+    )
+    renumbered = list(range(ids[0], ids[0] + len(moments)))
+    kept = {i: m for i, m in zip(renumbered, moments) if m is not None}
+    return {"state": kept, "param_groups": [{**group, "params": renumbered}]}
 
 
 class EmissionMLP(nn.Module):
@@ -30,7 +86,7 @@ class EmissionMLP(nn.Module):
 
     def __init__(self, gaussian_dim: int, frame_dim: int, width: int = 128, hidden_layers: int = 3):
         super().__init__()
-        self.net = mlp(gaussian_dim + frame_dim, width, hidden_layers)
+        self.net = PackedMLP(gaussian_dim + frame_dim, width, hidden_layers)
 
     def forward(self, base: Tensor, gaussian_embed: Tensor, frame_embed: Tensor) -> Tensor:
         """base [N, 1], gaussian_embed [N, Dg], frame_embed [Df] -> emission [N, 1]."""
@@ -61,7 +117,7 @@ class BackgroundMLP(nn.Module):
             raise ValueError(f"background frame coupling {frame_coupling!r}: 'mlp' or 'affine'")
         self.encoding = SHEncoding(levels=4, implementation="torch")
         net_frame_dim = frame_dim if frame_coupling == "mlp" else 0
-        self.net = mlp(self.encoding.get_out_dim() + net_frame_dim, width, hidden_layers)
+        self.net = PackedMLP(self.encoding.get_out_dim() + net_frame_dim, width, hidden_layers)
         self.offset = nn.Parameter(torch.tensor([init_value]))
         self.frame_affine = None  # [Df] -> (gain - 1, offset) of the whole map, 'affine' only
         if frame_coupling == "affine":

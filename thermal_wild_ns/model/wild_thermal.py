@@ -42,7 +42,7 @@ from thermal_wild_ns.model.config_checks import (
     refuse_options_without_their_part,
     refuse_unused_options,
 )
-from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP
+from thermal_wild_ns.model.fields import BackgroundMLP, EmissionMLP, packed_adam_state
 from thermal_wild_ns.model.frame_states import Emission, FrameStates
 from thermal_wild_ns.model.gaussians import GreyColourAccessors, initial_gaussians
 from thermal_wild_ns.model.graphed import GraphedCalls, PaddedRowCalls
@@ -85,6 +85,14 @@ def composite(
     """Camera `camera` of gsplat's render [C, H, W, 1(+1)] (emission, and depth where asked) with its alpha
     [C, H, W, 1] over `background` [H, W, 1]: the thermal image (premultiplied render over the background),
     the alpha [H, W, 1] and the depth [H, W, 1] (the farthest rendered depth where nothing was drawn) or None."""
+    emission, alpha, depth = camera_planes(render, alpha, camera)
+    return over_background(emission, alpha, background), alpha, depth
+
+
+def camera_planes(render: Tensor, alpha: Tensor, camera: int = 0) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
+    """Camera `camera` of gsplat's render [C, H, W, 1(+1)] and alpha [C, H, W, 1]: its emission [H, W, 1]
+    (premultiplied), alpha [H, W, 1] and depth [H, W, 1] (the farthest rendered depth where nothing was
+    drawn) or None."""
     # one camera's render as views autograd undoes as views (a squeeze; the whole last axis): an indexing
     # view's backward (a select's, a slice's) fills a zero tensor and copies into it, kernels and host
     # operations at every training step
@@ -93,12 +101,29 @@ def composite(
     else:
         render, alpha = render[camera], alpha[camera]
     emission = render if render.shape[-1] == 1 else render[..., :1]
-    thermal = emission + (1.0 - alpha) * background
     depth = None
     if render.shape[-1] > 1:
         depth = render[..., 1:2]
         depth = torch.where(alpha > 0, depth, depth.detach().max())
-    return thermal, alpha, depth
+    return emission, alpha, depth
+
+
+def over_background(emission: Tensor, alpha: Tensor, background: Tensor) -> Tensor:
+    """The premultiplied `emission` [H, W, 1] of a render of `alpha` [H, W, 1] over `background` [H, W, 1]."""
+    return emission + (1.0 - alpha) * background
+
+
+def recorded_over_background(
+    emission: Tensor,
+    alpha: Tensor,
+    background: Tensor,
+    coefficients: Tensor,
+    basis: Tensor,
+    flat_field: Optional[Tensor] = None,
+) -> Tensor:
+    """`over_background`, as the camera records it (`camera_falloff.respond`): one function of tensors, so
+    that a training step records the compositing and the camera model in one CUDA graph."""
+    return respond(over_background(emission, alpha, background), coefficients, basis, flat_field)
 
 
 @dataclass
@@ -770,9 +795,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """`_outputs` of camera `c` of a render (gsplat's render [C, H, W, D(+1)], alpha [C, H, W, 1]) over
         its `background` [H, W, 1]: in training as its camera records it, with the view term's radial
         part where it is penalised; `colors` [N, D], the Gaussians' radiance in that camera."""
-        thermal, alpha, depth = composite(render, alpha, background, c)
         if self.training and self.camera_falloff is not None:  # compared with a recorded frame
-            thermal = self.camera_response(thermal, view.K[0], view.pinhole, slot=c)
+            emission, alpha, depth = camera_planes(render, alpha, c)
+            thermal = self.recorded_render(emission, alpha, background, view.K[0], view.pinhole, slot=c)
+        else:
+            thermal, alpha, depth = composite(render, alpha, background, c)
         outputs = self._outputs(thermal, alpha, background, depth)
         if self.training and self.config.view_radial_penalty > 0 and self.renders_view_term() and not self.ranks.split:
             visible = self.info["radii"][c].reshape(self.num_points, -1).amax(-1) > 0  # [N]
@@ -786,39 +813,41 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             )
         return outputs
 
-    def camera_response(
+    def recorded_render(
         self,
-        thermal: Tensor,
+        emission: Tensor,
+        alpha: Tensor,
+        background: Tensor,
         K: Tensor,
         pinhole: Tuple[float, float, float, float],
-        detach: bool = False,
         slot: int = 0,
     ) -> Tensor:
-        """A render `thermal` [H, W, 1] of a camera of intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on
-        the host) at that size, through the fitted fall-off and flat-field map (`camera_falloff.respond`);
-        `slot`: the camera's place among a training step's cameras (`GraphedCalls`)."""
-        height, width = thermal.shape[:2]
+        """A training render of a camera of intrinsics `K` [3, 3] (`pinhole`: its fx, fy, cx, cy on the host) as
+        the camera records it: gsplat's `emission` [H, W, 1] (premultiplied) and `alpha` [H, W, 1] over the
+        `background` [H, W, 1], through the fitted fall-off and flat-field map (`recorded_over_background`), the
+        two replayed as one CUDA graph on a GPU (`graphed_camera`); `slot`: the camera's place among a training
+        step's cameras (`GraphedCalls`)."""
+        height, width = emission.shape[:2]
         basis = self.camera_falloff_basis(K, pinhole, width, height, 1)  # [H, W, K], kept
-        coefficients, flat_field = self.camera_falloff, self.camera_flat_field
-        if detach:
-            coefficients = coefficients.detach()
-            flat_field = None if flat_field is None else flat_field.detach()
-        if self.graphed_camera is not None and not detach and self.training and torch.is_grad_enabled():
-            # the training step's: the same kernels, replayed (the key: what besides the inputs' shapes
-            # picks the function, whether there is a map)
-            if flat_field is None:
-                return self.graphed_camera(False, respond, thermal, coefficients, basis, slot=slot)
-            return self.graphed_camera(True, respond, thermal, coefficients, basis, flat_field, slot=slot)
-        return respond(thermal, coefficients, basis, flat_field)
+        inputs = (emission, alpha, background, self.camera_falloff, basis)
+        if self.camera_flat_field is not None:
+            inputs += (self.camera_flat_field,)
+        if self.graphed_camera is not None and torch.is_grad_enabled():
+            # the key: what besides the inputs' shapes picks the function, whether there is a map
+            return self.graphed_camera(len(inputs) == 6, recorded_over_background, *inputs, slot=slot)
+        return recorded_over_background(*inputs)
 
     def as_recorded(self, thermal: Tensor, camera: Cameras) -> Tensor:
         """A render `thermal` [H, W, 1] of `camera` (outside training: the scene) as the camera records
-        it, with its fitted fall-off and flat-field map (`camera_response`); unchanged without them.
+        it, with its fitted fall-off and flat-field map (`camera_falloff.respond`); unchanged without them.
         For every image compared with a recorded frame (`pipeline.photometric_state.render`)."""
         if self.camera_falloff is None:
             return thermal
         _, _, pinhole = host_sizes(camera)  # the camera's full resolution, as the render
-        return self.camera_response(thermal, intrinsics(camera)[0].to(thermal.device), pinhole, detach=True)
+        height, width = thermal.shape[:2]
+        basis = self.camera_falloff_basis(intrinsics(camera)[0].to(thermal.device), pinhole, width, height, 1)
+        flat_field = None if self.camera_flat_field is None else self.camera_flat_field.detach()
+        return respond(thermal, self.camera_falloff.detach(), basis, flat_field)
 
     def activated_splats(self, ids: Optional[Tensor] = None) -> Tuple[Tensor, Tensor]:
         """gsplat's scales [N, 3] and opacities [N] of every (or the selected) Gaussian (outside training
@@ -1137,6 +1166,19 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         """This step's gradients enter the densification statistics where `accepted` ([] bool on the
         device: the divergence guard's verdict, read there, not waited for) is True."""
         self._step_accepted = accepted
+
+    def optimizer_states_of(self, states: dict) -> dict:
+        """The MLPs' Adam states of a checkpoint from before each MLP was one parameter (`PackedMLP`), packed."""
+        for name in ("emission_mlp", "background_mlp"):
+            mlp = getattr(self, name)
+            if mlp is None or name not in states:
+                continue
+            parameters = list(mlp.parameters())
+            count = 2 * len(mlp.net.shapes)  # the separate layers' weights and biases
+            if len(states[name]["param_groups"][0]["params"]) == len(parameters) + count - 1:
+                start = next(i for i, p in enumerate(parameters) if p is mlp.net.packed)  # the tensors before stay
+                states = {**states, name: packed_adam_state(states[name], start, count)}
+        return states
 
     def load_state_dict(self, state_dict, strict: bool = True, **kwargs):  # type: ignore[override]
         """Refuse a checkpoint of another config, with the reason (`refuse_mismatched_checkpoint`)."""

@@ -79,3 +79,8 @@ class GuardedModel(Protocol):
     def try_view_term(self) -> None:
         """Put the view term on trial: in every other training render, in no render outside training."""
         ...
+
+    def optimizer_states_of(self, states: dict) -> dict:
+        """A checkpoint's optimizer states (optimizer name -> its state dict) for this model's parameters: a
+        checkpoint saved with another layout of them (an older version's) as this model holds them."""
+        ...

@@ -207,6 +207,10 @@ class GuardedTrainer(TrainerAfterLoad):
         finally:
             self.config.max_num_iterations, self.config.steps_per_save = total, every
 
+    def optimizer_states_loaded(self, states: dict) -> dict:
+        model = self.pipeline.model  # loaded inside nerfstudio's setup, before `guarded_model` is set
+        return model.optimizer_states_of(states) if isinstance(model, GuardedModel) else states
+
     def after_checkpoint_load(self) -> None:
         # splatfacto's load_state_dict replaced the Gaussian parameters after the optimizers were built
         repoint_optimizers(self.optimizers, self.pipeline.get_param_groups())
