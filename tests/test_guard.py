@@ -265,8 +265,9 @@ VERDICT_CASES = [  # (loss or None, each gradient or None, the losses before it)
 
 def verdicts_match_the_reference(device: str) -> None:
     """The guard's verdict on `device`, on every case of VERDICT_CASES, against the checks it stands for
-    computed plainly on the host (torch.isfinite of the loss and of the sum of the gradient norms, the loss
-    at most the spike threshold), and the values it reads back (the reason, the recorded losses)."""
+    computed plainly on the host (the loss and the gradient norms summing to a finite float32: each finite and
+    no overflow; the loss at most the spike threshold), and the values it reads back (the reason, the recorded
+    losses)."""
     for loss, grads, history in VERDICT_CASES:
         guard = DivergenceGuard(DivergenceGuardConfig(spike_window=3, loss_spike_factor=10.0))
         for previous in history:
@@ -277,9 +278,10 @@ def verdicts_match_the_reference(device: str) -> None:
         loss_tensor = None if loss is None else torch.tensor(loss, device=device)
         threshold, _ = guard.spike_threshold(None)
         norms = [torch.linalg.vector_norm(p.grad.double().cpu()) for p in params if p.grad is not None]
-        expected = [] if loss is None else [torch.isfinite(torch.tensor(loss)), torch.tensor(loss) <= threshold]
-        if norms:
-            expected.append(torch.isfinite(torch.stack(norms).float().sum()))
+        summed = ([] if loss is None else [torch.tensor(loss, dtype=torch.float64)]) + norms
+        expected = [] if loss is None else [torch.tensor(loss) <= threshold]
+        if summed:
+            expected.append(torch.isfinite(torch.stack(summed).float().sum()))
         accepted = guard.verdict(loss_tensor, {"g": params}, ["g"])
         if not expected:
             assert accepted is None
@@ -287,7 +289,10 @@ def verdicts_match_the_reference(device: str) -> None:
         case = (loss, grads, history)
         assert accepted.device.type == torch.device(device).type and accepted.dtype == torch.bool, case
         assert bool(accepted) == all(bool(e) for e in expected), case
-        assert (guard.settle() is None) == bool(accepted), case
+        reason = guard.settle()
+        assert (reason is None) == bool(accepted), case
+        if grads == [[2e38], [2e38]]:  # every value finite: the reason read back says why
+            assert reason == "non-finite gradients in (norm overflow)", case
         if loss is not None and torch.isfinite(torch.tensor(loss)) and bool(accepted):
             assert guard.recent[-1] == loss, case
 

@@ -51,8 +51,8 @@ class DivergenceGuardConfig:
 
 @dataclass
 class PendingVerdict:
-    """A step's verdict on its way to the host: `values` [3 + G] (accepted 1/0, the loss, the sum of
-    the gradient norms, each gradient's norm), readable once `ready` (None: already on the host)."""
+    """A step's verdict on its way to the host: `values` [2 + G] (accepted 1/0, the loss, each gradient's
+    norm), readable once `ready` (None: already on the host)."""
 
     step: Optional[int]
     frame: Optional[int]
@@ -76,7 +76,7 @@ class DivergenceGuard:
         self.consecutive = 0
         self.rollbacks = 0
         self.pending: Optional[PendingVerdict] = None  # the last verdict, not yet read back
-        self._host: Optional[torch.Tensor] = None  # pinned [3 + G]: where the verdicts reach the host
+        self._host: Optional[torch.Tensor] = None  # pinned [2 + G]: where the verdicts reach the host
         self._ready: Optional[torch.cuda.Event] = None
 
     def spike_threshold(self, frame: Optional[int]) -> Tuple[float, Optional[float]]:
@@ -117,19 +117,17 @@ class DivergenceGuard:
             value = loss.detach().float()  # []
         else:
             value = torch.full((), math.nan, device=device)
-        if grads:  # one fused kernel for every gradient's norm; NaN/inf anywhere makes the sum non-finite
-            norms = torch.stack(torch._foreach_norm([grad for _, grad in grads])).float()  # [G]
-            head = torch.stack([value, norms.sum()])  # [2] the loss, the sum of the norms
-        else:
-            norms = torch.zeros(0, device=device)
-            head = torch.stack([value, torch.zeros((), device=device)])
-        checked = head if loss is not None else head[1:]  # what must be finite
-        accepted = (checked * 0 == 0).all()  # x * 0 is 0 for a finite x, NaN for inf and NaN: torch.isfinite
-        # in two kernels (torch's own is four), for both values at once
+        # [1 + G] the loss, each gradient's norm (one fused kernel for every gradient's norm)
+        norms = torch._foreach_norm([grad for _, grad in grads]) if grads else []
+        values = torch.stack([value, *norms]).float()
+        checked = values if loss is not None else values[1:]  # what must be finite
+        # their sum is finite where each is finite and they do not overflow, which NaN/inf anywhere breaks (x * 0
+        # is 0 for a finite x, NaN for inf and NaN: torch.isfinite in two kernels, torch's own is four)
+        accepted = checked.sum() * 0 == 0
         if loss is not None and threshold < math.inf:  # below an infinite threshold every finite loss lies
             accepted = accepted & (value <= threshold)
         accepted = agree(accepted)
-        values = torch.cat([accepted.reshape(1), head, norms])  # [3 + G] float: cat promotes the verdict
+        values = torch.cat([accepted.reshape(1), values])  # [2 + G] float: cat promotes the verdict
         ready = None
         if values.is_cuda:  # behind the queued work, into pinned memory: no wait here
             values, ready = self._to_host(values)
@@ -158,13 +156,13 @@ class DivergenceGuard:
             return None
         if pending.ready is not None:
             pending.ready.synchronize()  # queued a step ago: at most the rest of that step is waited for
-        accepted, value, total, *norms = pending.values.tolist()
-        reason = self._reason(pending, bool(accepted), value, total, norms)
+        accepted, value, *norms = pending.values.tolist()
+        reason = self._reason(pending, bool(accepted), value, norms)
         if pending.step is not None:
             self.record(pending.step, reason)
         return reason
 
-    def _reason(self, pending: PendingVerdict, accepted: bool, value: float, total: float, norms: List[float]):
+    def _reason(self, pending: PendingVerdict, accepted: bool, value: float, norms: List[float]):
         if pending.has_loss:
             if not math.isfinite(value):
                 return f"non-finite loss ({value})"
@@ -178,9 +176,12 @@ class DivergenceGuard:
                 )
         if accepted:
             return None
-        if not math.isfinite(total):
-            bad = sorted({g for g, n in zip(pending.gradient_groups, norms) if not math.isfinite(n)})
-            return f"non-finite gradients in {', '.join(bad or ['(norm overflow)'])}"
+        bad = sorted({g for g, n in zip(pending.gradient_groups, norms) if not math.isfinite(n)})
+        if bad:
+            return f"non-finite gradients in {', '.join(bad)}"
+        checked = ([value] if pending.has_loss else []) + norms
+        if not math.isfinite(float(torch.tensor(checked, dtype=torch.float32).sum())):  # as the device summed them
+            return "non-finite gradients in (norm overflow)"
         return "skipped on another GPU"
 
     def rebaseline(self) -> None:
