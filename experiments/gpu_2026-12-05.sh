@@ -45,8 +45,21 @@
 #     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                    # DUNR's carry
 #     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto                 # flight2's carry
 #     bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal               # the same; SEED=1 again
-# Next: flight2's third seed of the full method (SEED=2, about 125 s), and the package before these cuts (.baseline =
-# git archive fd20c99 thermal_wild_ns) against now on one machine (ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh).
+# Next (the day's fifth session had no device lent; since the runs above: bc7d5f9's capture without torch.cuda.graph
+# and each MLP's layers as one parameter, PackedMLP, neither run on a GPU yet), one warm machine, each call right after
+# the last (about 1,700 s in all: a session's 1,800 s holds them, the trace first, so that a cut short session still
+# has the profile):
+#     bash experiments/gpu_2026-11-29.sh install                                     # .devicebundle
+#     bash experiments/gpu_2026-12-05.sh tests                                       # .data/wheels_extra (about 60 s)
+#     bash experiments/gpu_2026-12-05.sh trace-dunr && \
+#       SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule dunr wild-thermal        # DUNR's carry (about 330 s)
+#     bash experiments/gpu_2026-12-04.sh schedule dunr splatfacto                    # DUNR's carry (about 380 s)
+#     SEEDS=3 bash experiments/gpu_2026-12-04.sh schedule flight2 wild-thermal       # flight2's carry (about 400 s)
+#     bash experiments/gpu_2026-12-04.sh schedule flight2 splatfacto                 # the same (about 420 s)
+# (flight2's carry: its rjpeg and metashape folders and triangulation cache; with the tracked tree it passes the 64 MiB
+# limit unless docs/results' three largest files are left out of that call's tree and checked out again after it.)
+# The comparison of the package before and after on one machine (.baseline = git archive fd20c99 thermal_wild_ns,
+# ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh) where time is left.
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
