@@ -684,6 +684,39 @@ def test_each_mlp_is_one_parameter_that_a_checkpoint_of_its_separate_layers_load
         assert torch.equal(before.get_outputs(make_camera(2))["thermal"], model.get_outputs(make_camera(2))["thermal"])
 
 
+def test_adam_states_of_separate_layers_pack_as_the_packed_mlp_would_have_them():
+    """`packed_adam_state`: Adam stepped on an MLP's separate layers (beside a tensor before and one after them,
+    as a background MLP's offset and affine layer) has, packed, the state Adam stepped on the `PackedMLP` has;
+    with a layer never stepped the packed tensor starts without state."""
+    from torch import nn
+
+    from thermal_wild_ns.model.fields import PackedMLP, packed_adam_state
+
+    torch.manual_seed(0)
+    packed = PackedMLP(6, 8, 2)
+    layers = [t.detach().clone().requires_grad_() for w, b in packed.layers() for t in (w, b)]
+    before, after = nn.Parameter(torch.randn(1)), nn.Parameter(torch.randn(2, 3))
+    separate = torch.optim.Adam([before, *layers, after], lr=0.1)
+    together = torch.optim.Adam([before, packed.packed, after], lr=0.1)
+    for _ in range(3):
+        grads = [torch.randn_like(t) for t in layers]
+        for t, g in zip(layers, grads):
+            t.grad = g
+        packed.packed.grad = torch.cat([g.reshape(-1) for g in grads])
+        before.grad, after.grad = torch.randn_like(before), torch.randn_like(after)
+        separate.step()
+        together.step()
+    converted = packed_adam_state(separate.state_dict(), 1, len(layers))
+    expected = together.state_dict()
+    assert converted["param_groups"][0]["params"] == expected["param_groups"][0]["params"] == [0, 1, 2]
+    for i in range(3):
+        for key, value in expected["state"][i].items():
+            assert torch.equal(converted["state"][i][key], value), (i, key)
+    fresh = separate.state_dict()
+    del fresh["state"][2]  # a layer with no state yet
+    assert sorted(packed_adam_state(fresh, 1, len(layers))["state"]) == [0, 2]
+
+
 def test_an_affine_background_changes_every_direction_alike_from_frame_to_frame():
     """`background_frame_coupling` 'affine': the frame embedding sets a gain and an offset of a direction-only
     map, so one frame's background is an affine map of another's over every direction; 'mlp' (the frame

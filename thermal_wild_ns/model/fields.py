@@ -60,17 +60,18 @@ def packed_adam_state(state: dict, start: int, count: int) -> dict:
     """An Adam state dict (`Optimizer.state_dict()`, one param group) whose tensors `start` to `start + count`
     are an MLP's separate weights and biases, as saved before the MLP was a `PackedMLP`, with those tensors as
     one: their moments concatenated in `packed`'s order (Adam is elementwise: the same moments), the first
-    one's step count; the group's tensors numbered on from its first."""
+    one's step count; the group's tensors numbered on from its first. A tensor never stepped has no state (a
+    checkpoint before the first step): where one of the layers has none, the packed tensor starts without."""
     (group,) = state["param_groups"]
     ids = group["params"]
-    layers = [state["state"][i] for i in ids[start : start + count]]
-    packed = {
-        **layers[0],
-        **{key: torch.cat([m[key].reshape(-1) for m in layers]) for key in ("exp_avg", "exp_avg_sq")},
-    }
-    moments = (  # None: a tensor never stepped has no state
-        [state["state"].get(i) for i in ids[:start]] + [packed] + [state["state"].get(i) for i in ids[start + count :]]
-    )
+    moments = [state["state"].get(i) for i in ids]  # None: no state
+    layers = moments[start : start + count]
+    packed = None
+    if all(m is not None for m in layers):
+        packed = {**layers[0]}
+        for key in ("exp_avg", "exp_avg_sq"):
+            packed[key] = torch.cat([m[key].reshape(-1) for m in layers])
+    moments = moments[:start] + [packed] + moments[start + count :]
     renumbered = list(range(ids[0], ids[0] + len(moments)))
     kept = {i: m for i, m in zip(renumbered, moments) if m is not None}
     return {"state": kept, "param_groups": [{**group, "params": renumbered}]}
