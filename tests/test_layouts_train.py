@@ -104,6 +104,8 @@ def check_survey_exports(config, tmp_path, epsg: int):
     with rasterio.open(tmp_path / "ortho.tif") as raster:
         celsius, height = raster.read(1), raster.read(2)
         assert raster.crs.to_epsg() == epsg and raster.count == 2 and abs(raster.transform.a - 1.0) < 0.01
+        # tiled, deflate with the floating-point predictor (as survey tools write their rasters)
+        assert raster.block_shapes == [(256, 256)] * 2 and raster.tags(ns="IMAGE_STRUCTURE")["PREDICTOR"] == "3"
         assert east - 250 < raster.bounds.left < raster.bounds.right < east + 250
     assert np.isfinite(celsius).mean() > 0.5 and -20 < np.nanmedian(celsius) < 60
     assert np.nanmedian(height) < 400  # below the cameras (~400 m above the ellipsoid); 3 steps shape no ground yet
