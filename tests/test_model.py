@@ -34,6 +34,16 @@ def make_model(n=400, frames=5, metadata=None, **overrides):
     return config.setup(scene_box=box, num_train_data=frames, seed_points=(points, grey), **extra)
 
 
+def unpack_mlp_state(model, state: dict, prefix: str = "") -> None:
+    """`model`'s state dict `state` (its keys after `prefix`) rewritten in place as a version before `PackedMLP`
+    saved it: each MLP's layers as tensors of their own (`net.0.weight`, `net.0.bias`, ...)."""
+    for name in ("emission_mlp", "background_mlp"):
+        net = getattr(model, name).net
+        for i, layer in enumerate(net.layers(state.pop(f"{prefix}{name}.net.packed"))):
+            for part, tensor in zip(("weight", "bias"), layer):
+                state[f"{prefix}{name}.net.{2 * i}.{part}"] = tensor.clone()
+
+
 def perturb_output_layers(model):
     """As after a few steps: the zero-initialised MLP output layers have moved."""
     with torch.no_grad():
@@ -667,15 +677,8 @@ def test_each_mlp_is_one_parameter_that_a_checkpoint_of_its_separate_layers_load
     model = make_model()
     perturb_output_layers(model)
     state = model.state_dict()
-    for name in ("emission_mlp", "background_mlp"):
-        net = getattr(model, name).net
-        state.update(
-            {
-                f"{name}.net.{2 * i}.{part}": tensor.clone()
-                for i, layer in enumerate(net.layers(state.pop(f"{name}.net.packed")))
-                for part, tensor in zip(("weight", "bias"), layer)
-            }
-        )
+    unpack_mlp_state(model, state)
+    assert "emission_mlp.net.0.weight" in state and "emission_mlp.net.packed" not in state
     before = make_model()
     before.load_state_dict(state)
     model.eval()

@@ -7,6 +7,7 @@ import sys
 
 import pytest
 import torch
+from test_model import unpack_mlp_state
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
@@ -42,12 +43,9 @@ def _as_before_the_mlps_were_packed(checkpoints, out, model):
     its optimizer's (a moment and a step count each, the optimizer's tensors numbered on)."""
     path = sorted(checkpoints.glob("*.ckpt"))[-1]
     state = torch.load(path, map_location="cpu", weights_only=False)
+    unpack_mlp_state(model, state["pipeline"], prefix="_model.")
     for name in ("emission_mlp", "background_mlp"):
         net = getattr(model, name).net
-        packed = state["pipeline"].pop(f"_model.{name}.net.packed")
-        for i, layer in enumerate(net.layers(packed)):
-            for part, tensor in zip(("weight", "bias"), layer):
-                state["pipeline"][f"_model.{name}.net.{2 * i}.{part}"] = tensor.clone()
         adam = state["optimizers"][name]
         (group,) = adam["param_groups"]
         at = [p is net.packed for p in getattr(model, name).parameters()].index(True)  # after a background's offset

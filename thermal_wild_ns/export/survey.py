@@ -233,7 +233,7 @@ class ExportOrthomosaic:
         corner = survey.to_crs((centre - half_e * east + half_n * north)[None])[0]  # the raster's top-left
         pixel = gsd * crs_per_metre
         # tiled, deflate with the floating-point predictor: as survey tools write their rasters (GIS software reads
-        # a window without the whole width; the predictor makes float rasters about a quarter smaller, lossless)
+        # a window without the whole width; the predictor makes float rasters smaller, losslessly)
         profile = dict(
             driver="GTiff", width=width, height=rows, count=2, dtype="float32", nodata=float("nan"),
             crs=survey.crs, transform=Affine(pixel, 0.0, corner[0], 0.0, -pixel, corner[1]), compress="deflate",

@@ -263,7 +263,7 @@ class WildThermalModelConfig(SplatfactoModelConfig):
     graphed_statistics: bool = True
     """On a GPU, replay each training step's densification statistics (the screen-space gradients and
     radii summed per Gaussian) as one CUDA graph, recorded again after each refinement: the same kernels
-    and values, one launch instead of a dozen. Off: kernel by kernel."""
+    and values, one launch instead of one per kernel. Off: kernel by kernel."""
     l1_lambda: float = 0.8
     """Weight of the L1 loss."""
     ssim_lambda: float = 0.2

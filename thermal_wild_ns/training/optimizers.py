@@ -13,7 +13,7 @@ from nerfstudio.engine.optimizers import AdamOptimizerConfig
 @dataclass
 class FusedAdamOptimizerConfig(AdamOptimizerConfig):
     """nerfstudio's Adam config with torch's fused implementation: one kernel per optimizer step
-    instead of a dozen (a training step is bound by launches, not by arithmetic)."""
+    instead of one per elementwise operation (a training step is bound by launches, not by arithmetic)."""
 
     fused: bool = True
     """Use torch.optim.Adam(fused=True) (CUDA and CPU, torch >= 2.4)."""
