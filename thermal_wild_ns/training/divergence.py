@@ -176,12 +176,14 @@ class DivergenceGuard:
                 )
         if accepted:
             return None
+        # a norm is non-finite where a gradient is, or where its squares overflow float32 (a GPU's norm does not
+        # rescale: any element past about 1.8e19 gives inf); either way the gradients cannot be stepped with
         bad = sorted({g for g, n in zip(pending.gradient_groups, norms) if not math.isfinite(n)})
         if bad:
-            return f"non-finite gradients in {', '.join(bad)}"
+            return f"non-finite gradient norm in {', '.join(bad)}"
         checked = ([value] if pending.has_loss else []) + norms
         if not math.isfinite(float(torch.tensor(checked, dtype=torch.float32).sum())):  # as the device summed them
-            return "non-finite gradients in (norm overflow)"
+            return "the loss and gradient norms overflow float32 (each finite)"
         return "skipped on another GPU"
 
     def rebaseline(self) -> None:
