@@ -588,7 +588,12 @@ def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "alig
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
+    # seconds as plain numbers; of the minor ticks only 2 and 5 labelled (matplotlib labels every minor tick in
+    # "3x10^0" form where the axis spans under a decade, and they overlap)
+    plain = FuncFormatter(lambda value, _: f"{value:g}")
+    two_and_five = FuncFormatter(lambda value, _: f"{value:g}" if f"{value:e}"[0] in "25" else "")
     fig, axes = plt.subplots(1, len(scenes), figsize=(6 * len(scenes), 4.5), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
         floor = 10.0  # a diverged run (PSNR far below) would squash every other curve
@@ -642,6 +647,8 @@ def chart(runs: List[Dict], scenes: List[str], path: Path, protocol: str = "alig
             ylabel=f"PSNR (dB, original space, {protocol})",
         )
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(plain)
+        ax.xaxis.set_minor_formatter(two_and_five)
         ax.set_ylim(bottom=max([floor, min(minima) - 1.0] if minima else [floor]))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)

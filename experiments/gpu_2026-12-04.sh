@@ -69,14 +69,16 @@ case "$plan" in
     ;;
   schedule)  # SCENE METHOD...: each method's default schedule (30k steps asked; the full method's automatic stop
     # on), SEEDS seeds from SEED (defaults SEEDS=1, SEED=0), each run alone on the GPU (clean timings), checkpoints
-    # scored at the ttq steps; one call per splatfacto seed (its 30k: 258-350 s on H200s); merged with `bench --merge`
+    # scored at the ttq steps; one call per splatfacto seed (its 30k: 258-350 s on H200s); merged with `bench --merge`.
+    # STEPS (30000): the steps asked, the schedule's first ones where fewer (the same runs up to there, for a session
+    # short of device time); TIME_LIMIT (540): the bench's --time-limit per run
     test -d /tmp/site/tensorly || { echo cold; exit 3; }
     scene=${2:?scene: dunr or flight2}; shift 2
     tag=$scene-$(echo "$*" | tr " " -)-seed${SEED:-0}  # one name, no spaces: a name with one does not come back
     PYTHONPATH=$PWD:/tmp/site timeout ${LIMIT:-585} python3 -m experiments.bench --output-dir "/tmp/schedule-$tag" \
       --scenes "$PWD/.data/$scene" --cache-dir "$PWD/.data/cache" --methods "$@" --seeds ${SEEDS:-1} \
-      --seed ${SEED:-0} --runs-per-gpu 1 --fit-steps 20 --fps-frames 0 --steps 30000 \
-      --eval-at 1000 2000 5000 10000 20000 30000 --time-limit 540 > "$OUT/schedule-$tag.log" 2>&1
+      --seed ${SEED:-0} --runs-per-gpu 1 --fit-steps 20 --fps-frames 0 --steps ${STEPS:-30000} \
+      --eval-at 1000 2000 5000 10000 20000 30000 --time-limit ${TIME_LIMIT:-540} > "$OUT/schedule-$tag.log" 2>&1
     cp "/tmp/schedule-$tag/bench.json" "$OUT/schedule-$tag-bench.json"
     python3 -c "import json, sys; [print(r['method'], r.get('seed'), r.get('steps'), r.get('train_seconds'), \
       r.get('ms_per_step'), r.get('gaussians'), r.get('psnr_aligned')) for r in json.load(open(sys.argv[1]))['runs']]" \
