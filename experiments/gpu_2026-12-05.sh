@@ -60,6 +60,11 @@
 # limit unless docs/results' three largest files are left out of that call's tree and checked out again after it.)
 # The comparison of the package before and after on one machine (.baseline = git archive fd20c99 thermal_wild_ns,
 # ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh) where time is left.
+# Ran 2026-12-06 (docs/results/schedule_h100_packed: the exact calls; an hour of failed starts left 750 s): the install
+# and the tests in one call (the tracked tree without docs/results, which the commands do not read: 64 MiB), then the
+# trace and DUNR's 3 seeds, splatfacto on DUNR, flight2's 3 seeds and splatfacto's first 10k steps there (STEPS=10000).
+# Next: the guard's verdict test on a GPU (its reason fixed after it failed there), splatfacto's whole 30k on flight2
+# beside the full method's seeds, and host-ab on one machine (the cuts' share of the step, which a new host hides).
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
