@@ -65,6 +65,9 @@
 # trace and DUNR's 3 seeds, splatfacto on DUNR, flight2's 3 seeds and splatfacto's first 10k steps there (STEPS=10000).
 # Next: the guard's verdict test on a GPU (its reason fixed after it failed there), splatfacto's whole 30k on flight2
 # beside the full method's seeds, and host-ab on one machine (the cuts' share of the step, which a new host hides).
+# Ran the same day (docs/results/schedule_h100_flight2: the exact calls), one H100: the install and the tests (15 passed),
+# splatfacto's whole 30k on flight2 (LIMIT=570 TIME_LIMIT=540), the full method's 3 seeds there (TIME_LIMIT=180), then
+# on a second H100 ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh against .baseline = git archive 7abe446 thermal_wild_ns.
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
