@@ -68,10 +68,13 @@
 # Ran the same day (docs/results/schedule_h100_flight2: the exact calls), one H100: the install and the tests (15 passed),
 # splatfacto's whole 30k on flight2 (LIMIT=570 TIME_LIMIT=540), the full method's 3 seeds there (TIME_LIMIT=180), then
 # on a second H100 ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh against .baseline = git archive 7abe446 thermal_wild_ns.
+# Next (no H100 could be started again that session): the render ways on the package the schedules ran, DUNR's carry:
+#     bash experiments/gpu_2026-11-29.sh install && bash experiments/gpu_2026-11-29.sh install-extra && \
+#       bash experiments/gpu_2026-12-05.sh renders-dunr
 # Each plan's files go into one archive, $OUT/PLAN.tgz, rewritten after each of its stages (a call returns at most 8
 # files, and a plan stopped at its limit keeps what its finished stages wrote).
 set -uo pipefail
-plan=${1:?plan: tests, emission-dunr, host-dunr, quick-dunr, trace-dunr, trace-flight2}
+plan=${1:?plan: tests, emission-dunr, host-dunr, quick-dunr, trace-dunr, trace-flight2, renders-dunr}
 OUT=${OUT:-/tmp/out}
 mkdir -p "$OUT"
 export PATH=/tmp/site/bin:$PATH PYTHONUNBUFFERED=1
@@ -94,12 +97,17 @@ profiled() {  # ARM DIR ROUND [FLAG...]: profile_step on DUNR at step 3,000 as t
 }
 
 timeline_and_renders() {  # DIR: the timeline of the profile in DIR (run with --trace) read by
-  # experiments.trace_summary, then the render ways on the model it trained, 3 rounds of 1,000 frames at 640x512
-  # (experiments.render_fps), each round a line of $res/fps_rounds.jsonl
-  local dir=$1 config round
+  # experiments.trace_summary, then the render ways on the model it trained (renders)
+  local dir=$1
   cp "$dir/trace.json.gz" "$res/trace-dunr.json.gz"
   PYTHONPATH=$PWD:/tmp/site python3 -m experiments.trace_summary "$res/trace-dunr.json.gz" > "$res/trace-dunr.md"
   pack
+  renders "$dir"
+}
+
+renders() {  # DIR: the render ways on the model the profile in DIR trained, 3 rounds of 1,000 frames at 640x512
+  # (experiments.render_fps), each round a line of $res/fps_rounds.jsonl
+  local dir=$1 config round
   config=$(ls "$dir"/runs/*/wild-thermal/run/config.yml | head -1)
   for round in 1 2 3; do
     PYTHONPATH=$PWD:/tmp/site timeout 60 python3 -m experiments.render_fps --load-config "$config" --frames 1000 \
@@ -169,6 +177,13 @@ case "$plan" in
     cp "/tmp/trace-$scene/trace.json.gz" "$res/trace-$scene.json.gz"
     PYTHONPATH=$root:/tmp/site python3 -m experiments.trace_summary "$res/trace-$scene.json.gz" > "$res/trace-$scene.md"
     sed -n 3,4p "$res/profile-$scene.md"; head -30 "$res/trace-$scene.md"
+    pack
+    ;;
+  renders-dunr)  # the render ways (as `ns-render` and the viewer draw) on a DUNR model of the package now, trained to
+    # step 3,400 as the bench trains: the render target's numbers for the package the schedules ran (DUNR's carry)
+    profiled now "$PWD" 1
+    pack
+    renders /tmp/profile-now-1
     pack
     ;;
   *) echo "unknown plan: $plan"; exit 2 ;;
