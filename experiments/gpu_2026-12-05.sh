@@ -67,7 +67,7 @@
 # beside the full method's seeds, and host-ab on one machine (the cuts' share of the step, which a new host hides).
 # Ran the same day (docs/results/schedule_h100_flight2: the exact calls), one H100: the install and the tests (15 passed),
 # splatfacto's whole 30k on flight2 (LIMIT=570 TIME_LIMIT=540), the full method's 3 seeds there (TIME_LIMIT=180), then
-# on a second H100 ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh against .baseline = git archive 7abe446 thermal_wild_ns.
+# on the same warm machine ROUNDS=2 host-ab dunr of gpu_2026-12-04.sh against .baseline = git archive 7abe446 thermal_wild_ns.
 # Next (no H100 could be started again that session): the render ways on the package the schedules ran, DUNR's carry:
 #     bash experiments/gpu_2026-11-29.sh install && bash experiments/gpu_2026-11-29.sh install-extra && \
 #       bash experiments/gpu_2026-12-05.sh renders-dunr
