@@ -119,11 +119,12 @@ renders() {  # DIR: the render ways on the model the profile in DIR trained, 3 r
 
 case "$plan" in
   tests)  # the extra wheels, then every GPU test (the training render through gsplat's functions, the emission
-    # MLP's padded recordings, the guard's verdict, the held gradient nodes of the CUDA graphs among them)
+    # MLP's padded recordings, the guard's verdict, the held gradient nodes of the CUDA graphs, the fixed-size tile
+    # intersection of experiments/padded_isect.py among them)
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
       .data/wheels_extra/*.whl 2>&1 | grep -v WARNING
     PYTHONPATH=$PWD:/tmp/site timeout 300 python3 -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py \
-      > "$res/gpu-tests.log" 2>&1
+      tests/test_padded_isect.py > "$res/gpu-tests.log" 2>&1
     grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$res/gpu-tests.log" | head -30
     pack
     summary=$(grep -E "[0-9]+ (passed|failed)" "$res/gpu-tests.log" | tail -1)
