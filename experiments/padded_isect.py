@@ -18,14 +18,10 @@ from typing import Tuple
 import torch
 from torch import Tensor
 
+from thermal_wild_ns.rendering.torch_rasterizer import tile_in_rectangle, tile_rectangles
+
 PAD_DEPTH_BITS = 0x7FFFFFFF
 """The pads' depth bits: above every finite positive float32's (those of the Gaussians in front of the camera)."""
-
-
-def _clamped(corners: Tensor, tile_width: int, tile_height: int) -> Tensor:
-    """Tile corners [C, N, 2] (x, y) within the image's tiles, as integers; bounds as numbers, not a tensor built
-    from the host's (a copy a CUDA graph's recording does not allow)."""
-    return torch.stack((corners[..., 0].clamp(0, tile_width), corners[..., 1].clamp(0, tile_height)), -1).long()
 
 
 def padded_isect_tiles(
@@ -44,26 +40,18 @@ def padded_isect_tiles(
     the capacity, the intersections cut short). Slots past the count: the last camera's last tile, the largest
     depth bits, `sentinel` (a flattened index the caller gives zero opacity)."""
     C, N = radii.shape
-    device = means2d.device
     tile_n_bits = (tile_width * tile_height).bit_length()
-    # each Gaussian's tile rectangle, as gsplat's kernel: min inclusive, max exclusive, clamped to the image
-    tile_means = means2d / tile_size  # [C, N, 2]
-    tile_radii = (radii / tile_size)[..., None]  # [C, N, 1]
-    lo = _clamped(torch.floor(tile_means - tile_radii), tile_width, tile_height)  # [C, N, 2]
-    hi = _clamped(torch.ceil(tile_means + tile_radii), tile_width, tile_height)  # [C, N, 2]
-    extent = (hi - lo).clamp(min=0)  # [C, N, 2]
-    tiles_per_gauss = extent.prod(-1) * (radii > 0)  # [C, N]
-    flat_tiles = tiles_per_gauss.reshape(-1)  # [C * N]
-    cumulative = torch.cumsum(flat_tiles, 0)  # [C * N]
+    lo, extent, tiles_per_gauss = tile_rectangles(
+        means2d.reshape(-1, 2), radii.reshape(-1), tile_size, tile_width, tile_height
+    )  # [C * N, 2], [C * N, 2], [C * N]
+    cumulative = torch.cumsum(tiles_per_gauss, 0)  # [C * N]
     count = cumulative[-1]  # [], on the device: never read here
-    slots = torch.arange(capacity, device=device)  # [S]
+    slots = torch.arange(capacity, device=means2d.device)  # [S]
     owner = torch.searchsorted(cumulative, slots, right=True)  # [S], C * N past the count
     padded = owner >= C * N  # [S]
     owner = owner.clamp(max=C * N - 1)
-    local = slots - (cumulative[owner] - flat_tiles[owner])  # [S], the slot's place in its Gaussian's rectangle
-    box_width = extent.reshape(-1, 2)[owner, 0].clamp(min=1)  # [S]
-    box_lo = lo.reshape(-1, 2)[owner]  # [S, 2]
-    tile = (box_lo[:, 1] + local // box_width) * tile_width + box_lo[:, 0] + local % box_width  # [S]
+    local = slots - (cumulative[owner] - tiles_per_gauss[owner])  # [S], the slot's place in its Gaussian's rectangle
+    tile = tile_in_rectangle(lo, extent, owner, local, tile_width)  # [S]
     camera = owner // N  # [S]
     depth_bits = depths.reshape(-1).view(torch.int32).long()[owner]  # [S], sign-extended as gsplat's kernel
     tile = torch.where(padded, tile_width * tile_height - 1, tile)
@@ -72,7 +60,7 @@ def padded_isect_tiles(
     isect_ids = (camera << (32 + tile_n_bits)) | (tile << 32) | depth_bits  # [S]
     flatten_ids = torch.where(padded, sentinel, owner).int()  # [S]
     isect_ids, order = torch.sort(isect_ids, stable=True)  # stable: ties in the order written, as a radix sort's
-    return tiles_per_gauss.int(), isect_ids, flatten_ids[order], count, count > capacity
+    return tiles_per_gauss.reshape(C, N).int(), isect_ids, flatten_ids[order], count, count > capacity
 
 
 def main() -> None:

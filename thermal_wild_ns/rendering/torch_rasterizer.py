@@ -120,6 +120,33 @@ def project_gaussians(
     return radii, means2d, depths, conics, compensations
 
 
+def tile_rectangles(
+    means2d: Tensor,  # [M, 2]
+    radii: Tensor,  # [M]
+    tile_size: int,
+    tile_width: int,
+    tile_height: int,
+) -> Tuple[Tensor, Tensor, Tensor]:
+    """Each splat's rectangle of tiles, as gsplat's `isect_tiles` kernel draws it: its first tile lo [M, 2] (x, y),
+    its extent [M, 2] in tiles (both clamped to the image) and tiles_per_gauss [M] (none where the radius is 0).
+    No host read, so a CUDA graph can hold it (`experiments/padded_isect.py`)."""
+    tile_means = means2d / tile_size
+    tile_radii = (radii / tile_size)[:, None]
+    lo = torch.floor(tile_means - tile_radii).long()
+    hi = torch.ceil(tile_means + tile_radii).long()
+    lo[:, 0].clamp_(0, tile_width), hi[:, 0].clamp_(0, tile_width)
+    lo[:, 1].clamp_(0, tile_height), hi[:, 1].clamp_(0, tile_height)
+    extent = (hi - lo).clamp(min=0)  # [M, 2]
+    return lo, extent, extent.prod(-1) * (radii > 0)
+
+
+def tile_in_rectangle(lo: Tensor, extent: Tensor, splat: Tensor, local: Tensor, tile_width: int) -> Tensor:
+    """The tile (y * tile_width + x, within its camera) [P] of each pair: the `local` [P]-th tile, row-major, of
+    splat `splat` [P]'s rectangle (`tile_rectangles`' lo and extent)."""
+    box_w = extent[splat, 0].clamp(min=1)
+    return (lo[splat, 1] + local // box_w) * tile_width + lo[splat, 0] + local % box_w
+
+
 @torch.no_grad()
 def intersect_tiles(
     means2d: Tensor,  # [M, 2]
@@ -136,22 +163,14 @@ def intersect_tiles(
     pair_splat [P].
     """
     device = means2d.device
-    tile_means = means2d / tile_size
-    tile_radii = (radii / tile_size)[:, None]
-    lo = torch.floor(tile_means - tile_radii).long()
-    hi = torch.ceil(tile_means + tile_radii).long()
-    lo[:, 0].clamp_(0, tile_width), hi[:, 0].clamp_(0, tile_width)
-    lo[:, 1].clamp_(0, tile_height), hi[:, 1].clamp_(0, tile_height)
-    extent = (hi - lo).clamp(min=0)  # [M, 2]
-    tiles_per_gauss = extent.prod(-1) * (radii > 0)  # [M]
+    lo, extent, tiles_per_gauss = tile_rectangles(means2d, radii, tile_size, tile_width, tile_height)
     splat = torch.repeat_interleave(torch.arange(len(radii), device=device), tiles_per_gauss)
     # position of each pair inside its splat's box, row-major over the box
     start = torch.cumsum(tiles_per_gauss, 0) - tiles_per_gauss
     local = torch.arange(len(splat), device=device) - start[splat]
-    box_w = extent[splat, 0].clamp(min=1)
-    tx = lo[splat, 0] + local % box_w
-    ty = lo[splat, 1] + local // box_w
-    tile = camera_ids[splat].long() * (tile_width * tile_height) + ty * tile_width + tx
+    tile = camera_ids[splat].long() * (tile_width * tile_height) + tile_in_rectangle(
+        lo, extent, splat, local, tile_width
+    )
     # sort by depth, then stably by tile: depth order inside every tile
     order = torch.argsort(depths[splat], stable=True)
     order = order[torch.argsort(tile[order], stable=True)]
