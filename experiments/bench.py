@@ -44,6 +44,7 @@ from thermal_wild_ns.method_configs import METHODS, method_trainer
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.datamanager import NOT_PREPROCESSED
 from thermal_wild_ns.pipeline.evaluation import CHEAP_PROTOCOLS, evaluate
+from thermal_wild_ns.state_names import CANONICAL
 from thermal_wild_ns.training.schedule import FULL_SCHEDULE, cameras_per_step, scale_schedule, steps_for
 from thermal_wild_ns.training.trainer import seeded_trainer
 
@@ -273,7 +274,7 @@ def negative_emission(model) -> Optional[Dict[str, float]]:
     if not isinstance(model, WildThermalModel) or model.num_points == 0:
         return None
     with torch.no_grad():
-        emission = model.gaussian_emission(model.inference_embedding())[:, 0]  # [N]
+        emission = model.gaussian_emission(model.state_embedding(CANONICAL))[:, 0]  # [N]
         opacity = torch.sigmoid(model.opacities.detach())[:, 0]  # [N]
         below = emission < 0
         return {

@@ -70,10 +70,10 @@ def score_one(config: Path, state: str) -> None:
     prepare_checkpoint_commands()
     _, pipeline, _, _ = eval_setup(config, test_mode="test")
     model = pipeline.model
-    model.config.inference_embedding = "typical"
+    model.config.canonical_embedding = "typical"
     extra = {}
     if state == "typical+background" and model.background_mlp is not None:
-        emission = model.typical_state_emission()
+        emission = model.typical_emission()
         n = int(emission(model.frame_embed.weight[0].detach()).shape[0])
         dirs, share = background_samples(pipeline, n, torch.Generator().manual_seed(0))
         encoded = model.background_mlp.encode(dirs).detach()  # [M, 16]
@@ -82,8 +82,8 @@ def score_one(config: Path, state: str) -> None:
             background = model.background_mlp.from_encoded(encoded, state_embed)[..., 0]  # [M]
             return torch.cat([emission(state_embed), background])
 
-        model.typical_state_emission = lambda: with_background
-        model.frame_states._cache = None
+        model.typical_emission = lambda: with_background
+        model.frame_states._cache.clear()
         extra = {"background_share": share, "background_samples": int(dirs.shape[0]), "gaussian_samples": n}
     scores = evaluate(pipeline, protocols=PROTOCOLS)
     print(json.dumps({**{k: v for k, v in scores.items() if not isinstance(v, (list, dict))}, **extra}))

@@ -22,6 +22,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 import thermal_wild_ns
 from experiments import mean_range
 from thermal_wild_ns.pipeline.evaluation import fit_embedding
+from thermal_wild_ns.state_names import CANONICAL
 
 
 def main() -> None:
@@ -35,7 +36,7 @@ def main() -> None:
     model = pipeline.model
     camera = pipeline.datamanager.eval_dataset.cameras[0:1].to(model.device)
     target = torch.zeros(int(camera.height), int(camera.width), device=model.device)  # the time, not the fit, is asked
-    start = model.inference_embedding()
+    start = model.state_embedding(CANONICAL)
     rounds, embedding = [], start
     for _ in range(args.rounds):
         began = time.perf_counter()

@@ -75,6 +75,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
     from thermal_wild_ns._upstream import camera_unit_slice
     from thermal_wild_ns.model.camera_views import intrinsics
     from thermal_wild_ns.rendering import rasterization, world_to_camera
+    from thermal_wild_ns.state_names import CANONICAL
 
     model = pipeline.model
     pipeline.eval()
@@ -92,7 +93,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
     model_path = lambda i: baked(i, made[i % count])
 
     def unbaked(i: int) -> torch.Tensor:
-        model.baked.slots.pop("emission", None)  # forget the cached emission: the MLP runs again for this frame
+        model.parts.emission.baked_values.slots.pop("emission", None)  # forget it: the MLP runs again for this frame
         return baked(i)
 
     fast_slices = lambda i: baked(i, camera_unit_slice(cameras, i % count))
@@ -118,7 +119,7 @@ def measure_fps(pipeline, frames: int) -> Dict:
                 quats=model.quats,
                 scales=torch.exp(model.scales),
                 opacities=torch.sigmoid(model.opacities).squeeze(-1),
-                colors=model.gaussian_emission(model.inference_embedding()),
+                colors=model.gaussian_emission(model.state_embedding(CANONICAL)),
             )
             views = [(world_to_camera(c.camera_to_worlds), intrinsics(c)) for c in made]  # [1, 4, 4], [1, 3, 3]
 

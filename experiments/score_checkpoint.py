@@ -5,7 +5,7 @@ to change none.
     PYTHONPATH=/path/to/tree python -m experiments.score_checkpoint RUN/config.yml [--canonical typical]
 
 `--canonical` renders the novel views at another canonical state than the run's own
-(`inference_embedding`: 'mean', 'typical', ...), to compare them on one checkpoint.
+(`canonical_embedding`: 'mean' or 'typical'), to compare them on one checkpoint.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def main() -> None:
     prepare_checkpoint_commands()
     _, pipeline, _, _ = eval_setup(args.config, test_mode="test")
     if args.canonical:
-        pipeline.model.config.inference_embedding = args.canonical
+        pipeline.model.config.canonical_embedding = args.canonical
     scores = evaluate(pipeline, protocols=tuple(args.protocols))
     print(json.dumps({k: v for k, v in scores.items() if not isinstance(v, (list, dict))}, sort_keys=True))
 

@@ -1,4 +1,4 @@
-"""`python -m experiments.step_floor`: the floor under a training step, gsplat's own (issue 34).
+"""`python -m experiments.step_floor`: the floor under a training step, gsplat's own.
 
 How much of the full method's step would any Gaussian-splatting step in Python pay, on the host and on
 the GPU, and how much is the method's own? This trains a method on a scene for
@@ -30,6 +30,7 @@ import tyro
 
 from experiments import gpu_kernel_microseconds, mean_range, synchronize, write_report
 from experiments.profile_step import full_schedule_trainer, measurement_header, train_measuring
+from thermal_wild_ns.model.renders import training_view
 from thermal_wild_ns.rendering import FAR_PLANE, NEAR_PLANE, rasterization
 
 
@@ -119,7 +120,7 @@ def floor_views(trainer, cameras: int, step: int) -> List[Tuple[torch.Tensor, to
     with torch.no_grad():
         for k in range(cameras):
             camera, data = datamanager.next_train(step + k)
-            view = model._posed_view(camera, model._fixed_pose_index(camera))  # as the step poses it
+            view = training_view(model.parts, model.scene(), camera)  # as the step poses it
             frame = data["image"].to(model.device).float()  # [H0, W0, 1]
             if frame.shape[:2] != (view.height, view.width):
                 frame = F.interpolate(frame.permute(2, 0, 1)[None], size=(view.height, view.width), mode="area")

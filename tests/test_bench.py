@@ -386,13 +386,14 @@ def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_mode
     depend on the geometry getting one), no gradient lands in the model, and every parameter is trainable
     again after the fit, also after a fit that fails."""
     from thermal_wild_ns.pipeline.evaluation import as_recorded, fit_embedding, thermal_output
+    from thermal_wild_ns.state_names import CANONICAL
 
     pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
     model = pipeline.model
     model.eval()
     camera = pipeline.datamanager.eval_dataset.cameras[0:1].to(model.device)
     target = torch.full((int(camera.height), int(camera.width)), 0.3)
-    start = model.inference_embedding() + 0.1
+    start = model.state_embedding(CANONICAL) + 0.1
     trainable = [name for name, parameter in model.named_parameters() if parameter.requires_grad]
 
     embedding = start.detach().clone().requires_grad_(True)  # the fit with the whole graph, as before

@@ -113,8 +113,8 @@ def test_the_graphed_camera_response_is_the_same_function_on_any_device():
     graphed = make_model(camera_falloff=True, camera_flat_field=4)
     torch.manual_seed(0)
     eager = make_model(camera_falloff=True, camera_flat_field=4, graphed_camera=False)
-    assert graphed.graphed_camera is not None and eager.graphed_camera is None
-    assert make_model(camera_falloff=False).graphed_camera is None
+    assert graphed.parts.camera.graphed is not None and eager.parts.camera.graphed is None
+    assert make_model(camera_falloff=False).parts.camera.graphed is None
     with torch.no_grad():
         for model in (graphed, eager):
             model.camera_falloff.copy_(torch.tensor([[-0.4, 0.1], [0.05, 0.0]]))
@@ -235,7 +235,7 @@ def test_a_run_of_the_rule_that_decided_the_whole_camera_model_still_loads_and_r
     model = make_model(**rule, metadata={"content_motion": 0.15})
     assert model.camera_falloff is not None and model.camera_flat_field is None
     model.load_state_dict(dict(earlier))
-    assert model.camera_falloff is None and model.graphed_camera is None
+    assert model.camera_falloff is None and model.parts.camera.graphed is None
     assert "checkpoint" in {d.part: d for d in model.decisions()}["camera fall-off"].why
     thermal = torch.rand(32, 48, 1)
     assert model.as_recorded(thermal, make_camera(1)) is thermal  # rendered as it trained: no camera model

@@ -220,7 +220,7 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
     eager = make_model().cuda()
     eager.load_state_dict(model.state_dict())
     eager.eval()
-    eager.captured = lambda key, fn, *inputs, copy_outputs=False: fn(*inputs)  # kernel by kernel
+    eager.parts.captured = lambda key, fn, *inputs, copy_outputs=False: fn(*inputs)  # kernel by kernel
     with torch.no_grad():
         first = model.get_outputs_for_camera(cameras[0].to("cuda"))
         kept = {name: value.clone() for name, value in first.items()}
@@ -232,7 +232,7 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
                 reference = eager.get_outputs(camera, state)
                 for name, value in reference.items():
                     assert torch.equal(replayed[name], value), (round_, name)
-    assert len(model.captured.graphs) == 4  # two sizes, each a view and a finishing graph
+    assert len(model.parts.captured.graphs) == 4  # two sizes, each a view and a finishing graph
     assert all(torch.equal(first[name], kept[name]) for name in kept)
     with torch.no_grad():  # the turned camera sees another background: a stale copy would show
         assert not torch.equal(model.get_outputs_for_camera(turned.to("cuda"))["background"], first["background"])
@@ -250,7 +250,7 @@ def test_a_render_replayed_as_cuda_graphs_equals_the_one_it_recorded():
     worker.join()
     with torch.no_grad():
         reference = eager.get_outputs(turned.to("cuda"))
-    assert len(model.captured.per_thread) == 2 and len(model.captured.graphs) == 4
+    assert len(model.parts.captured.per_thread) == 2 and len(model.parts.captured.graphs) == 4
     assert all(torch.equal(from_thread[name], value) for name, value in reference.items())
 
 
@@ -346,7 +346,7 @@ def test_the_background_mlp_replayed_as_cuda_graphs_equals_it_run_kernel_by_kern
         for background, net in ((graphed, mlp), (eager, twin)):
             embeddings.grad = None
             net.zero_grad(set_to_none=True)
-            out = background(K, pose, embeddings[step % 3], width, height, cam_idx=step % 3, training=True, step=step)
+            out = background.training(K, pose, embeddings[step % 3], width, height, cam_idx=step % 3)
             (out * weights).sum().backward()
             results.append((out.detach().clone(), embeddings.grad.clone(), _gradients(net)))
         (ours, ours_embed, ours_params), (reference, ref_embed, ref_params) = results
@@ -505,8 +505,8 @@ def test_the_composite_and_camera_response_replayed_as_cuda_graphs_equal_them_ru
     two sizes in turn, with and without the map, the parameters changed in place between steps (as Adam does)."""
     from thermal_wild_ns.model.background import CameraFrameDirections
     from thermal_wild_ns.model.camera_falloff import FALLOFF_ORDER, falloff_basis
+    from thermal_wild_ns.model.camera_response import recorded_over_background
     from thermal_wild_ns.model.graphed import GraphedCalls
-    from thermal_wild_ns.model.wild_thermal import recorded_over_background
 
     torch.manual_seed(0)
     graphed = GraphedCalls("camera model")

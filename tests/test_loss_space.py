@@ -104,14 +104,14 @@ def test_the_background_asked_for_cuda_graphs_runs_as_is_on_a_cpu(coupling):
     for graphed in (True, False):
         field = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=graphed))
         mlp.zero_grad(set_to_none=True)
-        out = field(K, pose, embedding, 40, 32, cam_idx=0, training=True, step=0)
+        out = field.training(K, pose, embedding, 40, 32, cam_idx=0)
         out.sum().backward()
         outputs.append(out.detach())
         grads.append([p.grad.clone() for p in mlp.parameters()])
     assert outputs[0].shape == (32, 40, 1) and torch.equal(outputs[0], outputs[1])
     assert all(torch.equal(a, b) for a, b in zip(*grads)) and any(g.abs().sum() > 0 for g in grads[0])
     graphed_field = ThermalBackground(mlp, WildThermalModelConfig(graphed_background=True))
-    graphed_field(K, pose, embedding, 40, 32, cam_idx=0, training=True, step=0)
+    graphed_field.training(K, pose, embedding, 40, 32, cam_idx=0)
     assert graphed_field.graphed is not None and not graphed_field.graphed.graphs
 
 

@@ -10,16 +10,23 @@ from nerfstudio.data.scene_box import SceneBox
 from torch import Tensor
 
 from thermal_wild_ns.errors import InputError
-from thermal_wild_ns.model import wild_thermal
+from thermal_wild_ns.model import emission, thermal_loss
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.config_checks import UNUSED_OPTIONS
 from thermal_wild_ns.model.wild_thermal import WildThermalModelConfig
 from thermal_wild_ns.pipeline.ranks import RankGroup
+from thermal_wild_ns.state_names import CANONICAL
 
 
-def background(model, *args, **kwargs):
-    """The model's background as its own renders ask for it (training or not, at its step)."""
-    return model.background_field(*args, training=model.training, step=model.step, **kwargs)
+def background(model, K, c2w, embed, width, height, cam_idx=None, pinhole=None):
+    """The model's background as its own renders ask for it (training or not, at its step; `pinhole`: K's fx, fy,
+    cx, cy on the host where the caller has them, else read from K)."""
+    field = model.parts.background
+    if model.training:
+        return field.training(K, c2w, embed, width, height, cam_idx)
+    if torch.is_grad_enabled():
+        return field.exact(K, c2w, embed, width, height)
+    return field.rendered(K, c2w, embed, width, height, pinhole, model.step)
 
 
 def make_model(n=400, frames=5, metadata=None, **overrides):
@@ -42,6 +49,12 @@ def unpack_mlp_state(model, state: dict, prefix: str = "") -> None:
         for i, layer in enumerate(net.layers(state.pop(f"{prefix}{name}.net.packed"))):
             for part, tensor in zip(("weight", "bias"), layer):
                 state[f"{prefix}{name}.net.{2 * i}.{part}"] = tensor.clone()
+
+
+def as_split(model, world: int = 2):
+    """`model` as one GPU's share of a model split across `world` GPUs (what its rules read of it)."""
+    model.ranks = RankGroup(0, world)
+    model.growth.world = world
 
 
 def perturb_output_layers(model):
@@ -91,7 +104,7 @@ def test_forward_backward_reaches_every_parameter_group():
     assert frame_grad[1].abs().sum() > 0 and frame_grad[[0, 2, 3, 4]].abs().sum() == 0
 
 
-def test_fixed_inference_embedding_makes_renders_frame_independent():
+def test_the_canonical_state_makes_renders_frame_independent():
     model = make_frame_dependent_model()
     a = model.get_outputs(make_camera(0))["thermal"]
     b = model.get_outputs(make_camera(3))["thermal"]
@@ -111,7 +124,7 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
     with torch.no_grad():
         for weight, _ in model.emission_mlp.net.layers():  # a strongly non-linear emission of the state
             weight.normal_(0, 1.0)
-    emission = model.typical_state_emission()
+    emission = model.typical_emission()
     frames = [emission(e).detach() for e in model.frame_embed.weight]
 
     def expected_error(state):
@@ -120,21 +133,21 @@ def test_the_typical_state_renders_closest_to_every_training_frame_on_average():
     def avoidable_error(state):  # the expected error less the frames' own spread, which no state changes
         return (emission(state).detach() - torch.stack(frames).mean(0)).square().mean()
 
-    mean = model.frame_states.named("mean", model.step)
-    model.config.inference_embedding = "typical"
+    mean = model.frame_states.embedding(CANONICAL, "mean", model.step)
+    model.config.canonical_embedding = "typical"
     with torch.no_grad():  # as a render asks for it
-        typical = model.inference_embedding()
+        typical = model.state_embedding(CANONICAL)
     assert expected_error(typical) < expected_error(mean)
     assert avoidable_error(typical) < 0.5 * avoidable_error(mean)
     with torch.no_grad():
-        assert model.inference_embedding() is typical  # kept until the model changes
-    no_mlp = make_model(use_emission_mlp=False, inference_embedding="typical")
-    torch.testing.assert_close(no_mlp.inference_embedding(), no_mlp.frame_embed.weight.mean(0))
+        assert model.state_embedding(CANONICAL) is typical  # kept until the model changes
+    no_mlp = make_model(use_emission_mlp=False, canonical_embedding="typical")
+    torch.testing.assert_close(no_mlp.state_embedding(CANONICAL), no_mlp.frame_embed.weight.mean(0))
     # split across GPUs each rank holds a share of the Gaussians: one state on every rank, the mean
     model.ranks = RankGroup(0, 2)
     model.step += 1  # a new key: the kept state is not reused
     with torch.no_grad():
-        torch.testing.assert_close(model.inference_embedding(), mean)
+        torch.testing.assert_close(model.state_embedding(CANONICAL), mean)
 
 
 def test_the_viewer_refits_the_typical_state_at_most_every_few_hundred_steps_while_a_run_trains(monkeypatch):
@@ -147,10 +160,10 @@ def test_the_viewer_refits_the_typical_state_at_most_every_few_hundred_steps_whi
     clock = [100.0]
     monkeypatch.setattr(frame_states.time, "monotonic", lambda: clock[0])
     model = make_frame_dependent_model()
-    model.config.inference_embedding = "typical"
+    model.config.canonical_embedding = "typical"
     fits = []
-    original = model.typical_state_emission
-    monkeypatch.setattr(model, "typical_state_emission", lambda: fits.append(model.step) or original())
+    original = model.typical_emission
+    monkeypatch.setattr(model, "typical_emission", lambda: fits.append(model.step) or original())
 
     def train_step():  # the embeddings change, as an optimizer step changes them
         model.step += 1
@@ -164,7 +177,7 @@ def test_the_viewer_refits_the_typical_state_at_most_every_few_hundred_steps_whi
             clock[0] += 0.01
             assert model.viewer_embedding() is shown  # lags, no refit
         assert fits == [0]
-        assert model.inference_embedding() is not shown  # what evaluation reads is the exact state
+        assert model.state_embedding(CANONICAL) is not shown  # what evaluation reads is the exact state
         train_step()
         refreshed = model.viewer_embedding()
         assert refreshed is not shown and fits[-1] == frame_states.VIEWER_REFIT_STEPS
@@ -173,9 +186,9 @@ def test_the_viewer_refits_the_typical_state_at_most_every_few_hundred_steps_whi
         assert model.viewer_embedding() is refreshed  # still training, as far as the viewer can tell
         clock[0] += frame_states.VIEWER_PAUSE_SECONDS
         exact = model.viewer_embedding()  # the step stood still: the run's own state
-        torch.testing.assert_close(exact, model.inference_embedding())
+        torch.testing.assert_close(exact, model.state_embedding(CANONICAL))
         assert fits[-1] == model.step
-        model.config.inference_embedding = "mean"  # no fit to save: the viewer follows every step
+        model.config.canonical_embedding = "mean"  # no fit to save: the viewer follows every step
         model.viewer_embedding()
         train_step()
         torch.testing.assert_close(model.viewer_embedding(), model.frame_embed.weight.mean(0))
@@ -341,8 +354,8 @@ def test_bad_input_is_reported_or_skipped():
     assert all(torch.isfinite(v) for v in losses.values())  # NaN pixels are left out, with a warning
     with pytest.raises(ValueError, match="at least 4 seed points"):
         make_model(n=2)
-    with pytest.raises(ValueError, match="inference_embedding"):
-        model = make_model(inference_embedding="99")
+    with pytest.raises(ValueError, match="canonical_embedding"):
+        model = make_model(canonical_embedding="99")
         model.eval()
         model.get_outputs(make_camera(0))
     model = make_model()
@@ -550,8 +563,8 @@ def test_graphed_emission_on_a_cpu_trains_as_without_it():
         results.append((outputs["thermal"].detach(), [p.grad.clone() for p in model.emission_mlp.parameters()], model))
     (ours, ours_grads, graphed_model), (reference, reference_grads, plain_model) = results
     assert torch.equal(ours, reference) and all(torch.equal(a, b) for a, b in zip(ours_grads, reference_grads))
-    assert graphed_model.graphed_emission is not None and not graphed_model.graphed_emission.recordings
-    assert plain_model.graphed_emission is None
+    assert graphed_model.parts.emission.graphed is not None and not graphed_model.parts.emission.graphed.recordings
+    assert plain_model.parts.emission.graphed is None
 
 
 def test_every_attribute_nerfstudio_tools_read_is_available():
@@ -569,7 +582,7 @@ def test_baked_emission_matches_and_is_invalidated(monkeypatch):
     baked map has its own test.) The bake runs a few Gaussians at a time, as a model of hundreds of
     millions needs."""
     model, camera = make_model(use_background_mlp=False), make_camera()
-    monkeypatch.setattr(wild_thermal, "BAKE_ROWS", model.num_points // 3 + 1)  # three parts, the last shorter
+    monkeypatch.setattr(emission, "BAKE_ROWS", model.num_points // 3 + 1)  # three parts, the last shorter
     with torch.no_grad():  # a zero output layer would make every embedding render alike
         model.emission_mlp.net.layers()[-1][0].normal_(0, 0.1)
     model.eval()
@@ -577,28 +590,31 @@ def test_baked_emission_matches_and_is_invalidated(monkeypatch):
         unbaked = model.get_outputs(camera)["thermal"].detach()
     with torch.no_grad():
         baked = model.get_outputs(camera)["thermal"]
-        first = model.baked.slots["emission"][2]
-        assert model.get_outputs(camera)["thermal"].equal(baked) and model.baked.slots["emission"][2] is first  # reused
+        first = model.parts.emission.baked_values.slots["emission"][2]
+        assert (
+            model.get_outputs(camera)["thermal"].equal(baked)
+            and model.parts.emission.baked_values.slots["emission"][2] is first
+        )  # reused
     torch.testing.assert_close(baked, unbaked, atol=1e-5, rtol=0)
     with torch.no_grad():
         model.emission_mlp.net.layers()[0][0].add_(0.01)  # an optimizer step changes parameters in place
         changed = model.get_outputs(camera)["thermal"]
-        assert model.baked.slots["emission"][2] is not first and not changed.equal(baked)
-        second = model.baked.slots["emission"][2]
+        assert model.parts.emission.baked_values.slots["emission"][2] is not first and not changed.equal(baked)
+        second = model.parts.emission.baked_values.slots["emission"][2]
         model.get_outputs(camera, frame_embedding=torch.ones_like(model.frame_embed.weight[0]))  # another state
-        assert model.baked.slots["emission"][2] is not second
+        assert model.parts.emission.baked_values.slots["emission"][2] is not second
     # a training step with fused Adam (which leaves tensor versions alone) invalidates it too
     optimizer = torch.optim.Adam([*model.emission_mlp.parameters(), model.frame_embed.weight], lr=0.1, fused=True)
     with torch.no_grad():
         before_step = model.get_outputs(camera)["thermal"]
-        third = model.baked.slots["emission"][2]
+        third = model.parts.emission.baked_values.slots["emission"][2]
     for param in [*model.emission_mlp.parameters(), model.frame_embed.weight]:
         param.grad = torch.ones_like(param)
     optimizer.step()
     model.step += 1  # what the trainer's step callback does
     with torch.no_grad():
         after_step = model.get_outputs(camera)["thermal"]
-    assert model.baked.slots["emission"][2] is not third and not after_step.equal(before_step)
+    assert model.parts.emission.baked_values.slots["emission"][2] is not third and not after_step.equal(before_step)
 
 
 def test_a_render_outside_training_equals_the_general_path():
@@ -649,6 +665,7 @@ def test_each_mlp_is_one_parameter_that_a_checkpoint_of_its_separate_layers_load
     from torch import nn
 
     from thermal_wild_ns.model.fields import PackedMLP
+    from thermal_wild_ns.model.old_checkpoints import packed_mlp_state
 
     def separate(in_dim, width, hidden_layers):  # the MLP before the packing, as `mlp()` built it
         layers = []
@@ -667,7 +684,7 @@ def test_each_mlp_is_one_parameter_that_a_checkpoint_of_its_separate_layers_load
     assert torch.equal(packed.packed, torch.cat([p.detach().reshape(-1) for p in old.parameters()]))  # same draws
     with torch.no_grad():
         old[-1].weight.normal_()  # as after training
-    packed.load_state_dict(old.state_dict())
+    packed.load_state_dict(packed_mlp_state(old.state_dict(), "", packed.shapes))
     x = torch.randn(50, 24)
     assert torch.equal(packed(x), old(x))
     packed(x).square().sum().backward()
@@ -693,7 +710,8 @@ def test_adam_states_of_separate_layers_pack_as_the_packed_mlp_would_have_them()
     with a layer never stepped the packed tensor starts without state."""
     from torch import nn
 
-    from thermal_wild_ns.model.fields import PackedMLP, packed_adam_state
+    from thermal_wild_ns.model.fields import PackedMLP
+    from thermal_wild_ns.model.old_checkpoints import packed_adam_state
 
     torch.manual_seed(0)
     packed = PackedMLP(6, 8, 2)
@@ -791,7 +809,7 @@ def test_background_is_cached_per_training_camera_and_smooth_enough_for_its_grid
     with torch.no_grad():
         fresh = background(model, K, c2w, embed, 160, 128)
         cached = background(model, K, c2w, embed, 160, 128, cam_idx=2)
-        assert (2, 160, 128) in model.background_field._encoded_directions
+        assert (2, 160, 128) in model.parts.background._encoded_directions
         again = background(model, K, c2w, embed, 160, 128, cam_idx=2)
         model.config.background_stride = 1
         full = background(model, K, c2w, embed, 160, 128)
@@ -949,7 +967,7 @@ def test_viewer_controls_pick_colormap_and_embedding():
         halfway = 0.5 * (model.frame_embed.weight[3] + model.frame_embed.weight[4])
         torch.testing.assert_close(model.get_outputs(camera, frame_embedding=halfway)["thermal"], between)
         # a render that names its state is that state's, whatever the viewer shows
-        canonical = model.inference_embedding()
+        canonical = model.state_embedding(CANONICAL)
         assert torch.equal(model.get_outputs(camera, frame_embedding=canonical)["thermal"], mean_view)
         controls.viewer_state.value = "canonical"
         assert controls.capture_time is None and torch.equal(model.get_outputs(camera)["thermal"], mean_view)
@@ -1055,20 +1073,20 @@ def test_baked_background_map_matches_the_mlp_and_is_invalidated():
     dirs = dirs / dirs.norm(dim=-1, keepdim=True)  # [P, 3], the seam at longitude +-180 included
     with torch.no_grad():
         exact = model.background_mlp(dirs, embed)[:, 0]  # [P]
-        background_map = model.background_field.baked_map(embed, model.step)
+        background_map = model.parts.background.baked_map(embed, model.step)
         longitude = torch.atan2(dirs[:, 1], dirs[:, 0]) / torch.pi
         latitude = torch.asin(dirs[:, 2]) / (torch.pi / 2)
         grid = torch.stack([longitude, latitude], dim=-1)[None, None]  # [1, 1, P, 2]
         baked = torch.nn.functional.grid_sample(background_map, grid, align_corners=True)[0, 0, 0]  # [P]
     spread = float(exact.max() - exact.min())
     assert spread > 0 and float((baked - exact).abs().max()) < 0.01 * spread
-    assert model.background_field.baked_map(embed, model.step) is background_map  # cached
+    assert model.parts.background.baked_map(embed, model.step) is background_map  # cached
     with torch.no_grad():
         model.background_mlp.offset += 0.5  # an in-place edit (a load, an optimizer step) ...
-    assert model.background_field.baked_map(embed, model.step) is not background_map  # ... rebuilds it
-    assert model.background_field.baked_map(
+    assert model.parts.background.baked_map(embed, model.step) is not background_map  # ... rebuilds it
+    assert model.parts.background.baked_map(
         model.frame_embed.weight[2].detach(), model.step
-    ) is not model.background_field.baked_map(embed, model.step)
+    ) is not model.parts.background.baked_map(embed, model.step)
 
 
 def test_renders_outside_training_use_the_baked_background():
@@ -1083,19 +1101,17 @@ def test_renders_outside_training_use_the_baked_background():
     with torch.no_grad():
         baked = background(model, K, c2w, embed, 160, 128)
     with torch.enable_grad():
-        exact = model.background_field(
-            K, c2w, embed, 160, 128, training=model.training, step=model.step
-        )  # under autograd: the MLP itself
+        exact = background(model, K, c2w, embed, 160, 128)  # under autograd: the MLP itself
     spread = float(exact.max() - exact.min())
-    assert "background" in model.background_field.baked.slots
+    assert "background" in model.parts.background.baked.slots
     assert 0 < float((baked - exact.detach()).abs().max()) < 0.01 * spread
     # the view directions: the camera-frame directions of the intrinsics, kept once per intrinsics (given
     # on the host or read from K alike), then rotated: the directions of the full pixel grid
-    assert len(model.background_field._frame_directions.kept) == 1
+    assert len(model.parts.background._frame_directions.kept) == 1
     with torch.no_grad():
         given = background(model, K, c2w, embed, 160, 128, pinhole=(200.0, 200.0, 80.0, 64.0))
-    assert len(model.background_field._frame_directions.kept) == 1 and torch.equal(given, baked)
-    kept = next(iter(model.background_field._frame_directions.kept.values())) @ c2w[:3, :3].T
+    assert len(model.parts.background._frame_directions.kept) == 1 and torch.equal(given, baked)
+    kept = next(iter(model.parts.background._frame_directions.kept.values())) @ c2w[:3, :3].T
     reference = ray_directions(K, c2w, 160, 128, model.config.background_stride)
     assert kept.shape == reference.shape and float((kept - reference).abs().max()) < 1e-6
     outputs = model.get_outputs_for_camera(camera)  # the same object, already on the model's device
@@ -1180,7 +1196,7 @@ def test_emission_for_the_gaussians_in_view_only_renders_the_same():
         (outputs["thermal"] * torch.linspace(0, 1, 48)).sum().backward()
         renders.append(outputs["thermal"].detach())
         grads.append({n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None})
-    view = model.training_views.get(camera, lambda: camera.camera_to_worlds, 1, model.device, 1)
+    view = model.parts.training_views.get(camera, lambda: camera.camera_to_worlds, 1, model.device, 1)
     seen = in_view(model.means, model.scales, view.viewmat[0], view.K[0], view.width, view.height)
     assert 50 < int(seen.sum()) < 350  # the test leaves Gaussians out, and keeps some
     torch.testing.assert_close(renders[1], renders[0], atol=1e-6, rtol=1e-5)
@@ -1283,10 +1299,10 @@ def test_a_training_step_resizes_and_checks_its_frame_once(monkeypatch):
     batch = {"image": torch.rand(32, 48, 1), "image_idx": 1}
     losses = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
     assert calls == [(32, 48, 1)]
-    fresh = {key: value for key, value in outputs.items() if key != wild_thermal.GROUND_TRUTH_KEY}
+    fresh = {key: value for key, value in outputs.items() if key != thermal_loss.GROUND_TRUTH_KEY}
     again = model.get_loss_dict(fresh, batch)
     assert len(calls) == 1 and all(torch.equal(losses[key], again[key]) for key in losses)
-    fresh = {key: value for key, value in outputs.items() if key != wild_thermal.GROUND_TRUTH_KEY}
+    fresh = {key: value for key, value in outputs.items() if key != thermal_loss.GROUND_TRUTH_KEY}
     copied = model.get_loss_dict(fresh, {**batch, "image": batch["image"].clone()})
     assert len(calls) == 2 and all(torch.equal(losses[key], copied[key]) for key in losses)
     model.eval()
@@ -1294,7 +1310,7 @@ def test_a_training_step_resizes_and_checks_its_frame_once(monkeypatch):
         outputs = model.get_outputs(make_camera(1))
     model.get_metrics_dict(outputs, batch)
     model.get_metrics_dict(outputs, batch)
-    assert len(calls) == 4 and wild_thermal.GROUND_TRUTH_KEY not in outputs
+    assert len(calls) == 4 and thermal_loss.GROUND_TRUTH_KEY not in outputs
 
 
 def test_the_view_term_waits_until_the_gaussian_budget_passes_its_threshold():
@@ -1399,9 +1415,10 @@ def train_on_a_strip(monkeypatch, floater, before_step=None, **overrides):
         model.gauss_params["scales"][0] = float(np.log(0.01))
         model.gauss_params["opacities"].fill_(2.0)  # well above the opacity prune's threshold
     grown, pruned = [], []
-    grow, prune_few = model.strategy._grow_gs, model._prune_few_view
+    grow, prune_few = model.strategy._grow_gs, model.growth.prune_few_view
     monkeypatch.setattr(model.strategy, "_grow_gs", lambda *a, **k: grown.append(a[-1]) or grow(*a, **k))
-    monkeypatch.setattr(model, "_prune_few_view", lambda step: pruned.append(step) or prune_few(step))
+    # (state, strategy, params, optimizers, strategy_state, step, views)
+    monkeypatch.setattr(model.growth, "prune_few_view", lambda *a: pruned.append(a[5]) or prune_few(*a))
     model.train()
     optimizers = {name: torch.optim.Adam(p, lr=1e-4) for name, p in model.get_param_groups().items() if p}
     model.get_training_callbacks(SimpleNamespace(optimizers=SimpleNamespace(optimizers=optimizers)))
@@ -1437,7 +1454,7 @@ def test_the_few_view_prune_removes_a_floater_at_the_rounds_gsplat_refines_and_s
             assert model.num_points > 250 and int(decided["few-view prune"].split()[1]) >= 1
             resumed = make_model(n=model.num_points, few_view_prune_frames=frames)
             resumed.set_extra_state(model.get_extra_state())  # as a checkpoint's load: the count goes on
-            assert resumed.few_view_pruned == model.few_view_pruned >= 1
+            assert resumed.growth_state.few_view_pruned == model.growth_state.few_view_pruned >= 1
         else:
             assert pruned == [] and bool(near_floater.any()) and "few-view prune" not in decided
     with pytest.raises(InputError, match="few_view_prune_frames -1"):
@@ -1467,8 +1484,8 @@ def test_the_few_view_prune_waits_for_a_gaussian_budget_above_its_threshold(monk
     assert grown == [8, 10] and pruned == [10]
     assert not bool(((raised.means.detach() - floater).norm(dim=1) < 0.2).any())
     assert {d.part: d.choice for d in raised.decisions()}["few-view prune"].startswith("on: ")
-    raised.ranks = RankGroup(0, 2)  # as a share of the Gaussians across GPUs: the prune stays off, and says so
-    assert not raised.few_view_prune_runs()
+    as_split(raised)  # as a share of the Gaussians across GPUs: the prune stays off, and says so
+    assert not raised.growth.few_view_prune_runs(raised.strategy)
     assert {d.part: d.choice for d in raised.decisions()}["few-view prune"].startswith("off across GPUs (")
     with pytest.raises(InputError, match="few_view_prune_above_budget -1"):
         make_model(few_view_prune_above_budget=-1)
@@ -1489,9 +1506,9 @@ def test_only_the_raw_frame_3dgs_variant_prunes_few_view_gaussians_from_the_star
         None,
     )
     model = make_model(few_view_prune_frames=3)
-    assert model.few_view_prune_runs()  # the default budget
-    model.ranks = RankGroup(0, 2)  # a share of the Gaussians across GPUs: off, and said so (not refused)
-    assert not model.few_view_prune_runs()
+    assert model.growth.few_view_prune_runs(model.strategy)  # the default budget
+    as_split(model)  # a share of the Gaussians across GPUs: off, and said so (not refused)
+    assert not model.growth.few_view_prune_runs(model.strategy)
     assert {d.part: d.choice for d in model.decisions()}["few-view prune"] == "off across GPUs"
 
 

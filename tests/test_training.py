@@ -10,6 +10,7 @@ from real_data import DUNR
 
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.pipeline.evaluation import evaluate
+from thermal_wild_ns.state_names import CANONICAL
 
 pytestmark = pytest.mark.slow  # trains through nerfstudio: minutes on a CPU
 
@@ -99,7 +100,8 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
         names
     )
     with torch.no_grad():
-        expected = RGB2SH(loaded.model.gaussian_emission(loaded.model.inference_embedding()).clamp(0, 1))[:, 0].numpy()
+        emission = loaded.model.gaussian_emission(loaded.model.state_embedding(CANONICAL))
+        expected = RGB2SH(emission.clamp(0, 1))[:, 0].numpy()
     np.testing.assert_allclose(np.asarray(vertex["f_dc_0"]), expected, atol=1e-6)
     np.testing.assert_array_equal(np.asarray(vertex["f_dc_0"]), np.asarray(vertex["f_dc_2"]))  # grey
 

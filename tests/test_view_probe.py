@@ -239,7 +239,7 @@ def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12, trial_checks=1
 
     def watched(model, *args, **kwargs):
         # before the verdict: on trial, the term trained on its steps and left out of the scoring renders
-        seen.append((model._view_term, bool(model.gauss_params["view_sh"].abs().max() > 0)))
+        seen.append((model.growth_state.view_term, bool(model.gauss_params["view_sh"].abs().max() > 0)))
         return judge(model, *args, **kwargs)
 
     monkeypatch.setattr("thermal_wild_ns.training.auto_stop.judge_view_term", watched)

@@ -24,6 +24,7 @@ from thermal_wild_ns._upstream import gaussian_splat_export_hooks
 from thermal_wild_ns.data.rjpeg import DjiCalibration
 from thermal_wild_ns.pipeline.photometric_state import canonical_state, to_original
 from thermal_wild_ns.pipeline.run_check import check_trained_run
+from thermal_wild_ns.state_names import CANONICAL
 
 
 def _kept_rows(means: np.ndarray, exported: np.ndarray) -> np.ndarray:
@@ -42,7 +43,8 @@ def canonical_emission(pipeline) -> np.ndarray:
     model = pipeline.model
     state = canonical_state(pipeline)
     with torch.no_grad():
-        emission = model.radiance(model.gaussian_emission(model.inference_embedding()))[:, 0].float().cpu().numpy()
+        emission = model.gaussian_emission(model.state_embedding(CANONICAL))
+        emission = model.parts.emission.radiance(emission)[:, 0].float().cpu().numpy()
     return to_original(pipeline, emission, state)
 
 
@@ -55,8 +57,8 @@ def thermal_values(pipeline) -> np.ndarray:
 def header_comments(pipeline) -> List[str]:
     rng = pipeline.datamanager.train_dataset.thermal_range
     lines = [
-        f"frame_embedding {pipeline.model.config.inference_embedding} (the emission MLP was baked with this frame "
-        f"embedding)",
+        f"frame_embedding canonical ({pipeline.model.config.canonical_embedding}; the emission MLP was baked with "
+        f"this frame embedding)",
         f"thermal: baked emission in native units ({rng.dtype}) at the canonical photometric state (median training "
         f"LUT)",
         "f_dc_0..2: the same emission as grey in the training space, clamped to [0, 1]",

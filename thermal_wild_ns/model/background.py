@@ -15,6 +15,8 @@ from thermal_wild_ns.model.bilinear import bilinear_resize
 from thermal_wild_ns.model.camera_views import ray_directions
 from thermal_wild_ns.model.fields import BackgroundMLP
 from thermal_wild_ns.model.graphed import GraphedCalls
+from thermal_wild_ns.rendering import world_to_camera
+from thermal_wild_ns.rendering.captured import CapturedCalls
 
 BAKED_BACKGROUND_TEXELS = (129, 256)
 """Latitude x longitude samples of the baked background map (about 1.4 degrees apart; the
@@ -106,7 +108,8 @@ class ThermalBackground:
     afresh at each training render), evaluated on the `config.background_stride` grid and upsampled.
     In training (and under autograd) the MLP runs on every grid point; a training camera whose pose
     is fixed (`cam_idx`) has its encoded directions computed once. Every other render samples the
-    baked map (`baked_map`) along the camera-frame directions of its intrinsics, rotated."""
+    baked map (`baked_map`) along the camera-frame directions of its intrinsics, rotated. One method
+    per render mode (`renders.py`)."""
 
     def __init__(self, mlp: Optional[BackgroundMLP], config):
         self.mlp = mlp
@@ -124,7 +127,7 @@ class ThermalBackground:
         tensors = (*self.baked.parameters_of(self.mlp), frame_embed)
         return self.baked.get("background", tensors, step, lambda: background_map(self.mlp, frame_embed))
 
-    def __call__(
+    def training(
         self,
         K: Tensor,
         camera_to_world: Tensor,
@@ -132,33 +135,75 @@ class ThermalBackground:
         width: int,
         height: int,
         cam_idx: Optional[int] = None,
-        pinhole: Optional[Tuple[float, float, float, float]] = None,
-        *,
-        training: bool,
-        step: int,
         slot: int = 0,
     ) -> Tensor:
-        """[H, W, 1] for intrinsics `K` [3, 3] and pose `camera_to_world` [3, 4]; `pinhole`: `K`'s fx,
-        fy, cx, cy on the host, where the caller has them (else they are read from `K`); `slot`: the
-        camera's place among a training step's cameras (`GraphedCalls`)."""
-        device = K.device
+        """[H, W, 1] of a training render with intrinsics `K` [3, 3] and pose `camera_to_world` [3, 4]: the MLP on
+        every grid point (a training camera whose pose is fixed, `cam_idx`, has its encoded directions computed
+        once), replayed as CUDA graphs where `graphed`; `slot`: the camera's place among a training step's cameras
+        (`GraphedCalls`)."""
         if self.mlp is None:
-            if training and self.config.random_background:
-                return torch.rand(1, 1, 1, device=device).expand(height, width, 1)
-            return torch.full((height, width, 1), self.config.background_value, device=device)
-        stride = self.config.background_stride
-        if not training and not torch.is_grad_enabled():  # every render a user sees: from the baked map
-            dirs = self.frame_directions(K, width, height, pinhole)
-            return self.from_map(self.baked_map(frame_embed, step), dirs, camera_to_world, width, height)
+            if self.config.random_background:
+                return torch.rand(1, 1, 1, device=K.device).expand(height, width, 1)
+            return torch.full((height, width, 1), self.config.background_value, device=K.device)
+        return self._grid(K, camera_to_world, frame_embed, width, height, cam_idx, slot)
+
+    def rendered(
+        self,
+        K: Tensor,
+        camera_to_world: Tensor,
+        frame_embed: Tensor,
+        width: int,
+        height: int,
+        pinhole: Optional[Tuple[float, float, float, float]],
+        step: int,
+    ) -> Tensor:
+        """[H, W, 1] of a render outside training and autograd: the baked map (`baked_map`) along the camera's pixel
+        directions (`pinhole`: `K`'s fx, fy, cx, cy on the host, else read from `K`)."""
+        if self.mlp is None:
+            return torch.full((height, width, 1), self.config.background_value, device=K.device)
+        dirs = self.frame_directions(K, width, height, pinhole)
+        return self.from_map(self.baked_map(frame_embed, step), dirs, camera_to_world, width, height)
+
+    def exact(self, K: Tensor, camera_to_world: Tensor, frame_embed: Tensor, width: int, height: int) -> Tensor:
+        """[H, W, 1] of a render outside training under autograd (a fit through the render): the MLP itself on the
+        grid, as in training."""
+        if self.mlp is None:
+            return torch.full((height, width, 1), self.config.background_value, device=K.device)
+        return self._grid(K, camera_to_world, frame_embed, width, height, None, 0)
+
+    def viewing(self, view, frame_embed: Tensor, step: int, captured: CapturedCalls) -> Tuple[Tensor, Tensor]:
+        """gsplat's view matrix [1, 4, 4] and the background [H, W, 1] of a render a user waits for
+        (`renders.viewing_render`, a `camera_views.View`): one CUDA graph per camera size and intrinsics on a GPU
+        (`captured`), the baked map one of its inputs, so a new state needs no new graph."""
+        width, height = view.width, view.height
+        key = ("view", width, height, view.pinhole)
+        if self.mlp is None:  # a constant background
+            value = self.config.background_value
+            prepare = lambda camera_to_world, K: (
+                world_to_camera(camera_to_world),
+                torch.full((height, width, 1), value, device=K.device),
+            )
+            return captured(key, prepare, view.camera_to_world, view.K)
+
+        baked = self.baked_map(frame_embed, step)
+        frame_dirs = self.frame_directions(view.K[0], width, height, view.pinhole)
+
+        def prepare(camera_to_world: Tensor, baked: Tensor, frame_dirs: Tensor) -> Tuple[Tensor, Tensor]:
+            return world_to_camera(camera_to_world), self.from_map(baked, frame_dirs, camera_to_world[0], width, height)
+
+        return captured(key, prepare, view.camera_to_world, baked, frame_dirs)
+
+    def _grid(self, K, camera_to_world, frame_embed, width: int, height: int, cam_idx: Optional[int], slot: int):
+        """The MLP over the `background_stride` grid of the camera's directions, upsampled [H, W, 1]."""
         key = (cam_idx, width, height)
         encoded = self._encoded_directions.get(key) if cam_idx is not None else None
         if encoded is None:
-            dirs = ray_directions(K, camera_to_world, width, height, stride)  # [h, w, 3]
+            dirs = ray_directions(K, camera_to_world, width, height, self.config.background_stride)  # [h, w, 3]
             encoded = self.mlp.encode(dirs)  # [h, w, E]
             if cam_idx is not None:
                 self._encoded_directions[key] = encoded
         if self.graphed is None:
-            return upsampled(self.mlp.from_encoded(encoded, frame_embed), width, height)
+            return BackgroundGrid(self.mlp, width, height)(encoded, frame_embed)
         grid = self._grids.get((width, height))
         if grid is None:
             grid = self._grids[(width, height)] = BackgroundGrid(self.mlp, width, height)
@@ -177,4 +222,5 @@ class ThermalBackground:
     def from_map(baked: Tensor, frame_dirs: Tensor, camera_to_world: Tensor, width: int, height: int) -> Tensor:
         """[H, W, 1]: the baked map `baked` (`baked_map`) along the pixel directions `frame_dirs`
         (`frame_directions`) turned to the pose `camera_to_world` [3, 4]."""
-        return upsampled(sample_map(baked, frame_dirs @ camera_to_world[:3, :3].T), width, height)
+        sampled = sample_map(baked, frame_dirs @ camera_to_world[:3, :3].T)  # [h, w, 1]
+        return upsampled(sampled, width, height)

@@ -59,6 +59,18 @@ def refuse_options_without_their_part(config) -> None:
             )
 
 
+def refuse_options_across_gpus(config, split: bool) -> None:
+    """An `InputError` where an option cannot work with the Gaussians split across GPUs (`split`), or with the
+    background the config asks for."""
+    if split and (config.use_absgrad or config.camera_optimizer.mode != "off"):
+        raise InputError(
+            "training across GPUs needs --pipeline.model.use-absgrad False (gsplat's distributed "
+            "rasterization has no absgrad) and --pipeline.model.camera-optimizer.mode off"
+        )
+    if config.random_background and config.use_background_mlp:
+        raise InputError("random_background needs use_background_mlp False: the background MLP models it")
+
+
 def refuse_mismatched_checkpoint(
     state_dict: dict,
     emission_mlp: bool,

@@ -18,8 +18,7 @@ class PackedMLP(nn.Module):
     bias [out], layer after layer): a training step's backward accumulates one gradient for the MLP instead
     of one per tensor, and Adam updates one tensor (each costs the host an operation every step; Adam is
     elementwise, so the update is the same). Initialised as `nn.Linear` layers are, in the same order of
-    random draws; a checkpoint of the `nn.Sequential` this replaced (keys `0.weight`, `0.bias`, ...) loads
-    into it."""
+    random draws (a checkpoint of the `nn.Sequential` this replaced: `old_checkpoints.packed_mlp_state`)."""
 
     def __init__(self, in_dim: int, width: int, hidden_layers: int, out_dim: int = 1):
         super().__init__()
@@ -47,34 +46,6 @@ class PackedMLP(nn.Module):
             x = torch.relu_(F.linear(x, weight, bias))
         weight, bias = layers[-1]
         return F.linear(x, weight, bias)
-
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        old = [f"{prefix}{2 * i}.{name}" for i in range(len(self.shapes)) for name in ("weight", "bias")]
-        if prefix + "packed" not in state_dict and all(k in state_dict for k in old):
-            # a checkpoint from before the packing: its layers in `packed`'s order
-            state_dict[prefix + "packed"] = torch.cat([state_dict.pop(k).reshape(-1) for k in old])
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-
-
-def packed_adam_state(state: dict, start: int, count: int) -> dict:
-    """An Adam state dict (`Optimizer.state_dict()`, one param group) whose tensors `start` to `start + count`
-    are an MLP's separate weights and biases, as saved before the MLP was a `PackedMLP`, with those tensors as
-    one: their moments concatenated in `packed`'s order (Adam is elementwise: the same moments), the first
-    one's step count; the group's tensors numbered on from its first. A tensor never stepped has no state (a
-    checkpoint before the first step): where one of the layers has none, the packed tensor starts without."""
-    (group,) = state["param_groups"]
-    ids = group["params"]
-    moments = [state["state"].get(i) for i in ids]  # None: no state
-    layers = moments[start : start + count]
-    packed = None
-    if all(m is not None for m in layers):
-        packed = {**layers[0]}
-        for key in ("exp_avg", "exp_avg_sq"):
-            packed[key] = torch.cat([m[key].reshape(-1) for m in layers])
-    moments = moments[:start] + [packed] + moments[start + count :]
-    renumbered = list(range(ids[0], ids[0] + len(moments)))
-    kept = {i: m for i, m in zip(renumbered, moments) if m is not None}
-    return {"state": kept, "param_groups": [{**group, "params": renumbered}]}
 
 
 class EmissionMLP(nn.Module):

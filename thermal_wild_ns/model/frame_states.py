@@ -6,27 +6,30 @@ this owns what is computed from them, and the one cache of it."""
 from __future__ import annotations
 
 import time
-from typing import Callable, List, Optional, Sequence
+from typing import Callable, Dict, List, Literal, Optional, Sequence
 
 import torch
 from torch import Tensor, nn
 
 from thermal_wild_ns.preprocessing.photometric import time_weights
+from thermal_wild_ns.state_names import StateName
 
 Emission = Callable[[Tensor], Tensor]
 """A frame embedding [Df] -> the emissions [N] it gives some Gaussians."""
+CanonicalEmbedding = Literal["typical", "mean"]
+"""How the canonical state's embedding is made from the training frames' (`FrameStates.embedding`)."""
 
 
 class FrameStates:
-    """Frame embeddings [Df] from `embedding` (one row per training image) at capture positions
-    `frame_times` (one per row). A named embedding (`named`) is kept outside autograd until the
+    """Frame embeddings [Df] from `embeddings` (one row per training image) at capture positions
+    `frame_times` (one per row). A state's embedding (`embedding`) is kept outside autograd until the
     embeddings change."""
 
-    def __init__(self, embedding: nn.Embedding, frame_times: Sequence[float]):
-        self.embedding = embedding
+    def __init__(self, embeddings: nn.Embedding, frame_times: Sequence[float]):
+        self.embeddings = embeddings
         self.frame_times: List[float] = [float(t) for t in frame_times]
-        self._cache: Optional[tuple] = None  # ((choice, step, version), weight, embedding)
-        self._viewer: Optional[tuple] = None  # (choice, step it was computed at, embedding): `for_viewer`
+        self._cache: Dict[tuple, tuple] = {}  # (name, canonical) -> ((step, version), weight, embedding)
+        self._viewer: Optional[tuple] = None  # ((name, canonical), step it was computed at, embedding): `for_viewer`
         self._viewer_step = (-1, 0.0)  # the step of the viewer's last render, and when a render first saw it
         # each row with a training frame on either side (rows in capture order, as `at` reads them):
         # (row, left, right, weight of right)
@@ -48,7 +51,7 @@ class FrameStates:
         left_out = set(without)
         rows = [k for k in range(len(self.frame_times)) if k not in left_out]
         i, j, w = time_weights([self.frame_times[k] for k in rows], t)
-        weight = self.embedding.weight  # [F, Df]
+        weight = self.embeddings.weight  # [F, Df]
         return weight[rows[i]] if w == 0.0 else (1.0 - w) * weight[rows[i]] + w * weight[rows[j]]
 
     def neighbour_residual(self) -> Tensor:
@@ -57,7 +60,7 @@ class FrameStates:
         predict for it, linear in time (`at(t, without=[row])`, for every such row at once): what the
         `time` protocol does for a held-out frame. Zero with fewer than three frames. A penalty on it
         (`state_smoothness`) keeps the states predictable."""
-        weight = self.embedding.weight  # [F, Df]
+        weight = self.embeddings.weight  # [F, Df]
         rows, towards_right = self._neighbours  # [M, 3], [M, 1]
         if rows.device != weight.device:  # moved once, not copied from the host at every step
             self._neighbours = rows, towards_right = rows.to(weight.device), towards_right.to(weight.device)
@@ -71,57 +74,62 @@ class FrameStates:
         interpolated from the other training frames around them."""
         with torch.no_grad():
             for row in rows:
-                self.embedding.weight[row] = self.at(self.frame_times[row], without=rows)
+                self.embeddings.weight[row] = self.at(self.frame_times[row], without=rows)
 
-    def named(self, choice: str, step: int, emission_of: Optional[Callable[[], Optional[Emission]]] = None) -> Tensor:
-        """The frame embedding [Df] `choice` names ('mean', 'typical', 'zero', a training image's
-        index, or 'time:T'), kept outside autograd until the embeddings change (`step`: fused Adam
-        does not bump tensor versions). 'typical' (`typical_state`) asks `emission_of` for the
-        emission it matches, only when it computes; where there is none (no emission MLP: the state
-        does not change the Gaussians) it is the mean."""
-        weight = self.embedding.weight  # [F, Df]
-        key = (choice, step, weight._version)
-        cached = self._cache
-        if cached is not None and cached[0] == key and cached[1] is weight:
+    def embedding(
+        self,
+        name: StateName,
+        canonical: CanonicalEmbedding,
+        step: int,
+        emission_of: Optional[Callable[[], Optional[Emission]]] = None,
+    ) -> Tensor:
+        """The frame embedding [Df] the state `name` stands for, kept outside autograd until the embeddings change
+        (`step`: fused Adam does not bump tensor versions). `canonical` defines the canonical state: 'typical'
+        (`typical_state`, which asks `emission_of` for the emission it matches, only when it computes; where there
+        is none, no emission MLP, the state does not change the Gaussians and it is the mean) or 'mean'. A frame's
+        and a capture time's: `at` its position."""
+        weight = self.embeddings.weight  # [F, Df]
+        key, when = (name, canonical), (step, weight._version)
+        cached = self._cache.get(key)
+        if cached is not None and cached[0] == when and cached[1] is weight:
             return cached[2]
-        if choice.startswith("time:"):
-            value = self.at(float(choice[5:]))
-        elif choice == "typical":
+        if name.kind != "canonical":
+            value = self.at(name.position)
+        elif canonical == "typical":
             emission = None if emission_of is None else emission_of()
             value = weight.mean(dim=0) if emission is None else typical_state(weight.detach(), emission)
-        elif choice == "mean":
+        elif canonical == "mean":
             value = weight.mean(dim=0)
-        elif choice == "zero":
-            value = torch.zeros_like(weight[0])
-        elif choice.isdigit() and int(choice) < weight.shape[0]:
-            value = weight[int(choice)]
         else:
-            raise ValueError(
-                "inference_embedding must be 'mean', 'typical', 'zero' or a training-frame index below "
-                f"{weight.shape[0]}, got {choice!r}"
-            )
+            raise ValueError(f"canonical_embedding must be 'typical' or 'mean', got {canonical!r}")
         if not torch.is_grad_enabled():
-            self._cache = (key, weight, value)
+            self._cache = {k: v for k, v in self._cache.items() if v[0] == when and v[1] is weight}  # this step's
+            self._cache[key] = (when, weight, value)
         return value
 
     def for_viewer(
-        self, choice: str, step: int, emission_of: Optional[Callable[[], Optional[Emission]]] = None
+        self,
+        name: StateName,
+        canonical: CanonicalEmbedding,
+        step: int,
+        emission_of: Optional[Callable[[], Optional[Emission]]] = None,
     ) -> Tensor:
-        """`named(choice, ...)` for the viewer's renders, which come whenever its user moves while a run
-        trains: the 'typical' state is a fit of its own (`typical_state`), and refitting it at every
-        render of a training run would take that time from the training steps. So while the step moves
-        the viewer keeps its typical state for up to `VIEWER_REFIT_STEPS` steps; once the step has stood still
-        for `VIEWER_PAUSE_SECONDS` (training paused or done) it is the exact state of that step again. Other
-        choices cost no fit and are always exact."""
+        """`embedding(name, ...)` for the viewer's renders, which come whenever its user moves while a run
+        trains: the 'typical' canonical state is a fit of its own (`typical_state`), and refitting it at every
+        render of a training run would take that time from the training steps. So while the step moves the
+        viewer keeps its typical state for up to `VIEWER_REFIT_STEPS` steps; once the step has stood still for
+        `VIEWER_PAUSE_SECONDS` (training paused or done) it is the exact state of that step again. Other states
+        cost no fit and are always exact."""
         cached = self._viewer
         now = time.monotonic()
         if step != self._viewer_step[0]:
             self._viewer_step = (step, now)
         paused = now - self._viewer_step[1] >= VIEWER_PAUSE_SECONDS
-        lagging = cached is not None and cached[0] == choice == "typical"  # the one state that costs a fit
+        choice = (name, canonical)
+        lagging = cached is not None and cached[0] == choice and name.kind == "canonical" and canonical == "typical"
         if lagging and not paused and 0 < step - cached[1] < VIEWER_REFIT_STEPS:
             return cached[2]
-        value = self.named(choice, step, emission_of)  # at the same step, `named`'s own cache answers
+        value = self.embedding(name, canonical, step, emission_of)  # at the same step, `embedding`'s cache answers
         self._viewer = (choice, step, value)
         return value
 

@@ -12,6 +12,7 @@ from nerfstudio.models.splatfacto import RGB2SH, random_quat_tensor
 from torch import Tensor
 
 from thermal_wild_ns.model.view_emission import view_coefficients
+from thermal_wild_ns.state_names import CANONICAL
 
 
 def initial_gaussians(
@@ -57,15 +58,15 @@ def initial_gaussians(
 
 class GreyColourAccessors:
     """splatfacto's colour accessors, which nerfstudio's viewer and exporters read, for a model of
-    scalar emission (`emission` [N, 1], `gaussian_emission`, `inference_embedding`, `num_points`):
+    scalar emission (`emission` [N, 1], `gaussian_emission`, `state_embedding`, `num_points`):
     grey RGB as rendered outside training, as the DC band, and no higher bands."""
 
     @property
     def colors(self) -> Tensor:
         """Grey RGB in [0, 1] per Gaussian [N, 3]: the emission as rendered outside training (MLP
-        included, under the inference embedding)."""
+        included, at the canonical state)."""
         with torch.no_grad():
-            emission = self.gaussian_emission(self.inference_embedding())
+            emission = self.gaussian_emission(self.state_embedding(CANONICAL))
         return emission.clamp(0.0, 1.0).expand(-1, 3)
 
     @property

@@ -206,8 +206,7 @@ class PaddedRowCalls:
         names, parameters = zip(*fn.named_parameters()) if any(True for _ in fn.parameters()) else ((), ())
         # recorded on leaves that share the parameters' memory (an update in place reaches the replays), never on
         # the parameters themselves: their gradient nodes, made on the step's stream and kept alive by the last
-        # step's loss, would make the recorded backward wait on that stream, which fails a capture (as c67b74c's
-        # held nodes did: docs/results/gpu_tests_h100)
+        # step's loss, would make the recorded backward wait on that stream, which fails a capture
         aliases = tuple(p.detach().requires_grad_(p.requires_grad) for p in parameters)
         recorded = lambda *inputs: torch.func.functional_call(fn, dict(zip(names, aliases)), inputs)
         try:

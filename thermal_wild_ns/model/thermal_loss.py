@@ -17,6 +17,9 @@ from thermal_wild_ns.image_metrics import ssim
 from thermal_wild_ns.model.graphed import GraphedCalls
 from thermal_wild_ns.model.losses import alpha_regularizer, heat_aware_ssim, thermal_contrast
 
+GROUND_TRUTH_KEY = "_ground_truth"
+"""Where a training step's outputs keep its frame as the loss compares it (`ThermalLoss.frame_of`)."""
+
 INVERSE_LUT_SAMPLES = 4096
 """Training-space values at which each training frame's inverse LUT is tabulated for a loss in
 the original space (linear in between: far finer than any step of the equalization)."""
@@ -80,6 +83,7 @@ class ThermalLoss(nn.Module):
         self._frame_checks: Dict[tuple, tuple] = {}  # (training image, shape) -> (all finite, contrast, original)
         self._warned_nonfinite = False
         self.graphed = GraphedCalls("loss") if config.graphed_loss else None
+        self.resized_frames = ResizedFrames()  # the training frames at the warm-up's sizes: `frame_of`
 
     def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
         """Training-space values of training image `image` taken back to the original space through
@@ -92,6 +96,23 @@ class ThermalLoss(nn.Module):
         weight = position - lower
         lower = lower.long()
         return table[lower] * (1.0 - weight) + table[lower + 1] * weight
+
+    def frame_of(
+        self, outputs: Dict, batch: Dict, image: Optional[int], scale: int, resize: Callable[[Tensor], Tensor]
+    ) -> Tuple[Tensor, Optional[Tensor]]:
+        """The batch's frame at the render's resolution (`resize`, splatfacto's `get_gt_img`, at 1/`scale`) and
+        its contrast (`ground_truth`); `image`: its training image in a training step, else None. A training step
+        asks twice (its metrics, its loss): the first answer is kept in the step's `outputs`, so the frame is
+        resized and checked once per step (a training frame once per size of the warm-up: `ResizedFrames`)."""
+        kept = outputs.get(GROUND_TRUTH_KEY)
+        if kept is not None:
+            return kept
+        frame = checked_thermal_image(batch)
+        gt = resize(frame) if image is None else self.resized_frames.get(image, frame, scale, resize)
+        answer = self.ground_truth(gt, outputs["thermal"], image, batch.get("image_idx"))
+        if image is not None:  # a training step's outputs (a render outside training is scored once)
+            outputs[GROUND_TRUTH_KEY] = answer
+        return answer
 
     def ground_truth(
         self, gt: Tensor, render: Tensor, image: Optional[int], name: object = None

@@ -60,3 +60,18 @@ def radial_part(term: Tensor, emission: Tensor, centres: Tensor, width: int, hei
     u, v = centres.detach().split(1, dim=-1)  # [M, 1] each
     r2 = squared_centre_distance(u, v, width, height)  # [M, 1]
     return radial_fit(term, emission, r2).square().mean()
+
+
+def visible_radial_part(
+    means: Tensor, coefficients: Tensor, info: dict, colors: Tensor, camera_position: Tensor, size: tuple, c: int
+) -> Tensor:
+    """`radial_part` of camera `c` of a training render (gsplat's `info`; the camera at `camera_position` [3], its
+    image `size` (width, height)) over the Gaussians it draws (`means` [N, 3], view-term `coefficients` [N, K],
+    radiance `colors` [N, 1] in that camera)."""
+    visible = info["radii"][c].reshape(means.shape[0], -1).amax(-1) > 0  # [N]
+    return radial_part(
+        view_term(means[visible], coefficients[visible], camera_position),  # [M, 1]
+        colors[visible].detach(),  # [M, 1]
+        info["means2d"][c][visible],  # [M, 2]
+        *size,
+    )

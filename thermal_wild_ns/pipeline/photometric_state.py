@@ -7,17 +7,15 @@ position t: a training frame's own at its index, between the neighbouring traini
 between (the embedding linearly, the LUT through its inverse: `blend_luts`). No held-out pixel
 enters a state: a held-out frame's state is predicted from its neighbours.
 
-States by name (`--photometric-state` of `wild-thermal-render`; `parse_state`):
-- `canonical`: the model's inference embedding (the typical state by default) and the
-  level-wise median of the training LUTs: what every novel view renders with;
-- `frame:N`: training frame N's own state (N in capture order);
-- `time:T`: the state at capture position T (a float; between frames, interpolated).
+A state is named in the package's one grammar (`state_names.StateName`: `canonical`, `frame:N`,
+`time:T`); `resolve_state` is where a name becomes an embedding (the model's) and a LUT (the
+preprocessing's).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, Optional, Protocol, Tuple, runtime_checkable
+from typing import Dict, Optional, Protocol, Tuple, Union, runtime_checkable
 
 import numpy as np
 import torch
@@ -27,6 +25,7 @@ from thermal_wild_ns._upstream import training_state_kept
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.preprocessing.stage import PreprocessedSequence
+from thermal_wild_ns.state_names import CANONICAL, StateName, at_time
 
 
 @dataclass(frozen=True)
@@ -39,26 +38,6 @@ class PhotometricState:
     """LUT [levels] from raw levels to the training space; None: frames are not preprocessed."""
 
 
-def parse_state(spec: str) -> Tuple[str, Optional[float]]:
-    """'canonical' -> ('canonical', None); 'frame:N' -> ('frame', N); 'time:T' -> ('time', T)."""
-    kind, _, value = spec.partition(":")
-    try:
-        if kind == "canonical" and not value:
-            return kind, None
-        if kind == "frame":
-            return kind, float(int(value))
-        if kind == "time":
-            position = float(value)
-            if np.isfinite(position):
-                return kind, position
-    except ValueError:
-        pass
-    raise InputError(
-        f"photometric state '{spec}': expected canonical, frame:N (a training frame's index) or time:T (a capture "
-        f"position)"
-    )
-
-
 @runtime_checkable
 class FrameEmbeddingModel(Protocol):
     """A model whose renders depend on a frame embedding (`WildThermalModel`); any other (stock
@@ -66,9 +45,7 @@ class FrameEmbeddingModel(Protocol):
 
     uses_frame_embedding: bool
 
-    def inference_embedding(self) -> Tensor: ...
-
-    def embedding_at(self, t: float) -> Tensor: ...
+    def state_embedding(self, name: StateName) -> Tensor: ...
 
 
 def preprocessed_sequence(pipeline) -> Optional[PreprocessedSequence]:
@@ -77,44 +54,39 @@ def preprocessed_sequence(pipeline) -> Optional[PreprocessedSequence]:
     return datamanager.preprocessed if isinstance(datamanager, ThermalDatamanager) else None
 
 
-def _model_embedding(model, t: Optional[float]) -> Optional[Tensor]:
+def _model_embedding(model, name: StateName) -> Optional[Tensor]:
     if not (isinstance(model, FrameEmbeddingModel) and model.uses_frame_embedding):
         return None
     with torch.no_grad():
-        return (model.inference_embedding() if t is None else model.embedding_at(t)).detach()
+        return model.state_embedding(name).detach()
 
 
 def canonical_state(pipeline) -> PhotometricState:
     """The state every novel view renders with (whatever the viewer shows)."""
-    sequence = preprocessed_sequence(pipeline)
-    return PhotometricState(
-        "canonical", _model_embedding(pipeline.model, None), None if sequence is None else sequence.median_lut()
-    )
+    return resolve_state(pipeline, CANONICAL)
 
 
 def state_at(pipeline, t: float) -> PhotometricState:
     """state(t) from the training frames around capture position `t`."""
-    sequence = preprocessed_sequence(pipeline)
-    return PhotometricState(
-        f"time:{t:g}", _model_embedding(pipeline.model, t), None if sequence is None else sequence.lut_at(t)
-    )
+    return resolve_state(pipeline, at_time(t))
 
 
-def resolve_state(pipeline, spec: str) -> PhotometricState:
-    """The state a name (`parse_state`) stands for in this pipeline."""
-    kind, value = parse_state(spec)
-    if kind == "canonical":
-        return canonical_state(pipeline)
-    if kind == "frame":
+def resolve_state(pipeline, name: Union[StateName, str]) -> PhotometricState:
+    """The state a name stands for in this pipeline: the model's embedding, the preprocessing's LUT (the median
+    training LUT for `canonical`, else the one interpolated at the position)."""
+    name = StateName.parse(name) if isinstance(name, str) else name
+    if name.kind == "frame":
         train = list(pipeline.datamanager.train_dataset.metadata["frame_indices"])
-        if int(value) not in train:
+        if int(name.position) not in train:
             raise InputError(
-                f"photometric state '{spec}': frame {int(value)} is not a training frame (use time:{int(value)} for "
-                f"its interpolated state)"
+                f"photometric state '{name}': frame {int(name.position)} is not a training frame (use "
+                f"time:{int(name.position)} for its interpolated state)"
             )
-        state = state_at(pipeline, value)
-        return PhotometricState(f"frame:{int(value)}", state.embedding, state.lut)
-    return state_at(pipeline, value)
+    sequence = preprocessed_sequence(pipeline)
+    lut = None
+    if sequence is not None:
+        lut = sequence.median_lut() if name.kind == "canonical" else sequence.lut_at(name.position)
+    return PhotometricState(str(name), _model_embedding(pipeline.model, name), lut)
 
 
 def to_original(pipeline, values: np.ndarray, state: PhotometricState) -> np.ndarray:

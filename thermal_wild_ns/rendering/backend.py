@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Dict, Literal, Tuple
+from typing import Dict, Literal, Optional, Tuple
 
 import torch
 from gsplat.rendering import rasterization as gsplat_rasterization
@@ -117,3 +117,59 @@ def world_to_camera(camera_to_world: Tensor) -> Tensor:
     viewmat[:, :3, 3:4] = -R.transpose(1, 2) @ t
     viewmat[:, 3, 3] = 1.0
     return viewmat
+
+
+def activated(params: Dict[str, Tensor], ids: Optional[Tensor] = None) -> Tuple[Tensor, Tensor]:
+    """gsplat's scales [N, 3] and opacities [N] of every (or the selected `ids`) Gaussian of `params` (log scales,
+    logit opacities)."""
+    scales, opacities = params["scales"], params["opacities"]
+    if ids is not None:
+        scales, opacities = scales[ids], opacities[ids]
+    return torch.exp(scales), torch.sigmoid(opacities).squeeze(-1)
+
+
+def rasterize_gaussians(
+    params: Dict[str, Tensor],
+    colors: Tensor,  # [N, D] or [C, N, D]
+    viewmats: Tensor,  # [C, 4, 4]
+    Ks: Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    ids: Optional[Tensor],
+    with_depth: bool,
+    absgrad: bool,
+    rasterize_mode: Literal["classic", "antialiased"],
+    backend: Backend,
+    distributed: bool,
+) -> Tuple[Tensor, Tensor, Dict]:
+    """The render [C, H, W, D(+1)], alpha [C, H, W, 1] and meta of every (or the selected `ids`) Gaussian of
+    `params` (means, quats, log scales, logit opacities) with `colors` in the C cameras: on one GPU its kernels
+    with the least host work around them (`rasterize_unpacked`), with the Gaussians split across GPUs gsplat's
+    distributed rasterization (packed: only the visible splats travel)."""
+    crop = lambda x: x if ids is None else x[ids]
+    scales, opacities = activated(params, ids)  # [N, 3], [N]
+    means, quats = crop(params["means"]), crop(params["quats"])  # quats: normalised by the projection
+    if not distributed:
+        args = (means, quats, scales, opacities, colors, viewmats, Ks, width, height, with_depth, absgrad)
+        return rasterize_unpacked(*args, rasterize_mode, backend)
+    return rasterization(
+        means=means,
+        quats=quats,
+        scales=scales,
+        opacities=opacities,
+        colors=colors,
+        viewmats=viewmats,
+        Ks=Ks,
+        width=width,
+        height=height,
+        packed=True,
+        near_plane=NEAR_PLANE,
+        far_plane=FAR_PLANE,
+        render_mode="RGB+ED" if with_depth else "RGB",
+        sh_degree=None,
+        sparse_grad=False,
+        absgrad=absgrad,
+        rasterize_mode=rasterize_mode,
+        distributed=True,
+        backend=backend,
+    )

@@ -36,8 +36,9 @@ from thermal_wild_ns._upstream import (
     trajectory_render_hooks,
 )
 from thermal_wild_ns.errors import report_input_errors_briefly
-from thermal_wild_ns.pipeline.photometric_state import parse_state, resolve_state, to_original
+from thermal_wild_ns.pipeline.photometric_state import resolve_state, to_original
 from thermal_wild_ns.pipeline.run_check import check_trained_run
+from thermal_wild_ns.state_names import StateName
 
 
 @dataclass
@@ -112,7 +113,7 @@ def _radiometric_too(options: RadiometricOptions, output_path: Path):
     renders also goes to a RadiometricFrameWriter; each frame's camera is sliced from the path's batch
     without nerfstudio's per-frame rebuild (`fast_camera_path_slices`)."""
 
-    parse_state(options.photometric_state)  # a bad name fails before the model loads
+    StateName.parse(options.photometric_state)  # a bad name fails before the model loads
     check_trained_run(options.load_config)
 
     @contextlib.contextmanager
