@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 from typing import List, Optional
 
-from thermal_wild_ns.training.auto_stop import HeldBackBudget
+from thermal_wild_ns.training.stop_rules import HeldBackBudget
 
 COLUMNS = [
     "scene",
@@ -41,10 +41,10 @@ def run_curves(path: Path, start: int) -> List[dict]:
         if "failed" in run or not record:
             continue
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", [])]
-        start = record.get("budget_start", asked)  # recorded by runs since bef2635 (the seed points may raise it)
+        start = record.get("budget_start", asked)  # absent from older runs' records (the seed points may raise it)
         budget = HeldBackBudget(start=start, limit=max([start] + [b for _, b in raises]), raises=raises)
         curve = budget.best_per_budget([(c["step"], c["psnr"]) for c in record["checks"]])
-        # the model's size at each budget's best check, where the run recorded it (runs since 52a1f0b)
+        # the model's size at each budget's best check, where the run recorded it
         best_checks = {}
         for check in record["checks"]:
             at = budget.budget_at(check["step"])

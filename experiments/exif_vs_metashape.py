@@ -22,8 +22,8 @@ from typing import Dict, Optional
 import numpy as np
 
 from thermal_wild_ns.data.capture import ThermalCapture
-from thermal_wild_ns.data.exif_sfm import read_frame_prior
-from thermal_wild_ns.data.layouts import read_exif_gps, read_metashape
+from thermal_wild_ns.data.exif import read_frame_prior
+from thermal_wild_ns.data.surveys import read_exif_gps, read_metashape
 
 
 def _to_ecef(capture: ThermalCapture) -> Dict[str, np.ndarray]:

@@ -126,12 +126,12 @@ def main(args: Args) -> dict:
     import matplotlib.pyplot as plt
     import yaml
 
-    from thermal_wild_ns.data import layouts
+    from thermal_wild_ns.data import surveys
     from thermal_wild_ns.export.survey import SurveyFrame, run_georeference
     from thermal_wild_ns.progress import track
 
     config = yaml.load(Path(args.load_config).read_text(), Loader=yaml.Loader)
-    capture = layouts.read_metashape(Path(config.pipeline.datamanager.dataparser.data))
+    capture = surveys.read_metashape(Path(config.pipeline.datamanager.dataparser.data))
     survey = SurveyFrame(run_georeference(args.load_config))
     model, points = surface_points(args.ortho, survey)
     samples, distances = [], []

@@ -12,8 +12,8 @@ import pytest
 from PIL import Image
 from real_data import FLIGHT2, RJPEG_SAMPLES
 
-from thermal_wild_ns.data import layouts
-from thermal_wild_ns.data.exif_sfm import focal_length_px, gimbal_rotation, read_frame_prior
+from thermal_wild_ns.data import layouts, surveys
+from thermal_wild_ns.data.exif import focal_length_px, gimbal_rotation, read_frame_prior
 from thermal_wild_ns.data.rjpeg import radiometric_raw
 from thermal_wild_ns.errors import InputError
 
@@ -74,7 +74,7 @@ def test_frames_sfm_cannot_place_are_an_error_saying_what_it_found(tmp_path):
     _geotagged_noise(tmp_path / "survey" / "images", 6)  # noise: nothing matches between frames
     assert layouts.detect_layout(tmp_path / "survey") == "exif-gps"
     with pytest.raises(InputError, match=r"placed \d of 6 frames .* SIFT features per frame.*metashape-data"):
-        layouts.read_exif_gps(tmp_path / "survey", cache_root=tmp_path / "cache")
+        surveys.read_exif_gps(tmp_path / "survey", cache_root=tmp_path / "cache")
     assert not list((tmp_path / "cache").glob("sfm-*"))  # nothing half-written is kept
 
 
@@ -87,7 +87,7 @@ def test_a_frame_without_gps_is_named(tmp_path):
         layouts.detect_layout(tmp_path / "survey")
     assert "exif-gps" in str(refused.value)
     with pytest.raises(InputError, match=r"images: none of its 1 frames has a GPS position in its EXIF"):
-        layouts.read_exif_gps(tmp_path / "survey", cache_root=tmp_path / "cache")
+        surveys.read_exif_gps(tmp_path / "survey", cache_root=tmp_path / "cache")
 
 
 @needs_flight2

@@ -189,7 +189,7 @@ def _fake_converter(tmp_path: Path, monkeypatch) -> None:
 
 @needs_shared
 def test_dji_files_read_in_celsius_through_djis_converter_where_it_is_installed(tmp_path, monkeypatch):
-    from thermal_wild_ns.data.layouts import _one_calibration
+    from thermal_wild_ns.data.surveys import _one_calibration
     from thermal_wild_ns.data.thermal_io import RadiometricRange
 
     _fake_converter(tmp_path, monkeypatch)

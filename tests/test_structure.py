@@ -1,5 +1,6 @@
 """The house's rules (docs/design.md): no import circles, no import up the floors, no import hidden
-inside a function except the few that must wait (each says why)."""
+inside a function except the few that must wait (each says why), and no module or class so large that a
+change has no obvious room (the few exceptions listed with their reasons)."""
 
 import ast
 from pathlib import Path
@@ -7,7 +8,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "thermal_wild_ns"
 FLOORS = [
-    ["errors", "progress", "image_metrics", "decisions", "install"],
+    ["errors", "progress", "image_metrics", "decisions", "state_names", "install"],
     ["_upstream"],
     ["data"],
     ["preprocessing"],
@@ -26,12 +27,21 @@ FUNCTION_LOCAL_IMPORTS = {
     "torch": "the torchvision shim loads at interpreter start, before torch is wanted",
 }
 """The only imports allowed inside functions, and why."""
+MODULE_LINES = 500
+CLASS_LINES = 400
+LARGER = {
+    "thermal_wild_ns._upstream": "every patch of nerfstudio's and gsplat's internals in one place, version-checked",
+}
+"""Package modules allowed past `MODULE_LINES` lines, and why."""
+
+
+def module_name(path: Path) -> str:
+    return ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
 
 
 def modules():
     for path in sorted(PACKAGE.rglob("*.py")):
-        name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
-        yield name.removesuffix(".__init__"), ast.parse(path.read_text())
+        yield module_name(path), ast.parse(path.read_text())
 
 
 def imported(node):
@@ -99,6 +109,25 @@ def circles(graph: dict) -> list:
     return found
 
 
+def oversized(name: str, source: str) -> list:
+    """What in module `name` (its `source`) is past the size rules: the module past `MODULE_LINES` lines (unless
+    `LARGER` lists it), a class past `CLASS_LINES`."""
+    found = []
+    lines = len(source.splitlines())
+    if lines > MODULE_LINES and name not in LARGER:
+        found.append(f"{name}: {lines} lines (at most {MODULE_LINES}: split it by what changes together)")
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > CLASS_LINES:
+            found.append(f"{name}.{node.name}: {node.end_lineno - node.lineno + 1} lines (at most {CLASS_LINES})")
+    return found
+
+
+def test_no_module_or_class_past_its_size_but_the_listed_ones():
+    found = [line for path in sorted(PACKAGE.rglob("*.py")) for line in oversized(module_name(path), path.read_text())]
+    assert not found, "\n".join(found)
+    assert set(LARGER) <= {module_name(path) for path in PACKAGE.rglob("*.py")}, "a listed exception no longer exists"
+
+
 def test_no_import_inside_a_function_but_the_listed_ones():
     found = [line for name, tree in modules() for line in local_imports(name, tree)]
     assert not found, "\n".join(found)
@@ -122,3 +151,13 @@ def test_the_rules_find_what_they_look_for():
     assert upward_imports({data: {model}, model: {data}}) == [f"{data} (floor 2) -> {model} (floor 6)"]
     assert circles({data: {model}, model: {data}}) == [f"{data} -> {model} -> {data}"]
     assert circles({data: {model}, model: set()}) == []
+    body = "x = 1\n" * MODULE_LINES
+    assert oversized("thermal_wild_ns.data.m", body) == []
+    assert oversized("thermal_wild_ns.data.m", body + "y = 2\n") == [
+        f"thermal_wild_ns.data.m: {MODULE_LINES + 1} lines (at most {MODULE_LINES}: split it by what changes together)"
+    ]
+    assert oversized("thermal_wild_ns._upstream", body + "y = 2\n") == []  # listed, with its reason
+    big_class = "class Hub:\n" + "    x = 1\n" * CLASS_LINES
+    assert oversized("thermal_wild_ns.model.m", big_class) == [
+        f"thermal_wild_ns.model.m.Hub: {CLASS_LINES + 1} lines (at most {CLASS_LINES})"
+    ]

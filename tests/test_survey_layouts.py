@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from real_data import FLIGHT2
 
-from thermal_wild_ns.data import layouts
+from thermal_wild_ns.data import layouts, surveys
 from thermal_wild_ns.data.capture import validate
 from thermal_wild_ns.data.georeference import datum_to_wgs84, ecef_to_geodetic
 from thermal_wild_ns.data.rjpeg import NotRadiometric
@@ -23,7 +23,7 @@ needs_flight2 = pytest.mark.skipif(not FLIGHT2.is_dir(), reason="../shared/data/
 @needs_flight2
 def test_flight2_is_detected_and_read_as_a_georeferenced_nadir_survey():
     assert layouts.detect_layout(FLIGHT2) == "metashape"
-    capture = validate(layouts.read_metashape(FLIGHT2))
+    capture = validate(surveys.read_metashape(FLIGHT2))
     assert [f.image.name for f in capture.frames] == sorted(p.name for p in (FLIGHT2 / "rjpeg").glob("*.jpg"))
     assert [f.split for f in capture.frames][:9] == ["test"] + ["train"] * 7 + ["test"]
     centres = np.array([f.camera_to_world[:3, 3] for f in capture.frames])  # [32, 3] metres, east-north-up
@@ -65,7 +65,7 @@ def test_a_survey_of_colour_previews_is_refused_naming_the_file(tmp_path):
     preview = cv2.imread(str(FLIGHT2 / "rjpeg" / "DJI_0199.jpg"))  # the colour preview only, re-encoded
     cv2.imwrite(str(root / "rjpeg" / "DJI_0199.jpg"), preview)
     with pytest.raises(NotRadiometric, match=r"DJI_0199\.jpg: no radiometric data"):
-        layouts.read_metashape(root)
+        surveys.read_metashape(root)
 
 
 @needs_flight2
@@ -76,7 +76,7 @@ def test_the_cameras_land_where_metashapes_references_put_them():
 
     from thermal_wild_ns.export.survey import SurveyFrame
 
-    capture = layouts.read_metashape(FLIGHT2)
+    capture = surveys.read_metashape(FLIGHT2)
     survey = SurveyFrame(capture.georeference)
     assert survey.crs.to_epsg() == 2056
     chunk = ET.parse(FLIGHT2 / "metashape" / "chunk_doc.xml").getroot()
@@ -94,7 +94,7 @@ def test_an_opendronemap_project_is_detected_and_read_with_its_georeference(tmp_
 
     truth = fx.write_odm(tmp_path / "survey", n=12)
     assert layouts.detect_layout(tmp_path / "survey") == "odm"
-    capture = validate(layouts.read_odm(tmp_path / "survey"))
+    capture = validate(surveys.read_odm(tmp_path / "survey"))
     assert [f.image.name for f in capture.frames] == [f"DJI_{i + 1:04d}.png" for i in range(12)]
     for frame, (c2w, K) in zip(capture.frames, truth):
         np.testing.assert_allclose(frame.camera_to_world, c2w, atol=1e-9)

@@ -26,8 +26,6 @@ import math
 from typing import Dict, Literal, Optional, Tuple
 
 import torch
-import torch.distributed as dist
-import torch.distributed.nn.functional as dist_autograd
 from gsplat.cuda._torch_impl import (
     _fisheye_proj,
     _ortho_proj,
@@ -37,6 +35,8 @@ from gsplat.cuda._torch_impl import (
     _world_to_cam,
 )
 from torch import Tensor
+
+from thermal_wild_ns.rendering.splat_exchange import all_gather_rows, exchange_splats, exchange_visible
 
 # Upper bound on pixels x splats composited at once (per chunk of tiles); ~16M keeps the
 # autograd intermediates of one chunk around 1 GB on CPU.
@@ -301,7 +301,7 @@ def rasterization(
     kernels are scheduled, so they are accepted and ignored. `distributed` is gsplat's: every rank of
     torch.distributed's process group holds its own Gaussians and renders its own cameras; each rank
     projects its Gaussians into every rank's cameras and sends each camera's splats (packed: the
-    visible ones only, `_exchange_visible`; else all, `_exchange_splats`) to the rank that renders it,
+    visible ones only, `exchange_visible`; else all, `exchange_splats`) to the rank that renders it,
     so gradients flow back to the Gaussians' owners. As in gsplat it needs per-Gaussian colours and no
     `absgrad`, and the meta's `means2d`, `radii` (and, packed, `camera_ids`, global, and
     `gaussian_ids`, local) are the rank's own Gaussians in every rank's cameras (what the
@@ -325,7 +325,7 @@ def rasterization(
 
     C_local = C
     if distributed:  # project into every rank's cameras (gsplat gathers them the same way)
-        viewmats, Ks = (_all_gather_rows(x) for x in (viewmats, Ks))
+        viewmats, Ks = (all_gather_rows(x) for x in (viewmats, Ks))
         C = viewmats.shape[0]
     radii, means2d, depths, conics, compensations = project_gaussians(
         means,
@@ -348,7 +348,7 @@ def rasterization(
     if distributed and not packed:
         meta_radii, meta_means2d_world = radii, means2d  # this rank's Gaussians in every camera
         colors = colors.expand(C, N, colors.shape[-1])
-        radii, means2d, depths, conics, opacities, colors = _exchange_splats(
+        radii, means2d, depths, conics, opacities, colors = exchange_splats(
             C_local, radii, means2d, depths, conics, opacities, colors
         )
         C, N = C_local, radii.shape[1]
@@ -383,7 +383,7 @@ def rasterization(
         radii, depths, conics, opacities, colors = radii[sel], depths[sel], conics[sel], opacities[sel], colors[sel]
         if distributed:  # the visible splats go to the ranks whose cameras see them
             meta_packed = (radii, means2d_flat, camera_ids, gaussian_ids)  # global cameras, local Gaussians
-            camera_ids, gaussian_ids, radii, means2d_flat, depths, conics, opacities, colors = _exchange_visible(
+            camera_ids, gaussian_ids, radii, means2d_flat, depths, conics, opacities, colors = exchange_visible(
                 C_local, N, camera_ids, gaussian_ids, radii, means2d_flat, depths, conics, opacities, colors
             )
             C = C_local
@@ -449,64 +449,3 @@ def rasterization(
         "n_cameras": C,
     }
     return render_colors, render_alphas, meta
-
-
-def _all_gather_rows(x: Tensor) -> Tensor:
-    """Every rank's `x` [C, ...] stacked in rank order [world * C, ...] (the same C on every rank)."""
-    parts = [torch.empty_like(x) for _ in range(dist.get_world_size())]
-    dist.all_gather(parts, x.contiguous())
-    return torch.cat(parts)
-
-
-def _exchange_splats(c_local: int, radii: Tensor, *values: Tensor) -> Tuple[Tensor, ...]:
-    """Send each camera's splats to the rank that renders it: every input is [C_world, N, ...] (this
-    rank's Gaussians in every rank's cameras, `c_local` cameras per rank, in rank order); every output
-    is [c_local, N_world, ...] (every rank's Gaussians in this rank's cameras, ranks' Gaussians in rank
-    order, as gsplat's `gaussian_ids` offsets them). Differentiable in `values` (gradients go back to
-    the Gaussians' owners); `radii` is not."""
-    world = dist.get_world_size()
-    counts = [torch.zeros((), dtype=torch.int64) for _ in range(world)]
-    dist.all_gather(counts, torch.tensor(radii.shape[1], dtype=torch.int64).to(radii.device))
-    sizes = [int(n) for n in counts]
-
-    widest = max(sizes)
-
-    def exchange(x: Tensor) -> Tensor:
-        # padded to the largest rank's count: torch's all_to_all on gloo (scatters) moves equal sizes only
-        padded = torch.cat([x, x.new_zeros((x.shape[0], widest - x.shape[1], *x.shape[2:]))], dim=1)
-        send = [chunk.contiguous() for chunk in padded.split(c_local, dim=0)]  # [c_local, widest, ...] per rank
-        receive = [padded.new_empty((c_local, widest, *x.shape[2:])) for _ in sizes]
-        received = dist_autograd.all_to_all(receive, send)
-        return torch.cat([part[:, :n] for part, n in zip(received, sizes)], dim=1)
-
-    return tuple(exchange(x) for x in (radii, *values))
-
-
-def _exchange_visible(c_local: int, n_local: int, camera_ids: Tensor, gaussian_ids: Tensor, *values: Tensor):
-    """Packed splats [nnz, ...] of this rank's Gaussians in every rank's cameras (`camera_ids` global,
-    camera-major) sent to the ranks that render those cameras. Returns camera ids (local to the
-    receiving rank), Gaussian ids (global: ranks' Gaussians in rank order) and `values`, each [nnz', ...].
-    Differentiable in `values`."""
-    world, rank = dist.get_world_size(), dist.get_rank()
-    device = camera_ids.device
-    counts = torch.bincount(camera_ids // c_local, minlength=world)  # [W]: splats for each rank
-    table = [torch.zeros(world + 1, dtype=torch.int64, device=device) for _ in range(world)]
-    dist.all_gather(table, torch.cat([counts, torch.tensor([n_local], device=device)]))
-    matrix = torch.stack(table).tolist()  # [source][destination], the source's Gaussian count last
-    widest = max(max(row[:world]) for row in matrix)
-    offsets = [0]
-    for row in matrix[:-1]:
-        offsets.append(offsets[-1] + row[world])  # first global id of each rank's Gaussians
-
-    def exchange(x: Tensor) -> Tensor:
-        # padded to the largest count: torch's all_to_all on gloo (scatters) moves equal sizes only
-        send = [
-            torch.cat([part, part.new_zeros((widest - part.shape[0], *part.shape[1:]))])
-            for part in x.split(matrix[rank][:world])
-        ]
-        receive = [x.new_empty((widest, *x.shape[1:])) for _ in range(world)]
-        received = dist_autograd.all_to_all(receive, send)
-        return torch.cat([part[: matrix[source][rank]] for source, part in enumerate(received)])
-
-    cameras = exchange(camera_ids) - rank * c_local
-    return (cameras, exchange(gaussian_ids + offsets[rank]), *(exchange(v) for v in values))

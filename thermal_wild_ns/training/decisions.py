@@ -67,7 +67,7 @@ def cameras_decision(config) -> Optional[Decision]:
 
 
 def budget_decision(budget, count: int, now: int, history, kept: Optional[int] = None) -> Decision:
-    """The Gaussian budget the held-back frames set (`auto_stop.HeldBackBudget`), `now` this GPU's (`count`
+    """The Gaussian budget the held-back frames set (`stop_rules.HeldBackBudget`), `now` this GPU's (`count`
     Gaussians in it), with the best held-back score under each budget so far (`history`: the checks' (step,
     score)); where the run kept the model of step `kept` from before its last raise, the budget it trained under."""
     curve = "; ".join(f"{b:,}: {psnr:.2f} dB" for b, psnr in budget.best_per_budget(history))
