@@ -1,4 +1,4 @@
-"""`python -m experiments.batched_cameras`: what several cameras per training step could save (issue 34).
+"""`python -m experiments.batched_cameras`: what several cameras per training step could save.
 
 The training step is bound by host work (Python, launches, a few syncs), not by the GPU: one camera per step pays
 the host's share once per camera. gsplat renders a batch of cameras in one call (`viewmats` [C, 4, 4]), so C cameras

@@ -3,8 +3,8 @@ the image corner, read from each run's recorded "camera fall-off" decision, besi
 
     python -m experiments.camera_split RUNS-bench.json RUNS-decisions.tgz [--corner-rho 0.529] ...
 
-Each pair is one bench.json and an archive of its runs' decisions.json files (as `gpu_2026-11-28.sh
-view-split-generated` writes them). The fall-off is `g1 rho + g2 rho^2` at the corner's rho (the squared
+Each pair is one bench.json and an archive of its runs' decisions.json files (a bench run's folder, its
+runs' decisions.json files packed with `tar czf`). The fall-off is `g1 rho + g2 rho^2` at the corner's rho (the squared
 off-axis tangent; 0.529 at the generated scenes' corner); a view term that takes part of the vignetting
 into the scene leaves less of it to the camera (docs/results/view_verdict_cpu).
 """

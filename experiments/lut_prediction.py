@@ -1,10 +1,10 @@
 """How well a held-out frame's LUT is predicted from its neighbours, with no model: the `time`
-protocol's LUT share of the `time`-`oracle` gap in the limit of a perfect render (issue 33).
+protocol's LUT share of the `time`-`oracle` gap in the limit of a perfect render.
 
 For each held-out frame of a scene's default split: its own LUT (`oracle_lut`, built from its
 pixels), and the LUT the `time` protocol uses, interpolated between the neighbouring training
-frames' LUTs in two ways: level by level (averaging the maps' outputs: the package's way before
-2026-11-27) and quantile by quantile (`blend_luts`, averaging their inverses: for frames that differ
+frames' LUTs in two ways: level by level (averaging the maps' outputs) and quantile by quantile
+(`blend_luts`, averaging their inverses: for frames that differ
 by a drifting offset or gain, the in-between frame's map). The frame processed by its own LUT,
 mapped back through each prediction, against the raw frame: PSNR (dataset-normalised, range 1, as
 the evaluation's). Own LUT: exact.

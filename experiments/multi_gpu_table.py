@@ -1,5 +1,6 @@
-"""`python -m experiments.multi_gpu_table [FOLDER]`: the tables of docs/results/multi_gpu/README.md
-from the files the GPU runs wrote there (`bash experiments/gpu_multi_gpu.sh PLAN`)."""
+"""`python -m experiments.multi_gpu_table [FOLDER]`: the tables of docs/results/multi_gpu/README.md from the
+files the GPU runs wrote there (`bash experiments/gpu_plans.sh PLAN`: survey-cost, two-vs-one, large-two,
+stop-two, quality-one, quality-two)."""
 
 from __future__ import annotations
 

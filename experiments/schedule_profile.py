@@ -1,5 +1,5 @@
 """`python -m experiments.schedule_profile`: where a whole default run's seconds go, step by step and
-event by event (issue 34: ms/step over the default schedule, not one warm step).
+event by event (ms/step over the default schedule, not one warm step).
 
 `experiments.profile_step` times a few hundred steps after a warm-up; a run of the default schedule
 also pays the automatic stop's checks (held-back renders, the best model copied and written), the

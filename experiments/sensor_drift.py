@@ -1,5 +1,5 @@
 """How much a capture's sensor level changes from frame to frame, measured on the scene points that
-several frames see rather than on whole frames (issue 33: which captures preprocessing should steady).
+several frames see rather than on whole frames (which captures preprocessing should steady).
 
 The preprocessing rule reads whole frames (`frame_mean_spread`, `frame_contrast_spread`): on a survey
 whose frames see different ground, their levels vary with what they see even where the sensor holds

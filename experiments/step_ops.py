@@ -1,6 +1,6 @@
 """`python -m experiments.step_ops`: the torch operations a training step dispatches, by part.
 
-A step bound by the host (issue 34) costs about the same host time per operation it dispatches (the
+A step bound by the host costs about the same host time per operation it dispatches (the
 Python call, torch's dispatcher, a kernel launch), so the count per step is a measure of its host work
 that any machine gives alike, GPU or not. Trains `--warmup` steps of the full 30k schedule, then counts
 every aten operation of `--steps` steps (torch's dispatch mode, below autograd: forward and backward)
