@@ -116,7 +116,7 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     np.testing.assert_allclose(np.asarray(thermal_vertex["thermal"]), thermal_values(loaded), rtol=1e-6)
     rng = loaded.datamanager.train_dataset.thermal_range
     assert rng.low - 1 <= float(np.median(thermal_vertex["thermal"])) <= rng.high + 1
-    baked = "thermal_wild_ns frame_embedding typical (the emission MLP was baked with this frame embedding)"
+    baked = "thermal_wild_ns frame_embedding canonical (typical; the emission MLP was baked with this frame embedding)"
     assert baked in ply.comments
     assert not list((tmp_path / "export_thermal").glob("*.partial*"))
 
