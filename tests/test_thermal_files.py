@@ -5,6 +5,7 @@ visible photos keeps the thermal ones."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -235,3 +236,35 @@ def test_a_folder_of_visible_photos_alone_is_refused_saying_where_the_thermal_on
         cv2.imwrite(str(tmp_path / "images" / f"DJI_{i:04d}_W.jpg"), np.full((30, 40, 3), 100, np.uint8))
     with pytest.raises(InputError, match=r"3 image\(s\) are visible photos .*\*_T\.jpg / \*_R\.jpg"):
         survey_frames(tmp_path)
+
+
+@needs_shared
+@pytest.mark.slow  # trains through nerfstudio: a minute on a CPU
+def test_a_dji_surveys_held_out_celsius_in_ns_eval_go_through_each_frames_own_calibration(tmp_path, monkeypatch):
+    """`ns-train` on DJI frames (an OpenDroneMap project of the samples), then `ns-eval`: its `celsius_*` come,
+    for every held-out frame, through that frame's own calibration (the converter's table for its file)."""
+    import layout_fixtures as fx
+    from nerfstudio.scripts.eval import ComputePSNR
+    from ns_runs import STEPS, ns_train, run_args
+
+    from thermal_wild_ns.pipeline import evaluation
+
+    needs_converter()
+    frames = [p for p in DJI_SAMPLES if read_rjpeg(p).raw.shape == (512, 640)]
+    fx.write_odm(tmp_path / "survey", files=frames, size=(640, 512))
+    out = tmp_path / "out"
+    scale = ["--pipeline.datamanager.camera-res-scale-factor", "0.125"]
+    ns_train([*run_args(out, STEPS, *scale), "odm-data", "--data", str(tmp_path / "survey")])
+    asked, original = [], evaluation.scores
+
+    def seen(pred, gt, to_celsius=None):  # which frame's calibration each score's °C go through
+        asked.append(to_celsius.keywords["frame"] if to_celsius is not None else "none")
+        return original(pred, gt, to_celsius)
+
+    monkeypatch.setattr(evaluation, "scores", seen)
+    run = out / "x" / "wild-thermal" / "run"
+    ComputePSNR(load_config=run / "config.yml", output_path=tmp_path / "eval.json").main()
+    results = json.loads((tmp_path / "eval.json").read_text())["results"]
+    assert all(np.isfinite(results[f"celsius_{m}_time"]) for m in ("mae", "rmse", "p95"))
+    held_out = [k for k in range(len(frames)) if k % 8 == 0]  # every 8th frame, capture positions
+    assert asked and set(asked) == set(held_out)  # every °C of the scores through a held-out frame's own
