@@ -19,8 +19,9 @@ after parsing. The facts each writer mirrors are those of the datasets' own load
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
-from typing import List, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -292,11 +293,15 @@ ODM_LLA = {"latitude": 46.4, "longitude": 6.24, "altitude": 400.0}
 """The OpenDroneMap fixture's reference point (near flight2's site)."""
 
 
-def write_odm(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndarray]]:
+def write_odm(
+    root: Path, n: int = 10, files: Optional[List[Path]] = None, size: Tuple[int, int] = (64, 48)
+) -> List[Tuple[np.ndarray, np.ndarray]]:
     """An OpenDroneMap project: images/DJI_00NN.png and opensfm/reconstruction.json (OpenSfM's
-    normalised brown cameras, world-to-camera axis-angle poses, points) + opensfm/reference_lla.json."""
-    width, height = 64, 48
-    K = _K(60.0, 61.0, 33.0, 23.5)
+    normalised brown cameras, world-to-camera axis-angle poses, points) + opensfm/reference_lla.json.
+    `files`: real frames copied in as images/DJI_00NN_T.jpg instead (`size` theirs, one shot each)."""
+    width, height = size
+    n = n if files is None else len(files)
+    K = _K(60.0 * width / 64, 61.0 * width / 64, width / 2 + 1.0, height / 2 - 0.5)
     (root / "images").mkdir(parents=True)
     (root / "opensfm").mkdir()
     poses = cameras(n)
@@ -313,8 +318,12 @@ def write_odm(root: Path, n: int = 10) -> List[Tuple[np.ndarray, np.ndarray]]:
     }
     shots = {}
     for i, c2w in enumerate(poses):
-        name = f"DJI_{i + 1:04d}.png"
-        cv2.imwrite(str(root / "images" / name), thermal_image(width, height, i))
+        if files is None:
+            name = f"DJI_{i + 1:04d}.png"
+            cv2.imwrite(str(root / "images" / name), thermal_image(width, height, i))
+        else:
+            name = f"DJI_{i + 1:04d}_T.jpg"
+            shutil.copyfile(files[i], root / "images" / name)
         w2c = np.linalg.inv(c2w)
         shots[name] = {
             "camera": "v2 thermal",

@@ -67,7 +67,7 @@ def _geotagged_noise(folder: Path, n: int) -> None:
     for i in range(n):
         exif = Image.Exif()
         exif[0x8825] = {1: "N", 2: (46.0, 23.0, 51.6 + 0.1 * i), 3: "E", 4: (6.0, 14.0, 17.6), 6: 398.3}
-        Image.fromarray(rng.integers(0, 255, (96, 128), dtype=np.uint8)).save(folder / f"DJI_{i:04d}.jpg", exif=exif)
+        Image.fromarray(rng.integers(0, 255, (96, 128), dtype=np.uint8)).save(folder / f"DJI_{i:04d}_T.jpg", exif=exif)
 
 
 def test_frames_sfm_cannot_place_are_an_error_saying_what_it_found(tmp_path):
@@ -81,9 +81,9 @@ def test_frames_sfm_cannot_place_are_an_error_saying_what_it_found(tmp_path):
 def test_a_frame_without_gps_is_named(tmp_path):
     folder = tmp_path / "survey" / "images"
     folder.mkdir(parents=True)
-    Image.fromarray(np.zeros((8, 8), np.uint8)).save(folder / "plain.jpg")
-    assert read_frame_prior(folder / "plain.jpg") is None
-    with pytest.raises(InputError, match="exif-gps.*plain.jpg has no GPS position") as refused:
+    Image.fromarray(np.zeros((8, 8), np.uint8)).save(folder / "plain_T.jpg")
+    assert read_frame_prior(folder / "plain_T.jpg") is None
+    with pytest.raises(InputError, match="exif-gps.*plain_T.jpg has no GPS position") as refused:
         layouts.detect_layout(tmp_path / "survey")
     assert "exif-gps" in str(refused.value)
     with pytest.raises(InputError, match=r"images: none of its 1 frames has a GPS position in its EXIF"):

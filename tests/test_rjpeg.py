@@ -14,15 +14,8 @@ import numpy as np
 import pytest
 from real_data import FLIGHT2, RJPEG_SAMPLES
 
-from thermal_wild_ns.data.rjpeg import (
-    DJI_CONVERTER_ENV,
-    DjiCalibration,
-    NoCelsiusDecoder,
-    NotRadiometric,
-    dji_converter,
-    is_radiometric_jpeg,
-    read_rjpeg,
-)
+from thermal_wild_ns.data.celsius import DJI_CONVERTER_ENV, DjiCalibration, NoCelsiusDecoder, dji_converter
+from thermal_wild_ns.data.rjpeg import NotRadiometric, is_radiometric_jpeg, read_rjpeg
 from thermal_wild_ns.errors import InputError
 
 needs_shared = pytest.mark.skipif(not RJPEG_SAMPLES.is_dir(), reason="../shared/data is not here")
@@ -171,6 +164,8 @@ FAKE_CONVERTER = """#!{python}
 import sys, pathlib, cv2, numpy as np
 from thermal_wild_ns.data.rjpeg import read_rjpeg
 args = sys.argv
+if args[1] == "list":  # no camera ranges listed
+    sys.exit(0)
 source, target = (pathlib.Path(args[args.index(flag) + 1]) for flag in ("--input-dir", "--output-dir"))
 target.mkdir(parents=True, exist_ok=True)
 for path in sorted(source.glob("*.jpg")):
@@ -189,28 +184,31 @@ def _fake_converter(tmp_path: Path, monkeypatch) -> None:
 
 @needs_shared
 def test_dji_files_read_in_celsius_through_djis_converter_where_it_is_installed(tmp_path, monkeypatch):
-    from thermal_wild_ns.data.surveys import _one_calibration
+    from thermal_wild_ns.data.survey_frames import survey_celsius
     from thermal_wild_ns.data.thermal_io import RadiometricRange
 
     _fake_converter(tmp_path, monkeypatch)
     sample = read_rjpeg(RJPEG_SAMPLES / "M3T_DJI_0002_R.jpg")
     assert np.allclose(sample.celsius(), sample.raw * 0.01 - 150.0, atol=1e-3)
-    # a survey's frames: one table over all of them, which a dataset's range turns into °C
+    # a survey's frames: each frame's own table, and one over all of them for renders at no frame's state
     frames = [RJPEG_SAMPLES / "M3T_DJI_0002_R.jpg", RJPEG_SAMPLES / "M3TD_DJI_0001_R.jpg"]
-    table = _one_calibration({path: None for path in frames}, RJPEG_SAMPLES)
+    table, own = survey_celsius(frames, RJPEG_SAMPLES)
     assert isinstance(table, DjiCalibration) and "2 file(s)" in table.source
-    raws = np.concatenate([read_rjpeg(p).raw.ravel() for p in frames])
-    assert table.raw[0] == raws.min() and table.raw[-1] == raws.max()
-    beyond = np.array([raws.min() - 100.0, raws.max() + 100.0])  # linear beyond the table's ends
+    raws = [read_rjpeg(p).raw for p in frames]
+    for calibration, raw in zip(own, raws):
+        assert calibration.raw[0] == raw.min() and calibration.raw[-1] == raw.max()
+    everything = np.concatenate([r.ravel() for r in raws])
+    assert table.raw[0] == everything.min() and table.raw[-1] == everything.max()
+    beyond = np.array([everything.min() - 100.0, everything.max() + 100.0])  # linear beyond the table's ends
     assert np.allclose(table.celsius(beyond), beyond * 0.01 - 150.0, atol=1e-3)
-    rng = RadiometricRange(low=float(raws.min()), high=float(raws.max()), dtype="uint16", planck=table)
+    rng = RadiometricRange(float(everything.min()), float(everything.max()), "uint16", planck=table)
     assert rng.has_celsius and rng.to_celsius(np.array([0.0, 1.0])) == pytest.approx(
-        [raws.min() * 0.01 - 150.0, raws.max() * 0.01 - 150.0], abs=1e-3
+        [everything.min() * 0.01 - 150.0, everything.max() * 0.01 - 150.0], abs=1e-3
     )
     # without the converter: raw counts, and the log says how to have °C
     monkeypatch.setenv(DJI_CONVERTER_ENV, "/nonexistent/dji-thermal-cli")
-    with pytest.warns(UserWarning, match="without °C.*pipx install"):
-        assert _one_calibration({path: None for path in frames}, RJPEG_SAMPLES) is None
+    with pytest.warns(UserWarning, match="without °C.*setup command"):
+        assert survey_celsius(frames, RJPEG_SAMPLES) == (None, [None, None])
 
 
 @needs_shared

@@ -21,6 +21,7 @@ FLOORS = [
 """Rooms bottom up, as docs/design.md draws them: a module may import its own floor's and lower ones."""
 FUNCTION_LOCAL_IMPORTS = {
     "pycolmap": "the light GPU install has no pycolmap",
+    "jpeg_ls": "the light GPU install may have no pyjpegls: only FLIR files compressed as JPEG-LS need it",
     "nerfstudio.scripts": "command scripts (the exporter needs open3d, absent from the light install)",
     "numpy.core.multiarray": "private numpy names, only for the checkpoint allow-list",
     "imageio_ffmpeg": "optional",

@@ -16,6 +16,7 @@ from thermal_wild_ns.data.capture import validate
 from thermal_wild_ns.data.georeference import datum_to_wgs84, ecef_to_geodetic
 from thermal_wild_ns.data.rjpeg import NotRadiometric
 from thermal_wild_ns.data.thermal_io import read_raw_frame
+from thermal_wild_ns.errors import InputError
 
 needs_flight2 = pytest.mark.skipif(not FLIGHT2.is_dir(), reason="../shared/data/flight2 is not here")
 
@@ -64,8 +65,17 @@ def test_a_survey_of_colour_previews_is_refused_naming_the_file(tmp_path):
     shutil.copytree(FLIGHT2 / "metashape", root / "metashape")
     preview = cv2.imread(str(FLIGHT2 / "rjpeg" / "DJI_0199.jpg"))  # the colour preview only, re-encoded
     cv2.imwrite(str(root / "rjpeg" / "DJI_0199.jpg"), preview)
-    with pytest.raises(NotRadiometric, match=r"DJI_0199\.jpg: no radiometric data"):
+    with pytest.raises(
+        InputError, match=r"rjpeg: its 1 image\(s\) are visible photos \(DJI_0199\.jpg.*without thermal"
+    ):
         surveys.read_metashape(root)
+    # named as DJI names its thermal frames, the preview is refused for what it lacks
+    from thermal_wild_ns.data.survey_frames import survey_celsius
+
+    named = root / "rjpeg" / "DJI_0199_T.jpg"
+    (root / "rjpeg" / "DJI_0199.jpg").rename(named)
+    with pytest.raises(NotRadiometric, match=r"DJI_0199_T\.jpg: no radiometric data"):
+        survey_celsius([named], named.parent)
 
 
 @needs_flight2

@@ -8,7 +8,9 @@ traceback. So does a run's damaged config.yml given to nerfstudio's loading comm
 from __future__ import annotations
 
 import os
+import struct
 import sys
+from contextlib import contextmanager
 from typing import Any, Callable, List, Optional
 
 DEBUG = "THERMAL_WILD_NS_DEBUG"
@@ -24,6 +26,34 @@ class MissingInput(InputError, FileNotFoundError):
 
 class IncompleteConfig(InputError):
     """A run's config.yml lacks settings it was saved with (cut short: a copy or a disk that failed)."""
+
+
+STRUCTURAL_FAULTS = (
+    struct.error,
+    IndexError,
+    KeyError,
+    ValueError,
+    TypeError,
+    AttributeError,
+    OverflowError,
+    ZeroDivisionError,
+    UnicodeDecodeError,
+    MemoryError,
+)
+"""What a reader meets in a damaged file: cut short, a count, a key, an offset or a value of the wrong kind."""
+
+
+@contextmanager
+def faults_named(path, what: str, *also: type):
+    """Any structural fault met while reading `path` (`STRUCTURAL_FAULTS`, and the reader's own `also`) as an
+    `InputError` naming the file and `what` could not be read; an `InputError` raised inside goes through as it
+    is."""
+    try:
+        yield
+    except InputError:
+        raise
+    except STRUCTURAL_FAULTS + also as err:
+        raise InputError(f"{path}: {what} ({type(err).__name__}: {err})") from None
 
 
 EXPLAINERS: List[Callable[[BaseException, Any], Optional[str]]] = []

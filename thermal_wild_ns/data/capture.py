@@ -15,8 +15,8 @@ from typing import List, Literal, Optional, Union
 
 import numpy as np
 
+from thermal_wild_ns.data.celsius import CelsiusCalibration
 from thermal_wild_ns.data.georeference import Georeference
-from thermal_wild_ns.data.rjpeg import CelsiusCalibration
 from thermal_wild_ns.data.thermal_io import RadiometricRange
 from thermal_wild_ns.errors import InputError, MissingInput
 
@@ -42,6 +42,8 @@ class ThermalFrame:
     """The dataset's own split for this frame, when it defines one."""
     ground_truth: Optional[Path] = None
     """Clean frame for evaluation (generated scenes only)."""
+    celsius: Optional[CelsiusCalibration] = None
+    """This frame's own calibration of its raw counts to °C at its measurement settings (R-JPEGs)."""
 
     def intrinsics_matrix(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])

@@ -16,6 +16,7 @@ from thermal_wild_ns.data.capture import (
     ThermalFrame,
     interval_split,
 )
+from thermal_wild_ns.data.colmap_model import ColmapModel, camera_intrinsics, read_colmap_model
 from thermal_wild_ns.data.frame_files import natural_key
 from thermal_wild_ns.data.thermal_io import RadiometricRange, load_npy
 from thermal_wild_ns.errors import InputError, MissingInput
@@ -31,40 +32,8 @@ THERMALMIX_CELSIUS = {
 """ThermalMix (Ozer et al.): 8-bit frames are linear in degC between these per-scene bounds."""
 
 
-def _read_colmap_model(folder: Path):
-    import pycolmap  # here, not at the top: the light GPU install has none (SfM runs where it is installed)
-
-    if not folder.is_dir() or not any((folder / f"images{ext}").is_file() for ext in (".bin", ".txt")):
-        raise MissingInput(f"{folder}: no COLMAP model (images.bin/.txt, cameras.bin/.txt)")
-    try:
-        rec = pycolmap.Reconstruction(str(folder))
-    except Exception as err:  # pycolmap raises RuntimeError/ValueError for corrupt models
-        raise InputError(f"{folder}: unreadable COLMAP model ({err})") from err
-    if rec.num_images() == 0:
-        raise InputError(f"{folder}: the COLMAP model has no images (empty sparse model)")
-    return rec
-
-
-def _colmap_intrinsics(camera, source: str) -> Tuple[float, float, float, float, np.ndarray]:
-    """fx, fy, cx, cy and nerfstudio distortion [k1, k2, k3, k4, p1, p2] of a COLMAP camera."""
-    p = list(camera.params)
-    model = camera.model.name
-    dist = np.zeros(6)
-    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
-        fx = fy = p[0]
-        cx, cy = p[1], p[2]
-        dist[: len(p) - 3] = p[3:]
-    elif model in ("PINHOLE", "OPENCV"):
-        fx, fy, cx, cy = p[:4]
-        if model == "OPENCV":
-            dist[[0, 1, 4, 5]] = p[4:8]
-    else:
-        raise InputError(f"{source}: COLMAP camera model {model} is not supported (PINHOLE, SIMPLE_*, RADIAL, OPENCV)")
-    return fx, fy, cx, cy, dist
-
-
 def _colmap_frames(
-    rec, folder: Path, find_image: Callable[[str], Tuple[Path, Optional[str]]], order: str = "name"
+    model: ColmapModel, folder: Path, find_image: Callable[[str], Tuple[Path, Optional[str]]], order: str = "name"
 ) -> List[ThermalFrame]:
     """Frames of a COLMAP model; `find_image(name)` gives the thermal file and split of an image."""
     keys = {
@@ -72,17 +41,15 @@ def _colmap_frames(
         "string": lambda im: Path(im.name).stem,  # 3DGS's sort of image names: "10" before "2"
         "id": lambda im: im.image_id,
     }
-    images = sorted(rec.images.values(), key=keys[order])
     frames = []
-    for image in images:
-        camera = rec.cameras[image.camera_id]
-        fx, fy, cx, cy, dist = _colmap_intrinsics(camera, str(folder))
-        w2c = np.concatenate([image.cam_from_world().matrix(), [[0.0, 0.0, 0.0, 1.0]]])
+    for image in sorted(model.images, key=keys[order]):
+        camera = model.cameras[image.camera_id]
+        fx, fy, cx, cy, dist = camera_intrinsics(camera, folder)
         path, split = find_image(image.name)
         frames.append(
             ThermalFrame(
                 image=path,
-                camera_to_world=np.linalg.inv(w2c),
+                camera_to_world=np.linalg.inv(image.world_to_camera),
                 fx=fx,
                 fy=fy,
                 cx=cx,
@@ -96,11 +63,8 @@ def _colmap_frames(
     return frames
 
 
-def _colmap_points(rec) -> Optional[SeedPoints]:
-    if rec.num_points3D() == 0:
-        return None
-    xyz = np.stack([p.xyz for p in rec.points3D.values()])
-    return SeedPoints(xyz=xyz, source="colmap")
+def _colmap_points(model: ColmapModel) -> Optional[SeedPoints]:
+    return SeedPoints(xyz=model.points, source="colmap") if len(model.points) else None
 
 
 def read_colmap(root: Path, images: str = "images", layout: str = "colmap") -> ThermalCapture:
@@ -111,13 +75,13 @@ def read_colmap(root: Path, images: str = "images", layout: str = "colmap") -> T
     (`images/` + `sparse/0`, PINHOLE, numeric names) read as 3DGS reads it: image names sorted as
     strings ("10" before "2"), every 8th from the first held out (`--eval`, llffhold 8). The two
     orders give different held-out frames once names are unpadded numbers past 9."""
-    rec = _read_colmap_model(root / "sparse" / "0")
+    colmap = read_colmap_model(root / "sparse" / "0")
     order = "string" if layout == "ti-nsd" else "name"
-    frames = _colmap_frames(rec, root / "sparse" / "0", lambda name: (root / images / name, None), order=order)
+    frames = _colmap_frames(colmap, root / "sparse" / "0", lambda name: (root / images / name, None), order=order)
     for frame, split in zip(frames, interval_split(len(frames))):
         frame.split = split
     rule = f"sorted by name{' as strings' if order == 'string' else ''}, every 8th frame held out"
-    return ThermalCapture(layout, root, frames, rule, points=_colmap_points(rec))
+    return ThermalCapture(layout, root, frames, rule, points=_colmap_points(colmap))
 
 
 def read_msx(root: Path) -> ThermalCapture:
@@ -125,7 +89,7 @@ def read_msx(root: Path) -> ThermalCapture:
     `sparse/0` computed on the RGB frames; a thermal frame has its RGB frame's file name
     (ThermalGaussian's `readTemperSceneInfo`). Thermal frames are 3-channel colour-mapped JPGs
     (iron palette), 640x480. The split is the folders' (test: every 8th image)."""
-    rec = _read_colmap_model(root / "sparse" / "0")
+    colmap = read_colmap_model(root / "sparse" / "0")
 
     def find(name: str):
         base = Path(name).name
@@ -136,9 +100,9 @@ def read_msx(root: Path) -> ThermalCapture:
             f"{root / 'thermal'}/{{train,test}}/{base}: thermal frame of COLMAP image '{name}' is missing"
         )
 
-    frames = _colmap_frames(rec, root / "sparse" / "0", find)
+    frames = _colmap_frames(colmap, root / "sparse" / "0", find)
     return ThermalCapture(
-        "msx", root, frames, "the thermal/{train,test} folders", palette="iron", points=_colmap_points(rec)
+        "msx", root, frames, "the thermal/{train,test} folders", palette="iron", points=_colmap_points(colmap)
     )
 
 
@@ -158,7 +122,7 @@ def read_thermalmix(
     model = next(
         (root / d / "0" for d in ("colmap_sparse", "sparse") if (root / d / "0").is_dir()), root / "colmap_sparse" / "0"
     )
-    rec = _read_colmap_model(model)
+    colmap = read_colmap_model(model)
     folder = root / "warped_thermal"
     if not folder.is_dir():
         raise MissingInput(f"{folder}: no warped_thermal/ (the frames the poses belong to; thermal/ is not used)")
@@ -170,7 +134,7 @@ def read_thermalmix(
                 return path, None
         return None, None
 
-    listed = _colmap_frames(rec, model, find, order="id")
+    listed = _colmap_frames(colmap, model, find, order="id")
     frames = [f for f in listed if f.image is not None]
     if not frames:
         raise MissingInput(f"{folder}: none of the {len(listed)} images of {model} has a frame here (.npy/.jpg)")
@@ -202,7 +166,7 @@ def read_thermalmix(
         frames,
         f"view {holdout_index} (by image id, among the images with a frame) held out",
         declared_range=declared,
-        points=_colmap_points(rec),
+        points=_colmap_points(colmap),
     )
 
 

@@ -43,6 +43,7 @@ from thermal_wild_ns.data.capture import (
     opencv_to_opengl,
     validate,
 )
+from thermal_wild_ns.data.celsius import MeasurementSettings
 from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, generate_demo_scene, stress_scene_config
 from thermal_wild_ns.data.palettes import PALETTE_NAMES
 from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
@@ -99,6 +100,18 @@ class ThermalDataParserConfig(DataParserConfig):
     """exif-gps layout: the camera's lens calibration (a Metashape / Agisoft Lens calibration XML),
     held fixed by SfM. Without it the focal length comes from the files and lens distortion is
     taken as none: a flight straight down over flat ground cannot measure it."""
+    emissivity: Optional[float] = None
+    """Drone surveys of radiometric JPEGs (FLIR and DJI format): the surface's emissivity (0-1) for every frame's
+    °C, in place of what each file says (None: each file's)."""
+    object_distance: Optional[float] = None
+    """The same: the distance to the surface in metres. DJI's SDK takes 1-25 m on most of its cameras: a farther
+    one is clamped to the camera's range, and the run says so."""
+    reflected_temperature: Optional[float] = None
+    """The same: the reflected apparent temperature in °C (the sky's and surroundings' radiation)."""
+    atmospheric_temperature: Optional[float] = None
+    """The same: the air temperature in °C."""
+    relative_humidity: Optional[float] = None
+    """The same: the relative humidity in percent."""
     cache_dir: Optional[Path] = None
     """Where triangulated points and SfM poses are cached. Default: `<data>/.thermal_wild_ns`, or
     `~/.cache/thermal_wild_ns/<name>-<hash>` when the data folder is read-only."""
@@ -131,6 +144,8 @@ class ThermalDataParser(DataParser):
                 },
                 "exif-gps": {"cache_root": self._cache_root(), "lens_calibration": self.config.lens_calibration},
             }
+            for survey in ("metashape", "odm", "exif-gps"):
+                options.setdefault(survey, {})["settings"] = self.measurement_settings()
             capture = validate(layouts.LAYOUTS[name].read(root, **options.get(name, {})))
             n = len(capture.frames)
             override = {
@@ -145,6 +160,17 @@ class ThermalDataParser(DataParser):
             self._range = self._scan(capture)
             self._capture = capture
         return self._capture
+
+    def measurement_settings(self) -> MeasurementSettings:
+        """The user's measurement settings for every frame's °C (None fields: each file's own)."""
+        cfg = self.config
+        return MeasurementSettings(
+            cfg.emissivity,
+            cfg.object_distance,
+            cfg.reflected_temperature,
+            cfg.atmospheric_temperature,
+            cfg.relative_humidity,
+        )
 
     def _scan(self, capture: ThermalCapture) -> RadiometricRange:
         """Read every frame once (`scan_frames`); drop the degenerate ones unless told to keep them."""
@@ -173,9 +199,11 @@ class ThermalDataParser(DataParser):
                 capture.frames = [f for i, f in enumerate(capture.frames) if i not in dropped]
                 if not any(f.split != "test" for f in capture.frames):
                     raise InputError(f"{capture.root}: no training frame is left once the degenerate ones are out")
-        if capture.celsius_calibration is not None:
-            return dataclasses.replace(scan.range, planck=capture.celsius_calibration)
-        return scan.range
+        if capture.celsius_calibration is None:
+            return scan.range
+        own = tuple(f.celsius for f in capture.frames)
+        frame_celsius = own if any(c is not None for c in own) else None
+        return dataclasses.replace(scan.range, planck=capture.celsius_calibration, frame_celsius=frame_celsius)
 
     def fingerprint(self) -> Dict[str, str]:
         """What a trained run was trained on, to tell later whether the data changed: each frame

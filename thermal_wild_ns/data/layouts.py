@@ -26,7 +26,7 @@ from thermal_wild_ns.data.capture import (
     opencv_to_opengl,
 )
 from thermal_wild_ns.data.colmap_layouts import read_colmap, read_msx, read_thermalmix
-from thermal_wild_ns.data.frame_files import frame_size, image_files, natural_key
+from thermal_wild_ns.data.frame_files import image_files, natural_key
 from thermal_wild_ns.data.surveys import (
     OPENSFM_FILES,
     exif_gps_mismatch,
@@ -35,8 +35,8 @@ from thermal_wild_ns.data.surveys import (
     read_metashape,
     read_odm,
 )
-from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange, load_npy
-from thermal_wild_ns.errors import InputError, MissingInput
+from thermal_wild_ns.data.thermal_io import IMAGE_SUFFIXES, RadiometricRange, frame_size, load_npy
+from thermal_wild_ns.errors import InputError, MissingInput, faults_named
 
 
 def _declared_range(meta: dict) -> Optional[RadiometricRange]:
@@ -70,10 +70,14 @@ def read_nerfstudio(root: Path, thermal_only: bool = False) -> ThermalCapture:
     root = path.parent
     if not path.is_file():
         raise MissingInput(f"{path}: no transforms.json")
-    try:
-        meta = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise InputError(f"{path}: not valid JSON ({err})") from err
+    with faults_named(path, "not a readable transforms.json"):
+        meta = json.loads(path.read_bytes().decode("utf-8"))
+    with faults_named(path, "a malformed transforms.json"):
+        return _nerfstudio_capture(meta, path, thermal_only)
+
+
+def _nerfstudio_capture(meta: dict, path: Path, thermal_only: bool) -> ThermalCapture:
+    root = path.parent
     if not isinstance(meta.get("frames"), list):
         raise InputError(f"{path}: no 'frames' list")
     raw_frames = [f for f in meta["frames"] if f.get("is_thermal", False)] if thermal_only else meta["frames"]

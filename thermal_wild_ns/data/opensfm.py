@@ -24,7 +24,7 @@ import numpy as np
 
 from thermal_wild_ns.data.capture import ThermalFrame
 from thermal_wild_ns.data.georeference import Georeference, geodetic_to_ecef
-from thermal_wild_ns.errors import InputError
+from thermal_wild_ns.errors import InputError, faults_named
 
 PROJECTIONS = ("perspective", "simple_radial", "radial", "brown")
 """OpenSfM camera models read (pinhole with radial, and Brown's with tangential, distortion)."""
@@ -52,9 +52,14 @@ def read_reconstruction(path: Path):
     reconstruction's east-north-up metres), sparse points [N, 3] or None, georeference or None) of
     the largest reconstruction in an OpenSfM `reconstruction.json`."""
     try:
-        reconstructions = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        text = Path(path).read_bytes()
+    except OSError as err:
         raise InputError(f"{path}: not a readable OpenSfM reconstruction ({err})") from None
+    with faults_named(path, "not a readable OpenSfM reconstruction", cv2.error):
+        return _reconstruction(json.loads(text.decode("utf-8")), Path(path))
+
+
+def _reconstruction(reconstructions, path: Path):
     if not isinstance(reconstructions, list) or not reconstructions:
         raise InputError(f"{path}: expected a list of reconstructions (OpenSfM's reconstruction.json)")
     reconstruction = max(reconstructions, key=lambda r: len(r.get("shots", {})))

@@ -10,13 +10,16 @@ Two formats:
   (ExifTool tells them apart by the header's version number, as here).
 - **DJI** (Zenmuse H20T/H20N/H30T, Matrice 30T, Mavic 3T, Matrice 3TD, Matrice 4T, Mavic 2
   Enterprise Advanced, Zenmuse XT S): the raw 16-bit raster sits in APP3 segments (APP4 on the
-  XT S), little-endian. DJI's conversion to °C is its own native SDK (Linux and Windows only), not
-  a published formula: the raw raster is read here; °C needs that decoder (`celsius` says which).
+  XT S), little-endian. DJI's conversion to °C is not a published formula: the raw raster is read
+  here, its °C by DJI's converter (`celsius.py`).
+
+FLIR's raw image is stored plain (16-bit, either byte order), as a PNG, or compressed as JPEG-LS
+(FLIR's E-series and others), which `pyjpegls` (CharLS) decodes. Every structural fault of a file (cut
+short, a byte flipped in its records) is an `InputError` naming it.
 
 The layout of the FLIR records follows ExifTool's `FLIR.pm` tag tables (the offsets below); the
-°C conversion is the standard FLIR one (ExifTool's documentation of the Planck constants,
-Thermimage's `raw2temp`), with the atmosphere's transmission over the object distance. Each is
-checked against ExifTool's dumps and the camera vendor's own temperature rasters (`tests/test_rjpeg.py`).
+°C conversion is `celsius.FlirCalibration`'s. Each is checked against ExifTool's dumps and the
+camera vendor's own temperature rasters (`tests/test_rjpeg.py`).
 No library does both formats: flyr, the maintained pure-Python FLIR reader, assumes the
 big-endian container and fails on DJI's FLIR-core files (`docs/rjpeg.md` has the comparison).
 """
@@ -24,201 +27,22 @@ big-endian container and fails on DJI's FLIR-core files (`docs/rjpeg.md` has the
 from __future__ import annotations
 
 import math
-import os
-import shutil
 import struct
-import subprocess
-import tempfile
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Tuple
 
 import cv2
 import numpy as np
 
-from thermal_wild_ns.errors import InputError
-
-DJI_CONVERTER = "dji-thermal-cli"
-"""The command that turns DJI-format R-JPEGs into °C: `dji-thermal-cli`, a pure-Python port of DJI's
-Thermal SDK (AGPL-3.0, Python >= 3.12), run as a separate program (`docs/rjpeg.md` says why)."""
-DJI_CONVERTER_ENV = "THERMAL_WILD_NS_DJI_CLI"
-"""Environment variable naming that command where it is not on PATH."""
-DJI_CONVERTER_INSTALL = (
-    "install DJI's converter in its own Python >= 3.12 environment so that `dji-thermal-cli` is on PATH: "
-    "`pipx install --python python3.12 dji-thermal-cli` (or `uv tool install --python 3.12 dji-thermal-cli`; "
-    f"elsewhere, name it with {DJI_CONVERTER_ENV}=/path/to/dji-thermal-cli). DJI's format has no published "
-    "formula; without it the raw counts train the model all the same, without °C"
-)
+from thermal_wild_ns.data.celsius import FILE_SETTINGS, FlirCalibration, MeasurementSettings, dji_calibrations
+from thermal_wild_ns.data.frame_files import file_kind
+from thermal_wild_ns.errors import InputError, faults_named
 
 
 class NotRadiometric(InputError):
     """A JPEG with no thermal data behind its preview (a visual camera's photo, an exported
     colour-mapped image): never read as temperatures."""
-
-
-class NoCelsiusDecoder(InputError):
-    """The file's raw counts are read, but what converts them to °C is not installed."""
-
-
-@dataclass(frozen=True)
-class FlirCalibration:
-    """A FLIR-format file's calibration: what turns its raw counts into °C."""
-
-    planck_r1: float
-    planck_r2: float
-    planck_b: float
-    planck_f: float
-    planck_o: float
-    emissivity: float
-    object_distance: float
-    """Metres."""
-    reflected_temperature: float
-    """Kelvin, as stored."""
-    atmospheric_temperature: float
-    """Kelvin."""
-    ir_window_temperature: float
-    """Kelvin."""
-    ir_window_transmission: float
-    relative_humidity: float
-    """Fraction 0..1."""
-    alpha1: float
-    alpha2: float
-    beta1: float
-    beta2: float
-    atmospheric_trans_x: float
-
-    def _radiance(self, kelvin: float) -> float:
-        """A black body at `kelvin`, in raw counts (the inverse of the Planck curve below)."""
-        return self.planck_r1 / (self.planck_r2 * (math.exp(self.planck_b / kelvin) - self.planck_f)) - self.planck_o
-
-    def atmospheric_transmission(self) -> float:
-        """Of the air between object and camera (half the distance each side of the IR window)."""
-        t_c = self.atmospheric_temperature - 273.15
-        h2o = self.relative_humidity * math.exp(1.5587 + 0.06939 * t_c - 0.00027816 * t_c**2 + 0.00000068455 * t_c**3)
-        d, x = math.sqrt(self.object_distance / 2), self.atmospheric_trans_x
-        return x * math.exp(-d * (self.alpha1 + self.beta1 * math.sqrt(h2o))) + (1 - x) * math.exp(
-            -d * (self.alpha2 + self.beta2 * math.sqrt(h2o))
-        )
-
-    def celsius(self, raw: np.ndarray) -> np.ndarray:
-        """Raw counts [H, W] -> °C [H, W] float32: the object's own radiance, after the reflected
-        surroundings, the atmosphere and the IR window are taken out."""
-        e, tau, window = self.emissivity, self.atmospheric_transmission(), self.ir_window_transmission
-        reflected = (1 - e) / e * self._radiance(self.reflected_temperature)
-        atmosphere = (1 - tau) / e / tau * self._radiance(self.atmospheric_temperature)
-        window_own = (1 - window) / e / tau / window * self._radiance(self.ir_window_temperature)
-        atmosphere_2 = (1 - tau) / e / tau / window / tau * self._radiance(self.atmospheric_temperature)
-        obj = raw.astype(np.float64) / e / tau / window / tau - atmosphere - atmosphere_2 - window_own - reflected
-        kelvin = self.planck_b / np.log(self.planck_r1 / (self.planck_r2 * (obj + self.planck_o)) + self.planck_f)
-        return (kelvin - 273.15).astype(np.float32)
-
-
-@dataclass(frozen=True)
-class DjiCalibration:
-    """DJI-format files' °C as DJI's converter gives them: a table of raw count -> °C, read off the
-    converter's output for the files themselves (DJI's conversion is a function of the raw count
-    for a file's measurement settings). Linear beyond the table's ends."""
-
-    raw: Tuple[float, ...]
-    """Raw counts, ascending."""
-    celsius_of_raw: Tuple[float, ...]
-    source: str
-    """What made the table (the converter and how many files)."""
-
-    def celsius(self, raw: np.ndarray) -> np.ndarray:
-        table_raw, table_c = np.asarray(self.raw), np.asarray(self.celsius_of_raw)
-        values = np.asarray(raw, dtype=np.float64)
-        out = np.interp(values, table_raw, table_c)
-        if len(table_raw) > 1:  # the table's end slopes beyond its ends
-            span = max(1, len(table_raw) // 20)
-            low_slope = (table_c[span] - table_c[0]) / (table_raw[span] - table_raw[0])
-            high_slope = (table_c[-1] - table_c[-1 - span]) / (table_raw[-1] - table_raw[-1 - span])
-            out = np.where(values < table_raw[0], table_c[0] + (values - table_raw[0]) * low_slope, out)
-            out = np.where(values > table_raw[-1], table_c[-1] + (values - table_raw[-1]) * high_slope, out)
-        return out.astype(np.float32)
-
-
-CelsiusCalibration = Union[FlirCalibration, DjiCalibration]
-"""What turns a file's raw counts into °C (`.celsius(raw)`)."""
-
-
-def dji_converter() -> Optional[str]:
-    """The DJI converter's command where it is installed, else None."""
-    return shutil.which(os.environ.get(DJI_CONVERTER_ENV) or DJI_CONVERTER)
-
-
-def dji_calibration(paths: Sequence[Path], raws: Optional[Sequence[np.ndarray]] = None) -> DjiCalibration:
-    """The raw -> °C table of DJI-format R-JPEGs, from DJI's converter run on them (their own
-    embedded measurement settings); `raws`: their raw rasters where the caller has read them
-    already. `NoCelsiusDecoder` naming the first file where the converter is not installed. Files
-    whose settings differ (the same raw count, other °C) are named in the log; the table takes each
-    count's first file's value."""
-    command = dji_converter()
-    if command is None:
-        camera = _exif_camera(jpeg_segments(_read_bytes(paths[0]), Path(paths[0])))
-        raise NoCelsiusDecoder(f"{paths[0]}: a DJI-format R-JPEG ({camera}): to read it in °C, {DJI_CONVERTER_INSTALL}")
-    table: Dict[int, float] = {}
-    differing = []
-    with tempfile.TemporaryDirectory(prefix="dji-celsius-") as work:
-        inputs, outputs = Path(work) / "in", Path(work) / "out"
-        inputs.mkdir()
-        names = [f"{i:05d}_{Path(p).stem}" for i, p in enumerate(paths)]
-        for name, path in zip(names, paths):
-            shutil.copyfile(path, inputs / f"{name}.jpg")  # unique names, whatever folders the files come from
-        done = subprocess.run(
-            [
-                command,
-                "process",
-                "--input-dir",
-                str(inputs),
-                "--output-dir",
-                str(outputs),
-                "--output",
-                "temp_c:tiff",
-                "--distance",
-                "embedded",
-                "--quiet",
-            ],
-            capture_output=True,
-            text=True,
-        )
-        for k, (name, path) in enumerate(zip(names, paths)):
-            produced = outputs / f"{name}_temp_c.tiff"
-            celsius = _read_float_tiff(produced) if produced.is_file() else None
-            if celsius is None:
-                raise NoCelsiusDecoder(
-                    f"{path}: DJI's converter ({command}) gave no °C for it "
-                    f"(exit {done.returncode}: {(done.stderr or done.stdout).strip()[-300:]})"
-                )
-            raw = raws[k] if raws is not None else read_rjpeg(path).raw
-            if celsius.shape != raw.shape:
-                raise NoCelsiusDecoder(
-                    f"{path}: DJI's converter gave {celsius.shape[::-1]} °C for a {raw.shape[::-1]} raster"
-                )
-            counts, first = np.unique(raw.ravel(), return_index=True)
-            values = celsius.ravel()[first].astype(np.float64)
-            for count, value in zip(counts.tolist(), values.tolist()):
-                known = table.setdefault(count, value)
-                if abs(known - value) > 0.05 and Path(path).name not in differing:
-                    differing.append(Path(path).name)
-    if differing:
-        warnings.warn(
-            f"{len(differing)} file(s) carry other measurement settings than the first ({', '.join(differing[:5])}); "
-            f"°C use the first file's",
-            stacklevel=2,
-        )
-    raw_values = sorted(table)
-    return DjiCalibration(
-        tuple(float(v) for v in raw_values),
-        tuple(table[v] for v in raw_values),
-        f"{Path(command).name} on {len(paths)} file(s)",
-    )
-
-
-def _read_float_tiff(path: Path) -> Optional[np.ndarray]:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    return None if image is None else image.astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -236,12 +60,13 @@ class RadiometricJpeg:
     calibration: Optional[FlirCalibration]
     """FLIR format only."""
 
-    def celsius(self) -> np.ndarray:
-        """[H, W] float32 °C: the FLIR formula, or DJI's converter where it is installed; else
-        `NoCelsiusDecoder` naming the file, the camera and how to install the converter."""
+    def celsius(self, settings: MeasurementSettings = FILE_SETTINGS) -> np.ndarray:
+        """[H, W] float32 °C at the file's measurement settings or the user's `settings`: the FLIR formula, or
+        DJI's converter where it is installed; else `NoCelsiusDecoder` naming the file, the camera and how to
+        install the converter."""
         if self.calibration is None:
-            return dji_calibration([self.path], [self.raw]).celsius(self.raw)
-        return self.calibration.celsius(self.raw)
+            return dji_calibrations([self.path], [self.raw], [self.camera], settings)[0].celsius(self.raw)
+        return self.calibration.with_settings(settings).celsius(self.raw)
 
 
 # ------------------------------------------------------------------ JPEG segments
@@ -349,12 +174,18 @@ def _flir_raw(record: bytes, path: Path) -> np.ndarray:
     order = _record_order(record)
     width, height = struct.unpack(order + "HH", record[2:6])
     image = record[0x20:]
-    if image[:4] == b"\xff\xd8\xff\xf7":  # JPEG-LS (FLIR's E-series and others): no decoder here
-        raise InputError(
-            f"{path}: its raw thermal image is JPEG-LS compressed, which this reader does not decode; to train "
-            f"on its colour preview instead, name the palette it was exported with (the dataparser's --palette)"
-        )
-    if image[:4] == b"\x89PNG":
+    if image[:4] == b"\xff\xd8\xff\xf7":  # JPEG-LS (FLIR's E-series and others): CharLS decodes it
+        try:
+            import jpeg_ls  # here: the light GPU install may have none, and only these files need it
+        except ImportError:
+            raise InputError(f"{path}: its raw image is JPEG-LS: `pip install pyjpegls` to read it") from None
+        try:
+            raw = np.asarray(jpeg_ls.decode(np.frombuffer(image, np.uint8)))
+        except Exception as err:  # CharLS raises RuntimeError / ValueError on a damaged stream
+            raise InputError(f"{path}: its FLIR raw image (JPEG-LS) cannot be decoded ({err})") from None
+        if raw.dtype != np.uint16:
+            raise InputError(f"{path}: its FLIR raw image (JPEG-LS) holds {raw.dtype} samples, not 16-bit counts")
+    elif image[:4] == b"\x89PNG":
         raw = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_UNCHANGED)
         if raw is None or raw.dtype != np.uint16:
             raise InputError(f"{path}: its FLIR raw image (PNG) cannot be decoded")
@@ -410,24 +241,41 @@ def _read_bytes(path: Path) -> bytes:
         raise InputError(f"{path}: unreadable ({err.strerror or err})") from err
 
 
+def _damaged(path: Path):
+    return faults_named(path, "a damaged radiometric JPEG: its thermal records cannot be read")
+
+
 def _thermal_content(data: bytes, path: Path, decode: bool = True) -> Optional[RadiometricJpeg]:
     """The file's thermal content (with `decode` False, `raw` is None: only the calibration is
     read), or None where the JPEG has none. Damaged thermal segments raise, naming the file."""
-    segments = jpeg_segments(data, path)
-    camera = _exif_camera(segments)
-    fff = _flir_container(segments)
-    if fff is not None:
-        _, records = _flir_records(fff, path)
-        if RAW_DATA not in records or CAMERA_INFO not in records:
-            raise NotRadiometric(f"{path}: its FLIR segments hold no raw thermal image or no calibration")
-        raw = _flir_raw(records[RAW_DATA], path) if decode else None
-        return RadiometricJpeg(path, camera, "flir", raw, _flir_calibration(records[CAMERA_INFO]))
-    raw = _dji_raw(segments, _preview_size(segments, path)) if camera.startswith("DJI") else None
-    return None if raw is None else RadiometricJpeg(path, camera, "dji", raw, None)
+    with _damaged(path):
+        segments = jpeg_segments(data, path)
+        camera = _exif_camera(segments)
+        fff = _flir_container(segments)
+        if fff is not None:
+            _, records = _flir_records(fff, path)
+            if RAW_DATA not in records or CAMERA_INFO not in records:
+                raise NotRadiometric(f"{path}: its FLIR segments hold no raw thermal image or no calibration")
+            raw = _flir_raw(records[RAW_DATA], path) if decode else None
+            return RadiometricJpeg(path, camera, "flir", raw, _flir_calibration(records[CAMERA_INFO]))
+        if not camera.startswith("DJI"):
+            return None
+        raw = _dji_raw(segments, _preview_size(segments, path))
+        if raw is None and _dji_thermal_bytes(segments) >= 2 * 64 * 64:
+            raise InputError(
+                f"{path}: a damaged DJI R-JPEG: its thermal segments hold {_dji_thermal_bytes(segments):,} bytes, "
+                "no raster at its preview's shape (cut short?)"
+            )
+        return None if raw is None else RadiometricJpeg(path, camera, "dji", raw, None)
+
+
+def _dji_thermal_bytes(segments: List[Tuple[int, bytes]]) -> int:
+    return max(sum(len(payload) for m, payload in segments if m == marker) for marker in (0xE3, 0xE4))
 
 
 def _not_radiometric(path: Path, data: bytes) -> NotRadiometric:
-    camera = _exif_camera(jpeg_segments(data, path))
+    with _damaged(path):
+        camera = _exif_camera(jpeg_segments(data, path))
     return NotRadiometric(
         f"{path}: no radiometric data (neither FLIR records nor DJI's thermal segments) behind the JPEG"
         f"{' of ' + camera if camera else ''}: only its colour preview, which is not temperatures. Use the files "
@@ -435,11 +283,12 @@ def _not_radiometric(path: Path, data: bytes) -> NotRadiometric:
     )
 
 
-def read_rjpeg(path: Path) -> RadiometricJpeg:
+def read_rjpeg(path: Path, decode: bool = True) -> RadiometricJpeg:
     """The thermal content of one R-JPEG, FLIR or DJI format; `NotRadiometric` naming the file
-    where it has none (never its colour preview)."""
+    where it has none (never its colour preview). `decode` False: a FLIR file's raw image is not decoded
+    (`raw` None; a DJI file's raster is read all the same: it is stored plain)."""
     data = _read_bytes(path)
-    content = _thermal_content(data, Path(path))
+    content = _thermal_content(data, Path(path), decode)
     if content is None:
         raise _not_radiometric(Path(path), data)
     return content
@@ -456,9 +305,9 @@ def read_calibration(path: Path) -> Optional[FlirCalibration]:
 
 
 def radiometric_raw(path: Path) -> Optional[np.ndarray]:
-    """[H, W] uint16 raw counts of a radiometric JPEG, read once; None for any other file (a plain
-    or colour-mapped JPEG, another format)."""
-    if Path(path).suffix.lower() not in (".jpg", ".jpeg"):
+    """[H, W] uint16 raw counts of a radiometric JPEG (whatever its name: `file_kind`), read once; None for any
+    other file (a plain or colour-mapped JPEG, another format)."""
+    if file_kind(path) != "jpeg":
         return None
     content = _thermal_content(_read_bytes(path), Path(path))
     return None if content is None else content.raw
@@ -467,20 +316,22 @@ def radiometric_raw(path: Path) -> Optional[np.ndarray]:
 def flir_field_of_view(path: Path) -> Optional[float]:
     """The horizontal field of view (degrees) a FLIR-format file records; None where it records none
     (DJI's FLIR-core cameras write 0) or has no FLIR records."""
-    fff = _flir_container(jpeg_segments(_read_bytes(path), Path(path)))
-    if fff is None:
-        return None
-    record = _flir_records(fff, Path(path))[1].get(CAMERA_INFO)
-    if record is None or len(record) < FIELD_OF_VIEW + 4:
-        return None
-    degrees = struct.unpack_from(_record_order(record) + "f", record, FIELD_OF_VIEW)[0]
+    with _damaged(path):
+        fff = _flir_container(jpeg_segments(_read_bytes(path), Path(path)))
+        if fff is None:
+            return None
+        record = _flir_records(fff, Path(path))[1].get(CAMERA_INFO)
+        if record is None or len(record) < FIELD_OF_VIEW + 4:
+            return None
+        degrees = struct.unpack_from(_record_order(record) + "f", record, FIELD_OF_VIEW)[0]
     return float(degrees) if 1.0 < degrees < 179.0 else None
 
 
 def is_radiometric_jpeg(path: Path) -> bool:
-    """Whether the file is a JPEG with FLIR records or DJI thermal segments (reads its header only)."""
+    """Whether the file is a JPEG (whatever its name) with FLIR records or DJI thermal segments (reads its header
+    only)."""
     path = Path(path)
-    if path.suffix.lower() not in (".jpg", ".jpeg"):
+    if file_kind(path) != "jpeg":
         return False
     with open(path, "rb") as handle:
         head = handle.read(4 << 20)  # DJI's raw segments come within the first few MB
@@ -494,5 +345,5 @@ def is_radiometric_jpeg(path: Path) -> bool:
         if not _exif_camera(segments).startswith("DJI"):
             return False
         return _dji_raw(segments, _preview_size(segments, path)) is not None
-    except (InputError, struct.error):
+    except (InputError, struct.error, IndexError, ValueError):
         return False

@@ -1,27 +1,28 @@
 """Drone surveys as the drone and the photogrammetry left them: the frames (radiometric JPEGs or 16-bit
-frames) beside a Metashape alignment, an OpenDroneMap / OpenSfM reconstruction, or nothing but the frames' GPS
-(placed by structure from motion). Each reader returns a `ThermalCapture` in a local east-north-up frame in
-metres, every 8th frame held out, with the °C calibration the frames carry."""
+frames, the visible photos beside them left out: `survey_frames.py`) beside a Metashape alignment, an
+OpenDroneMap / OpenSfM reconstruction, or nothing but the frames' GPS (placed by structure from motion). Each
+reader returns a `ThermalCapture` in a local east-north-up frame in metres, every 8th frame held out, with each
+frame's °C calibration at its own measurement settings or the user's (`settings`)."""
 
 from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Dict, Optional
+from typing import Optional
 
 from thermal_wild_ns.data.capture import SeedPoints, ThermalCapture, ThermalFrame, interval_split
+from thermal_wild_ns.data.celsius import FILE_SETTINGS, MeasurementSettings
 from thermal_wild_ns.data.exif import focal_length_px, read_frame_prior, survey_georeference
 from thermal_wild_ns.data.exif_sfm import cached_structure_from_motion
-from thermal_wild_ns.data.frame_files import frame_size, image_files, natural_key
+from thermal_wild_ns.data.frame_files import natural_key
 from thermal_wild_ns.data.metashape import read_lens_calibration, read_metashape_xml
 from thermal_wild_ns.data.opensfm import read_reconstruction
-from thermal_wild_ns.data.rjpeg import DJI_CONVERTER_INSTALL, dji_calibration, dji_converter, read_calibration
+from thermal_wild_ns.data.survey_frames import survey_celsius, survey_frames
+from thermal_wild_ns.data.thermal_io import frame_size
 from thermal_wild_ns.errors import InputError, MissingInput
 
 METASHAPE_FOLDERS = ("", "metashape")
 """Where a Metashape XML is looked for, relative to the data folder."""
-FRAME_FOLDERS = ("rjpeg", "images", "thermal", "")
-"""Where a drone survey's frames are looked for (the first folder with image files)."""
 
 
 def _metashape_xml(root: Path) -> Optional[Path]:
@@ -35,35 +36,33 @@ def _metashape_xml(root: Path) -> Optional[Path]:
     return None
 
 
-def _survey_frames_folder(root: Path) -> Path:
-    folder = next((root / f for f in FRAME_FOLDERS if (root / f).is_dir() and image_files(root / f)), None)
-    if folder is None:
-        folders = ", ".join(f + "/" for f in FRAME_FOLDERS if f)
-        raise MissingInput(f"{root}: no frames in any of {folders} or the folder itself")
-    return folder
-
-
-def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligned=(), **facts) -> ThermalCapture:
+def _survey_capture(
+    layout: str,
+    root: Path,
+    source: Path,
+    posed: list,
+    unaligned=(),
+    settings: MeasurementSettings = FILE_SETTINGS,
+    **facts,
+) -> ThermalCapture:
     """A drone survey's capture from its photogrammetry: `posed`, (name, ThermalFrame with no image
-    yet) per aligned camera, matched by file name to the frames in the survey's frame folder; frames
+    yet) per aligned camera, matched by file name to the survey's thermal frames (`survey_frames`); frames
     in file-name order, which is capture order for drone files (DJI_0001, ...); every 8th held out.
-    Radiometric JPEGs must carry their thermal data (never their colour preview) and give the °C
-    calibration. `facts`: the capture's georeference and points."""
+    Radiometric JPEGs must carry their thermal data (never their colour preview); each frame's °C at its
+    own measurement settings or `settings`. `facts`: the capture's georeference and points."""
 
-    folder = _survey_frames_folder(root)
-    images = {p.stem: p for p in image_files(folder)}
-    frames, calibrations = [], {}
+    found = survey_frames(root)
+    folder, images = found.folder, {p.stem: p for p in found.thermal}
+    frames = []
     for name, frame in sorted(posed, key=lambda named: natural_key(named[0])):
         image = images.get(Path(name).stem)
         if image is None:
             continue
-        if image.suffix.lower() in (".jpg", ".jpeg"):
-            calibrations[image] = read_calibration(image)
         frame.image = image
         frames.append(frame)
     if not frames:
         raise InputError(
-            f"{source}: none of its {len(posed)} aligned cameras has a frame in {folder} "
+            f"{source}: none of its {len(posed)} aligned cameras has a thermal frame in {folder} "
             f"(cameras are matched to files by name, e.g. {posed[0][0] if posed else '-'})"
         )
     without = sorted(set(images) - {Path(name).stem for name, _ in posed})
@@ -77,17 +76,13 @@ def _survey_capture(layout: str, root: Path, source: Path, posed: list, unaligne
         )
     for frame, split in zip(frames, interval_split(len(frames))):
         frame.split = split
-    return ThermalCapture(
-        layout,
-        root,
-        frames,
-        "every 8th frame held out",
-        celsius_calibration=_one_calibration(calibrations, folder),
-        **facts,
-    )
+    reference, per_frame = survey_celsius([f.image for f in frames], folder, settings)
+    for frame, calibration in zip(frames, per_frame):
+        frame.celsius = calibration
+    return ThermalCapture(layout, root, frames, "every 8th frame held out", celsius_calibration=reference, **facts)
 
 
-def read_metashape(root: Path) -> ThermalCapture:
+def read_metashape(root: Path, settings: MeasurementSettings = FILE_SETTINGS) -> ThermalCapture:
     """A drone survey aligned in Agisoft Metashape: its XML (`METASHAPE_FOLDERS` says where it is
     looked for) and the frames as the camera wrote them (radiometric JPEGs, or 16-bit frames) in
     the first of `FRAME_FOLDERS` that holds images. Poses in a local east-north-up frame in metres
@@ -97,14 +92,14 @@ def read_metashape(root: Path) -> ThermalCapture:
     if xml is None:
         raise MissingInput(f"{root}: no Metashape XML in {' or '.join(str(root / f) for f in METASHAPE_FOLDERS)}")
     posed, georeference, unaligned = read_metashape_xml(xml)
-    return _survey_capture("metashape", root, xml, posed, unaligned, georeference=georeference)
+    return _survey_capture("metashape", root, xml, posed, unaligned, settings, georeference=georeference)
 
 
 OPENSFM_FILES = ("opensfm/reconstruction.json", "reconstruction.json")
 """Where an OpenDroneMap project (opensfm/) or an OpenSfM dataset keeps its reconstruction."""
 
 
-def read_odm(root: Path) -> ThermalCapture:
+def read_odm(root: Path, settings: MeasurementSettings = FILE_SETTINGS) -> ThermalCapture:
     """A drone survey reconstructed by OpenDroneMap or OpenSfM (`opensfm.py`): the reconstruction's
     shots, cameras and points in its east-north-up frame around `reference_lla`, and the frames as
     the camera wrote them in the first of `FRAME_FOLDERS` that holds images (ODM: `images/`)."""
@@ -114,11 +109,14 @@ def read_odm(root: Path) -> ThermalCapture:
         raise MissingInput(f"{root}: no {' or '.join(OPENSFM_FILES)}")
     posed, xyz, georeference = read_reconstruction(path)
     points = SeedPoints(xyz, "opensfm") if xyz is not None and len(xyz) else None
-    return _survey_capture("odm", root, path, posed, georeference=georeference, points=points)
+    return _survey_capture("odm", root, path, posed, (), settings, georeference=georeference, points=points)
 
 
 def read_exif_gps(
-    root: Path, cache_root: Optional[Path] = None, lens_calibration: Optional[Path] = None
+    root: Path,
+    cache_root: Optional[Path] = None,
+    lens_calibration: Optional[Path] = None,
+    settings: MeasurementSettings = FILE_SETTINGS,
 ) -> ThermalCapture:
     """A drone survey with no photogrammetry: geotagged frames as the camera wrote them (the first
     of `FRAME_FOLDERS` that holds images), placed by structure from motion with their EXIF GPS and
@@ -127,8 +125,8 @@ def read_exif_gps(
     held fixed (without it the focal length comes from the files and distortion is taken as none).
     Frames without GPS are left out by name."""
 
-    folder = _survey_frames_folder(root)
-    images = image_files(folder)
+    found = survey_frames(root)
+    folder, images = found.folder, list(found.thermal)
     read = [(p, read_frame_prior(p)) for p in images]
     geotagged, priors = [p for p, prior in read if prior is not None], [prior for _, prior in read if prior is not None]
     if not geotagged:
@@ -164,47 +162,18 @@ def read_exif_gps(
     ]
     unaligned = [p.name for p in geotagged if p.name not in result.poses]
     points = SeedPoints(result.points, "sfm (exif-gps)") if len(result.points) else None
-    return _survey_capture("exif-gps", root, folder, posed, unaligned, georeference=georeference, points=points)
+    facts = dict(georeference=georeference, points=points)
+    return _survey_capture("exif-gps", root, folder, posed, unaligned, settings, **facts)
 
 
 def exif_gps_mismatch(root: Path) -> Optional[str]:
     try:
-        first = image_files(_survey_frames_folder(root))[0]
+        first = survey_frames(root).thermal[0]
         if read_frame_prior(first) is None:
             return f"{first.name} has no GPS position in its EXIF"
     except InputError as err:  # no frames, or an unreadable first one: not this layout
         return str(err)
     return None
-
-
-def _one_calibration(calibrations: Dict[Path, object], folder: Path):
-    """The frames' shared °C calibration (the camera's settings do not change within a flight):
-    the FLIR records' (where the settings differ, emissivity or distance changed mid-flight, the
-    first frame's, said in the log: the model has one radiometric scale), or DJI's converter's
-    table over all the frames (DJI's format: None, said in the log, where it is not installed)."""
-
-    found = list(calibrations.values())
-    if not found:
-        return None
-    if all(c is None for c in found):  # DJI's format: the calibration is DJI's converter
-        if dji_converter() is None:
-            warnings.warn(
-                f"{folder}: DJI-format R-JPEGs train on their raw counts, without °C: to have °C, "
-                f"{DJI_CONVERTER_INSTALL}",
-                stacklevel=3,
-            )
-            return None
-        return dji_calibration(list(calibrations))
-    if any(c is None for c in found):
-        return None
-    differing = sorted(path.name for path, c in calibrations.items() if c != found[0])
-    if differing:
-        warnings.warn(
-            f"{folder}: {len(differing)} frame(s) carry other measurement settings than the first "
-            f"({', '.join(differing[:5])}); °C use the first frame's",
-            stacklevel=2,
-        )
-    return found[0]
 
 
 def metashape_mismatch(root: Path) -> Optional[str]:

@@ -20,12 +20,12 @@ from typing import List, Optional, Sequence, Tuple
 import cv2
 import numpy as np
 
+from thermal_wild_ns.data.celsius import CelsiusCalibration
+from thermal_wild_ns.data.frame_files import IMAGE_SUFFIXES, file_kind
 from thermal_wild_ns.data.palettes import decode_colour_frame, detect_palette
-from thermal_wild_ns.data.rjpeg import CelsiusCalibration, radiometric_raw
+from thermal_wild_ns.data.rjpeg import radiometric_raw
 from thermal_wild_ns.errors import InputError, MissingInput
 from thermal_wild_ns.progress import track
-
-IMAGE_SUFFIXES = {".png", ".tif", ".tiff", ".jpg", ".jpeg"}
 
 # numpy parses a .npy header with `ast.literal_eval`, and CPython 3.11's AST constructor keeps its
 # recursion depth in interpreter-wide state: two threads parsing at once can raise "SystemError: AST
@@ -100,24 +100,27 @@ def load_npy(path: Path, mmap_mode: Optional[str] = None) -> np.ndarray:
 
 def _stored_frame(path: Path, radiometric_jpeg: bool = True) -> Tuple[np.ndarray, bool]:
     """The file's pixels, a grey 3-channel image collapsed to [H, W]; and whether it is a
-    colour-mapped frame (then RGB uint8 [H, W, 3]). A radiometric JPEG (`rjpeg.py`) gives its raw
-    sensor counts [H, W] uint16, not its colour preview, unless `radiometric_jpeg` is False (a
-    layout of colour-mapped exports, which may keep part of the camera's records)."""
+    colour-mapped frame (then RGB uint8 [H, W, 3]). What the file is comes from its bytes (`file_kind`),
+    whatever its name. A radiometric JPEG (`rjpeg.py`) gives its raw sensor counts [H, W] uint16, not
+    its colour preview, unless `radiometric_jpeg` is False (a layout of colour-mapped exports, which may
+    keep part of the camera's records)."""
     path = Path(path)
     if not path.is_file():
         raise MissingInput(f"{path}: thermal frame not found")
-    raw = radiometric_raw(path) if radiometric_jpeg else None
+    kind = file_kind(path)
+    raw = radiometric_raw(path) if radiometric_jpeg and kind == "jpeg" else None
     if raw is not None:
         return raw, False
-    if path.suffix.lower() == ".npy":
+    if kind == "npy" or (kind == "unknown" and path.suffix.lower() == ".npy"):
         try:
             image = load_npy(path)
-        except (ValueError, OSError) as err:
+        except (ValueError, OSError, EOFError) as err:
             raise InputError(f"{path}: unreadable .npy thermal frame ({err})") from err
-    elif path.suffix.lower() in IMAGE_SUFFIXES:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    elif kind in ("jpeg", "png", "tiff") or path.suffix.lower() in IMAGE_SUFFIXES:
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # OpenCV decodes by content, as named or not
         if image is None:
-            raise InputError(f"{path}: unreadable image file")
+            what = kind.upper() if kind != "unknown" else "image"
+            raise InputError(f"{path}: unreadable {what} file (damaged, cut short, or not an image)")
     else:
         raise InputError(
             f"{path}: unsupported thermal frame type '{path.suffix}' (use {sorted(IMAGE_SUFFIXES)} or .npy)"
@@ -150,6 +153,12 @@ def read_raw_frame(path: Path, palette: Optional[str] = None) -> np.ndarray:
     return image
 
 
+def frame_size(path: Path) -> Tuple[int, int]:
+    """(width, height) of a frame file."""
+    h, w = read_raw_frame(path).shape
+    return w, h
+
+
 def frame_palette(path: Path) -> Optional[str]:
     """The palette of a colour-mapped frame (detected), or None for a scalar frame."""
     image, colour = _stored_frame(path)
@@ -174,7 +183,10 @@ class RadiometricRange:
     """Colour palette the frames were exported with (native values are its levels 0..255), if any."""
     planck: Optional[CelsiusCalibration] = None
     """The camera's own calibration of its raw counts (radiometric JPEGs: the FLIR format's Planck
-    curve, or DJI's converter's table), not linear between bounds."""
+    curve, or DJI's converter's table), not linear between bounds: the capture's reference, for a render
+    at no frame's own state (the canonical state, the exports)."""
+    frame_celsius: Optional[Tuple[Optional[CelsiusCalibration], ...]] = None
+    """Each frame's own calibration at its measurement settings (capture order; None where a frame has none)."""
 
     @property
     def has_celsius(self) -> bool:
@@ -192,11 +204,13 @@ class RadiometricRange:
         """One frame, normalised: float32 [H, W]."""
         return self.normalize(read_raw_frame(path, self.palette))
 
-    def to_celsius(self, normalised: np.ndarray) -> np.ndarray:
-        """Normalised values -> degC: through the camera's calibration where it has one, else linear
-        between the documented bounds."""
-        if self.planck is not None:
-            return self.planck.celsius(self.to_native(np.asarray(normalised, dtype=np.float64)))
+    def to_celsius(self, normalised: np.ndarray, frame: Optional[int] = None) -> np.ndarray:
+        """Normalised values -> degC: through frame `frame`'s own calibration (its capture position) where it
+        has one, else the capture's reference calibration, else linear between the documented bounds."""
+        own = None if frame is None or self.frame_celsius is None else self.frame_celsius[frame]
+        calibration = own if own is not None else self.planck
+        if calibration is not None:
+            return calibration.celsius(self.to_native(np.asarray(normalised, dtype=np.float64)))
         if self.celsius_low is None or self.celsius_high is None:
             raise InputError("this dataset documents no temperature bounds (celsius_low/celsius_high)")
         return self.celsius_low + normalised * (self.celsius_high - self.celsius_low)

@@ -21,7 +21,7 @@ import torch
 from nerfstudio.scripts import exporter as ns_export
 
 from thermal_wild_ns._upstream import gaussian_splat_export_hooks
-from thermal_wild_ns.data.rjpeg import DjiCalibration
+from thermal_wild_ns.data.celsius import DjiCalibration
 from thermal_wild_ns.pipeline.photometric_state import canonical_state, to_original
 from thermal_wild_ns.pipeline.run_check import check_trained_run
 from thermal_wild_ns.state_names import CANONICAL

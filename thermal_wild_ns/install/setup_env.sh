@@ -57,5 +57,17 @@ else
     echo "warning: no nvcc on PATH: gsplat cannot build its CUDA extension at first use (install the CUDA toolkit)" >&2
   fi
 fi
+# DJI's converter, for °C of DJI-format R-JPEGs: AGPL-3.0, so it lives in an environment of its own and runs as a
+# program, never imported (docs/rjpeg.md). It declares Python >= 3.12 and runs on 3.11 (tests/test_rjpeg.py checks
+# it on the 9 DJI cameras); linked beside the venv's Python, where the package looks for it.
+install_dji_converter() {
+  local env=.venv/dji-converter
+  python3 -m venv "$env" \
+    && "$env/bin/pip" install -q "numpy<2" "pillow>=11.3" 2> >(grep -v "^WARNING: Location" >&2) \
+    && "$env/bin/pip" install -q --no-deps --ignore-requires-python "dji-thermal-cli==1.4.0" 2> >(grep -v "^WARNING" >&2) \
+    && ln -sf ../dji-converter/bin/dji-thermal-cli .venv/bin/dji-thermal-cli \
+    && .venv/bin/dji-thermal-cli --version
+}
+install_dji_converter || echo "warning: DJI's converter could not be installed: DJI-format R-JPEGs train on raw counts, without °C" >&2
 rm -rf build
 .venv/bin/python -c "import torchvision, nerfstudio.scripts.train, nerfstudio.scripts.eval, nerfstudio.scripts.render, thermal_wild_ns.method_configs; print('environment ready')"

@@ -193,7 +193,7 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
         config = self.config.preprocessing
         variant, _, reason = self.preprocessing_used.partition(": ")
         by_rule = config.variant != "none" and config.skip_when_stable
-        return [
+        entries = [
             Decision(
                 "preprocessing",
                 variant,
@@ -201,6 +201,15 @@ class ThermalDatamanager(SingleChannelFullImageDatamanager):
                 "data" if by_rule else "config",
             )
         ]
+        settings_of = getattr(self.dataparser, "measurement_settings", None)
+        if settings_of is not None and self.dataparser.radiometric_range().planck is not None:
+            settings = settings_of()  # a camera's own calibration: each frame's °C at these settings
+            given = bool(settings.given())
+            why = (
+                "the dataparser's options" if given else "each file's own (the dataparser's --emissivity ... override)"
+            )
+            entries.append(Decision("°C measurement settings", settings.describe(), why, "config" if given else "data"))
+        return entries
 
     def _with_metadata(self, outputs: DataparserOutputs, preprocessed: bool) -> DataparserOutputs:
         outputs.metadata["preprocessed"] = self.preprocessed if preprocessed else None

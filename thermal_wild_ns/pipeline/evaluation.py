@@ -34,6 +34,7 @@ and `oracle` renders are the same image.
 from __future__ import annotations
 
 import contextlib
+from functools import partial
 from pathlib import Path
 from typing import Callable, Dict, Iterator, Optional, Tuple
 
@@ -196,7 +197,6 @@ def evaluate(
     dataset = datamanager.eval_dataset
     pipeline.eval()
     rng = datamanager.train_dataset.thermal_range
-    to_celsius = rng.to_celsius if rng.has_celsius else None  # °C errors where the capture is calibrated
     rows = []
     views = track(
         datamanager.fixed_indices_eval_dataloader,
@@ -210,6 +210,8 @@ def evaluate(
         # a generated scene's held-out view is its clean truth: the scene, with no camera's fall-off in it
         clean_truth = dataset.is_clean_truth(int(batch["image_idx"]))
         row: Dict[str, float] = {"frame": frame}
+        # °C errors where the capture is calibrated, through the held-out frame's own calibration
+        to_celsius = partial(rng.to_celsius, frame=frame) if rng.has_celsius else None
         novel = None
         if {"novel", "aligned"} & set(protocols):
             _, novel = render(pipeline, camera, canonical_state(pipeline), recorded=not clean_truth)
