@@ -785,3 +785,35 @@ def test_the_trace_summary_splits_a_threads_time_into_operations_and_the_gaps_be
     assert ("cudaStreamSynchronize", 0.2, 0.5) in summary["runtime"]
     assert summary["gpu_busy_ms"] == 0.15
     assert "between them" in markdown(summary)
+
+
+def test_the_best_checkpoint_is_the_highest_scored_point_and_time_to_quality_is_against_it():
+    from experiments.bench import best_checkpoint, best_checkpoint_lines, strongest_baseline
+
+    def run(method, seed, points, final):
+        curve = [{"step": s, "seconds": s / 100, "psnr_time": p} for s, p in points]
+        return {
+            "method": method,
+            "scene": "s",
+            "seed": seed,
+            "steps": 3000,
+            "train_seconds": 30.0,
+            "curve": curve,
+            "psnr_time": final,
+        }
+
+    # splatfacto peaks early and falls; its final is its worst point
+    falling = [run("splatfacto", seed, [(1000, 25.0 + seed), (2000, 24.0)], 20.0) for seed in (0, 1)]
+    assert best_checkpoint(falling[1], "time") == {"psnr": 26.0, "step": 1000, "seconds": 10.0}
+    assert best_checkpoint(run("m", 0, [(1000, 20.0)], 22.0), "time")["step"] == 3000  # the final model counts
+    assert best_checkpoint({"curve": [], "steps": 1}, "time") is None
+    grid = [run("splatfacto (use_bilateral_grid=True)", seed, [(1000, 24.0), (2000, 26.0)], 26.0) for seed in (0, 1)]
+    # the strongest row is the one whose best is highest on average: the bilateral grid's 26.0 over stock's 25.5
+    assert strongest_baseline(falling + grid, "s", "time") == ("splatfacto (use_bilateral_grid=True)", 26.0, 20.0)
+    ours = [run("wild-thermal", seed, [(1000, 25.8), (2000, 26.1)], 26.1) for seed in (0, 1)]
+    table = "\n".join(best_checkpoint_lines(falling + grid + ours, ["s"]))
+    assert "oracle choice" in table
+    # stock splatfacto's best 25.50 (26.00 at most) at step 1,000, its final 20.00 beside it
+    assert "| splatfacto | s | `time` | 25.50 (25.00–26.00) | 1,000, 1,000 | 20.00 |" in table
+    # the full method's mean reaches the strongest best (26.0) at step 2,000, not at 1,000 (25.8)
+    assert "| s | `time` | splatfacto (use_bilateral_grid=True), 26.00 | 20.0 | wild-thermal | 2,000 | 20.0 |" in table
