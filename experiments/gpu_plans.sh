@@ -13,6 +13,10 @@
 #   schedule SCENE METHOD...   each method's default schedule (30k steps asked; the full method's automatic stop on),
 #                      SEEDS seeds from SEED (1, 0), each run alone on the GPU, checkpoints scored at the
 #                      time-to-quality steps; STEPS (30000) the steps asked; TIME_LIMIT (540) per run
+#   baselines SCENE    the baselines a nerfstudio user would try, 3 seeds each (SEEDS), RUNS_PER_GPU (3) at once:
+#                      splatfacto with its bilateral grid, stock splatfacto (the first STEPS (5000) steps of their
+#                      30k schedule, scored at 1,000, 2,000 and 5,000), then the full method's default (30k asked,
+#                      its automatic stop); each bench's files as it ends
 #   trace SCENE        the full method's step at step 3,000 as the bench trains: its profile and timeline
 #   renders SCENE      the render ways (as ns-render and the viewer draw) on a model of the scene trained to step
 #                      3,400 as the bench trains: 3 rounds of 1,000 frames at 640x512 (experiments.render_fps)
@@ -66,7 +70,7 @@ case "$plan" in
     tail -2 "$OUT/bundle_setup.log"
     if ls .data/wheels_extra/*.whl > /dev/null 2>&1; then
       python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
-        .data/wheels_extra/*.whl 2>&1 | grep -v WARNING
+        .data/wheels_extra/*.whl 2>&1 | { grep -v WARNING || true; }
     fi
     ;;
   tests)
@@ -88,6 +92,22 @@ case "$plan" in
       --time-limit "${TIME_LIMIT:-540}" > "$OUT/schedule-$tag.log" 2>&1
     cp "/tmp/schedule-$tag/bench.json" "$OUT/schedule-$tag-bench.json"
     tail -n 3 "$OUT/schedule-$tag.log"
+    ;;
+  baselines)
+    warm
+    scene=${1:?scene: dunr or flight2}
+    bench() {  # NAME BENCH-ARGS...: one bench of SEEDS seeds on the scene, its bench.json and log into the results
+      local name=$1
+      shift
+      py -m experiments.bench --output-dir "/tmp/$name" --scenes "$root/.data/$scene" --cache-dir "$root/.data/cache" \
+        --seeds "${SEEDS:-3}" --runs-per-gpu "${RUNS_PER_GPU:-3}" --fps-frames 0 --fit-steps 20 "$@" > "$res/$name.log" 2>&1
+      cp "/tmp/$name/bench.json" "$res/$name-bench.json" && tail -n 2 "$res/$name.log"
+      pack
+    }
+    short=(--steps "${STEPS:-5000}" --schedule 30000 --eval-at 1000 2000 5000)
+    bench "$scene-bilateral-grid" --methods splatfacto "${short[@]}" --set pipeline.model.use_bilateral_grid=True
+    bench "$scene-splatfacto" --methods splatfacto "${short[@]}"
+    bench "$scene-wild-thermal" --methods wild-thermal --eval-at 1000 2000 5000 10000 20000 30000
     ;;
   trace)
     warm
