@@ -102,6 +102,9 @@ case "$plan" in
       py -m experiments.bench --output-dir "/tmp/$name" --scenes "$root/.data/$scene" --cache-dir "$root/.data/cache" \
         --seeds "${SEEDS:-3}" --runs-per-gpu "${RUNS_PER_GPU:-3}" --fps-frames 0 --fit-steps 20 "$@" > "$res/$name.log" 2>&1
       cp "/tmp/$name/bench.json" "$res/$name-bench.json" && tail -n 2 "$res/$name.log"
+      for log in "/tmp/$name"/gpu*/*/log.txt; do  # each run's own log (its fallbacks and warnings)
+        [ -f "$log" ] && cp "$log" "$res/$name-$(basename "$(dirname "$log")").log"
+      done
       pack
     }
     short=(--steps "${STEPS:-5000}" --schedule 30000 --eval-at 1000 2000 5000)
