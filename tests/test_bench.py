@@ -381,9 +381,10 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
 
 
 def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_model_as_it_was(tmp_path, demo_scene_dir):
-    """`fit_embedding` (the `half` and `oracle` protocols) holds the model's parameters constant: the same Adam
-    steps as with every parameter in the graph give the same embedding (the embedding's gradient does not
-    depend on the geometry getting one), no gradient lands in the model, and every parameter is trainable
+    """`fit_embedding` (the `half` and `oracle` protocols) holds the model's parameters constant and renders
+    through the view's splat weights, computed once (`model.fitting_view`): the same Adam steps as with every
+    parameter in the graph and a full render each step give the same embedding (the embedding's gradient does
+    not depend on the geometry getting one), no gradient lands in the model, and every parameter is trainable
     again after the fit, also after a fit that fails."""
     from thermal_wild_ns.pipeline.evaluation import as_recorded, fit_embedding, thermal_output
     from thermal_wild_ns.state_names import CANONICAL
@@ -414,7 +415,7 @@ def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_mode
     def broken(*args, **kwargs):
         raise RuntimeError("a render that fails")
 
-    model.get_outputs = broken
+    model.fitting_view = lambda camera: broken
     with pytest.raises(RuntimeError, match="a render that fails"):
         fit_embedding(model, camera, target, slice(None), start, 3, 1e-2)
     assert [name for name, parameter in model.named_parameters() if parameter.requires_grad] == trainable

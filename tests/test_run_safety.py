@@ -318,11 +318,13 @@ def test_ns_eval_shows_its_progress_through_scoring(trained_run, tmp_path):
 
 @pytest.mark.slow
 def test_the_demo_shows_its_progress_through_scoring(tmp_path):
-    """The README's main command: after training it scores the held-out views under five protocols
-    (minutes on a CPU), and says where it is meanwhile."""
+    """The README's main command: after training it scores the held-out views under five protocols, says
+    where it is meanwhile and how long the scoring took."""
     result = _command("wild-thermal-demo", "--steps", "20", "--output-dir", str(tmp_path / "demo"), cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     lines = [line for line in result.stderr.splitlines() if line.startswith("Scoring held-out views")]
     assert any(line.startswith("Scoring held-out views (novel, time, aligned, half, oracle): 0/") for line in lines)
     done = lines[-1].split(": ")[1].split(" ")[0]
     assert done.split("/")[0] == done.split("/")[1]  # the last line says every view is scored
+    metrics = json.loads((tmp_path / "demo" / "metrics.json").read_text())
+    assert metrics["score_seconds"] > 0 and f"{len(metrics['per_view'])} held-out views scored in" in result.stdout

@@ -171,3 +171,30 @@ def test_backend_selection():
     assert resolve_backend("auto", torch.device("cpu")) == "torch"
     with pytest.raises(ValueError, match="CUDA"):
         resolve_backend("gsplat", torch.device("cpu"))
+
+
+@pytest.mark.parametrize("mode", ["classic", "antialiased"])
+def test_a_views_splat_weights_render_it_and_its_colours_gradient_as_the_rasterizer(mode):
+    from thermal_wild_ns.rendering.backend import FAR_PLANE, NEAR_PLANE, rasterize_unpacked
+    from thermal_wild_ns.rendering.splat_weights import splat_weights
+
+    # 50 x 37 pixels: tiles overhang the image on both sides; deep stacks reach the transmittance stop
+    means, quats, scales, opacities, colors, viewmats, Ks = random_scene(600, 50, 37, seed=3)
+    colors = torch.cat([colors, torch.rand_like(colors)], -1).requires_grad_(True)  # [N, 2]
+    render, alpha, _ = rasterize_unpacked(
+        means, quats, scales, opacities, colors, viewmats, Ks, 50, 37, True, False, mode, "torch"
+    )  # [1, H, W, 3]: two channels and the expected depth
+    weights = splat_weights(means, quats, scales, opacities, viewmats, Ks, 50, 37, NEAR_PLANE, FAR_PLANE, mode)
+    ours = weights.render(colors)
+    assert weights.matrix.shape == (50 * 37, 600) and 0 < weights.matrix._nnz() < 50 * 37 * 600
+    assert weights.transposed.shape == (600, 50 * 37)
+    torch.testing.assert_close(ours, render, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(weights.alpha, alpha, rtol=1e-5, atol=1e-6)
+    upstream = torch.randn_like(render[..., :2])
+    (expected,) = torch.autograd.grad((render[..., :2] * upstream).sum(), colors)
+    (got,) = torch.autograd.grad((ours[..., :2] * upstream).sum(), colors)
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+    # a Gaussian behind the camera has no weight anywhere
+    means[0, 2] = -1.0
+    behind = splat_weights(means, quats, scales, opacities, viewmats, Ks, 50, 37, NEAR_PLANE, FAR_PLANE, mode)
+    assert not (behind.matrix.col_indices() == 0).any()

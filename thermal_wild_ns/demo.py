@@ -81,7 +81,9 @@ def main(args: DemoArgs) -> dict:
     auto_stop = json.loads(record.read_text()) if record.is_file() else None
     # evaluate from the saved checkpoint, the way ns-eval / ns-render load it
     _, pipeline, _, _ = eval_setup(config.get_base_dir() / "config.yml", test_mode="test")
+    start = time.time()
     results = evaluate(pipeline, args.output_dir / "renders")
+    score_seconds = time.time() - start
     results.update(
         {
             "device": device,
@@ -89,6 +91,7 @@ def main(args: DemoArgs) -> dict:
             "steps_asked": steps,
             "auto_stop": auto_stop,
             "train_seconds": round(train_seconds, 1),
+            "score_seconds": round(score_seconds, 1),
             "untrained_psnr_novel": untrained["psnr_novel"],
             "config": str(config.get_base_dir() / "config.yml"),
             "ground_truth": "novel, aligned: clean (fault-free) frames of the held-out views; "
@@ -100,6 +103,7 @@ def main(args: DemoArgs) -> dict:
     print(
         f"\nwild-thermal demo ({device}, {trained} of {steps} steps, {train_seconds:.0f} s"
         + (f", model of step {auto_stop['kept_step']} kept" if auto_stop else "")
+        + f"; {len(results['per_view'])} held-out views scored in {score_seconds:.0f} s"
         + "), held-out views against the clean frames:\n"
         f"  novel (canonical state)        PSNR {results['psnr_novel']:.2f} dB, SSIM {results['ssim_novel']:.3f}"
         f" (untrained {untrained['psnr_novel']:.2f} dB)\n"

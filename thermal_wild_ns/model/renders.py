@@ -29,8 +29,10 @@ from thermal_wild_ns.model.compositing import (
 from thermal_wild_ns.model.emission import GaussianEmission
 from thermal_wild_ns.model.view_emission import visible_radial_part
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.rendering import activated, rasterize_gaussians, render_one_view
+from thermal_wild_ns.rendering import activated, rasterize_gaussians, render_one_view, resolve_backend
+from thermal_wild_ns.rendering.backend import FAR_PLANE, NEAR_PLANE
 from thermal_wild_ns.rendering.captured import CapturedCalls
+from thermal_wild_ns.rendering.splat_weights import splat_weights
 
 TRAINING_COLLAPSED = (
     "All Gaussians have been pruned: training collapsed. Lower cull_alpha_thresh or check the data (constant or "
@@ -283,6 +285,30 @@ class FittingRender:
             args = (True, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, parts.ranks.split)  # with depth
             render, alpha, _ = rasterize_gaussians(params, colors, view.viewmat, view.K, W, H, ids, *args)
         return [rendered_outputs(render, alpha, background, scene.colormap)], None
+
+    def fixed_view(self, scene: Scene, camera: Cameras, ids: Optional[Tensor] = None) -> Callable[[Tensor], Dict]:
+        """`render_cameras` of one camera as a function of the frame embedding, for a fit that moves the state
+        alone: on the pure-torch rasterizer the splats' weights are computed once (`rendering.splat_weights`)
+        and each render after is a sparse product (the same render and gradients); with gsplat's kernels, or
+        the Gaussians split across GPUs, each call renders."""
+        parts, params, cfg = self.parts, scene.params, self.parts.config
+        device = params["means"].device
+        once = parts.ranks.split or resolve_backend(cfg.rasterizer, device) != "torch"
+        if once or params["means"].shape[0] == 0 or (ids is not None and ids.sum() == 0):
+            return lambda embed: self.render_cameras(scene, [camera], [embed], ids)[0][0]
+        view = parts.training_views.get(camera, lambda: camera.camera_to_worlds, 1, device, None)
+        K, camera_to_world, W, H = view.K[0], view.camera_to_world[0], view.width, view.height
+        crop = lambda x: x if ids is None else x[ids]
+        scales, opacities = activated(params, ids)  # [N, 3], [N]
+        geometry = (crop(params["means"]), crop(params["quats"]), scales, opacities, view.viewmat, view.K, W, H)
+        weights = splat_weights(*geometry, NEAR_PLANE, FAR_PLANE, cfg.rasterize_mode)
+
+        def render(embed: Tensor) -> Dict:
+            background = parts.background.exact(K, camera_to_world, embed, W, H)
+            colors = parts.emission.exact_radiance(params, embed, camera_to_world[:3, 3], scene.view_term, ids)
+            return rendered_outputs(weights.render(colors), weights.alpha, background, scene.colormap)
+
+        return render
 
 
 def render_modes(parts: RenderParts) -> Dict[RenderMode, object]:

@@ -12,7 +12,7 @@ its caller passes, else the viewer's: renders are stable.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple, Type, Union
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Type, Union
 
 import torch
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
@@ -45,7 +45,7 @@ from thermal_wild_ns.model.old_checkpoints import (
     packed_optimizer_states,
 )
 from thermal_wild_ns.model.options import ThermalModelOptions
-from thermal_wild_ns.model.renders import RenderParts, Scene, render_mode, render_modes
+from thermal_wild_ns.model.renders import RenderMode, RenderParts, Scene, render_mode, render_modes
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
 from thermal_wild_ns.model.thermal_loss import ThermalLoss, inverse_lut_table
@@ -218,6 +218,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                     self.gauss_params, self.optimizers, self.strategy_state, self.step, info
                 )
         return outputs
+
+    def fitting_view(self, camera: Cameras) -> Callable[[Tensor], Dict[str, Union[Tensor, List]]]:
+        """`get_outputs` of `camera` outside training as a function of the frame embedding [Df], for a fit of the
+        state through the render (the geometry fixed: `FittingRender.fixed_view`)."""
+        ids = None if self.crop_box is None else self.crop_box.within(self.means).squeeze()
+        return self.renders[RenderMode.FITTING].fixed_view(self.scene(), camera, ids)
 
     def scene(self) -> Scene:
         """What a render reads of the model now (`renders.Scene`)."""

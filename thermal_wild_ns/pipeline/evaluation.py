@@ -142,8 +142,9 @@ def fit_embedding(
     embedding = start.detach().clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
     optimizer = torch.optim.Adam([embedding], lr=lr)
     with torch.enable_grad(), parameters_frozen(model):
+        view = model.fitting_view(camera)  # the geometry's part of the render, once
         for _ in range(steps):
-            rendered = thermal_output(model.get_outputs(camera, frame_embedding=embedding))  # [H, W, 1]
+            rendered = thermal_output(view(embedding))  # [H, W, 1]
             pred = as_recorded(model, rendered, camera)[..., 0]  # compared with the recorded frame
             loss = (pred[:, columns] - target[:, columns]).abs().mean()
             (embedding.grad,) = torch.autograd.grad(loss, embedding)

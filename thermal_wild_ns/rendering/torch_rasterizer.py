@@ -23,7 +23,7 @@ Memory: tiles are composited in chunks whose padded size is bounded by `_CHUNK_E
 from __future__ import annotations
 
 import math
-from typing import Dict, Literal, Optional, Tuple
+from typing import Dict, Iterator, Literal, Optional, Tuple
 
 import torch
 from gsplat.cuda._torch_impl import (
@@ -177,6 +177,89 @@ def intersect_tiles(
     return tiles_per_gauss, tile[order], splat[order]
 
 
+def composited_chunks(
+    means2d: Tensor,  # [M, 2]
+    conics: Tensor,  # [M, 3]
+    opacities: Tensor,  # [M]
+    pair_tile: Tensor,  # [P]
+    pair_splat: Tensor,  # [P]
+    width: int,
+    height: int,
+    tile_size: int,
+    absgrad_holder: Optional[Tensor] = None,
+) -> Iterator[Tuple[Tensor, Tensor, Tensor]]:
+    """Front-to-back compositing of depth-sorted splats, a chunk of tiles at a time: each chunk's tiles [B]
+    (global ids), the splat in each of their slots [B, K] and each pixel's weight of it [B, P2, K] (alpha times
+    transmittance; 0 in an empty slot and past the pixel's stop). A pixel's render is its splats' colours summed
+    by these weights."""
+    if pair_tile.numel() == 0:
+        return
+    device, dtype = means2d.device, means2d.dtype
+    tile_width = math.ceil(width / tile_size)
+    tile_height = math.ceil(height / tile_size)
+    P2 = tile_size * tile_size
+    tiles, counts = torch.unique_consecutive(pair_tile, return_counts=True)
+    starts = torch.cumsum(counts, 0) - counts
+    # composite tiles in order of splat count so that a chunk pads to a similar length
+    by_count = torch.argsort(counts)
+    tiles, counts, starts = tiles[by_count], counts[by_count], starts[by_count]
+    # pixel centres of a tile, relative to its corner: [P2, 2]
+    yy, xx = torch.meshgrid(
+        torch.arange(tile_size, device=device), torch.arange(tile_size, device=device), indexing="ij"
+    )
+    local_px = torch.stack([xx.reshape(-1), yy.reshape(-1)], -1).to(dtype) + 0.5
+    counts_list = counts.tolist()
+    i = 0
+    while i < len(counts_list):
+        # grow the chunk while it stays within the memory budget and pads little
+        j, kmax = i, 0
+        while j < len(counts_list):
+            k_new = max(kmax, counts_list[j])
+            over_budget = (j + 1 - i) * P2 * k_new > _CHUNK_ELEMENTS
+            too_ragged = k_new > 1.5 * max(counts_list[i], 16)  # padding would waste > 1/3
+            if j > i and (over_budget or too_ragged):
+                break
+            kmax = k_new
+            j += 1
+        chunk_tiles = tiles[i:j]
+        chunk_cnt = counts[i:j]
+        slot = torch.arange(kmax, device=device)
+        valid = slot[None, :] < chunk_cnt[:, None]  # [B, K]
+        pair_idx = (starts[i:j, None] + slot[None, :]).clamp(max=len(pair_splat) - 1)
+        idx = torch.where(valid, pair_splat[pair_idx], torch.zeros_like(pair_idx))  # [B, K]
+
+        tile_in_cam = chunk_tiles % (tile_width * tile_height)
+        corner = torch.stack([tile_in_cam % tile_width, tile_in_cam // tile_width], -1).to(dtype) * tile_size
+        pix = corner[:, None, :] + local_px[None]  # [B, P2, 2]
+
+        if absgrad_holder is not None:
+            mu = _GatherMeans2d.apply(means2d, idx, P2, absgrad_holder)  # [B, P2, K, 2]
+        else:
+            mu = means2d[idx][:, None]  # [B, 1, K, 2]
+        dx = mu[..., 0] - pix[:, :, None, 0]  # [B, P2, K]
+        dy = mu[..., 1] - pix[:, :, None, 1]
+        con = conics[idx][:, None]  # [B, 1, K, 3]
+        sigma = 0.5 * (con[..., 0] * dx * dx + con[..., 2] * dy * dy) + con[..., 1] * dx * dy  # [B, P2, K]
+        alpha = torch.clamp(opacities[idx][:, None] * torch.exp(-sigma), max=_ALPHA_MAX)
+        keep = valid[:, None, :] & (sigma >= 0) & (alpha >= _ALPHA_MIN)
+        alpha = torch.where(keep, alpha, torch.zeros_like(alpha))
+        one_minus = 1.0 - alpha
+        trans = torch.cumprod(torch.cat([torch.ones_like(one_minus[..., :1]), one_minus[..., :-1]], -1), -1)
+        with torch.no_grad():
+            # gsplat stops a pixel *before* the splat that would drop T to <= 1e-4
+            alive = (trans * one_minus) > _T_MIN
+        yield chunk_tiles, idx, alpha * trans * alive
+        i = j
+
+
+def tiles_to_image(x: Tensor, n_cameras: int, width: int, height: int, tile_size: int) -> Tensor:
+    """Per-tile pixels [n_tiles, P2, D] as images [C, H, W, D] (the tiles' overhang past the image cut)."""
+    tile_width, tile_height = math.ceil(width / tile_size), math.ceil(height / tile_size)
+    x = x.view(n_cameras, tile_height, tile_width, tile_size, tile_size, x.shape[-1])
+    x = x.permute(0, 1, 3, 2, 4, 5).reshape(n_cameras, tile_height * tile_size, tile_width * tile_size, -1)
+    return x[:, :height, :width]
+
+
 def composite_tiles(
     means2d: Tensor,  # [M, 2]
     conics: Tensor,  # [M, 3]
@@ -190,79 +273,20 @@ def composite_tiles(
     tile_size: int,
     absgrad_holder: Optional[Tensor] = None,
 ) -> Tuple[Tensor, Tensor]:
-    """Front-to-back alpha compositing of depth-sorted splats, tile by tile.
+    """Front-to-back alpha compositing of depth-sorted splats, tile by tile (`composited_chunks`).
 
     Returns colors [C, H, W, D] and alphas [C, H, W, 1] (no background).
     """
-    device, dtype = means2d.device, means2d.dtype
-    D = colors.shape[-1]
-    tile_width = math.ceil(width / tile_size)
-    tile_height = math.ceil(height / tile_size)
-    n_tiles = n_cameras * tile_width * tile_height
-    P2 = tile_size * tile_size
-    out_colors = means2d.new_zeros(n_tiles, P2, D)
-    out_alphas = means2d.new_zeros(n_tiles, P2, 1)
-    if pair_tile.numel() > 0:
-        tiles, counts = torch.unique_consecutive(pair_tile, return_counts=True)
-        starts = torch.cumsum(counts, 0) - counts
-        # composite tiles in order of splat count so that a chunk pads to a similar length
-        by_count = torch.argsort(counts)
-        tiles, counts, starts = tiles[by_count], counts[by_count], starts[by_count]
-        # pixel centres of a tile, relative to its corner: [P2, 2]
-        yy, xx = torch.meshgrid(
-            torch.arange(tile_size, device=device), torch.arange(tile_size, device=device), indexing="ij"
-        )
-        local_px = torch.stack([xx.reshape(-1), yy.reshape(-1)], -1).to(dtype) + 0.5
-        counts_list = counts.tolist()
-        i = 0
-        while i < len(counts_list):
-            # grow the chunk while it stays within the memory budget and pads little
-            j, kmax = i, 0
-            while j < len(counts_list):
-                k_new = max(kmax, counts_list[j])
-                over_budget = (j + 1 - i) * P2 * k_new > _CHUNK_ELEMENTS
-                too_ragged = k_new > 1.5 * max(counts_list[i], 16)  # padding would waste > 1/3
-                if j > i and (over_budget or too_ragged):
-                    break
-                kmax = k_new
-                j += 1
-            chunk_tiles = tiles[i:j]
-            chunk_cnt = counts[i:j]
-            slot = torch.arange(kmax, device=device)
-            valid = slot[None, :] < chunk_cnt[:, None]  # [B, K]
-            pair_idx = (starts[i:j, None] + slot[None, :]).clamp(max=len(pair_splat) - 1)
-            idx = torch.where(valid, pair_splat[pair_idx], torch.zeros_like(pair_idx))  # [B, K]
-
-            tile_in_cam = chunk_tiles % (tile_width * tile_height)
-            corner = torch.stack([tile_in_cam % tile_width, tile_in_cam // tile_width], -1).to(dtype) * tile_size
-            pix = corner[:, None, :] + local_px[None]  # [B, P2, 2]
-
-            if absgrad_holder is not None:
-                mu = _GatherMeans2d.apply(means2d, idx, P2, absgrad_holder)  # [B, P2, K, 2]
-            else:
-                mu = means2d[idx][:, None]  # [B, 1, K, 2]
-            dx = mu[..., 0] - pix[:, :, None, 0]  # [B, P2, K]
-            dy = mu[..., 1] - pix[:, :, None, 1]
-            con = conics[idx][:, None]  # [B, 1, K, 3]
-            sigma = 0.5 * (con[..., 0] * dx * dx + con[..., 2] * dy * dy) + con[..., 1] * dx * dy  # [B, P2, K]
-            alpha = torch.clamp(opacities[idx][:, None] * torch.exp(-sigma), max=_ALPHA_MAX)
-            keep = valid[:, None, :] & (sigma >= 0) & (alpha >= _ALPHA_MIN)
-            alpha = torch.where(keep, alpha, torch.zeros_like(alpha))
-            one_minus = 1.0 - alpha
-            trans = torch.cumprod(torch.cat([torch.ones_like(one_minus[..., :1]), one_minus[..., :-1]], -1), -1)
-            with torch.no_grad():
-                # gsplat stops a pixel *before* the splat that would drop T to <= 1e-4
-                alive = (trans * one_minus) > _T_MIN
-            weights = alpha * trans * alive  # [B, P2, K]
-            out_colors[chunk_tiles] = torch.einsum("bpk,bkd->bpd", weights, colors[idx])
-            out_alphas[chunk_tiles] = weights.sum(-1, keepdim=True)
-            i = j
-
-    def to_image(x: Tensor) -> Tensor:
-        x = x.view(n_cameras, tile_height, tile_width, tile_size, tile_size, x.shape[-1])
-        x = x.permute(0, 1, 3, 2, 4, 5).reshape(n_cameras, tile_height * tile_size, tile_width * tile_size, -1)
-        return x[:, :height, :width]
-
+    n_tiles = n_cameras * math.ceil(width / tile_size) * math.ceil(height / tile_size)
+    out_colors = means2d.new_zeros(n_tiles, tile_size * tile_size, colors.shape[-1])
+    out_alphas = means2d.new_zeros(n_tiles, tile_size * tile_size, 1)
+    chunks = composited_chunks(
+        means2d, conics, opacities, pair_tile, pair_splat, width, height, tile_size, absgrad_holder
+    )
+    for chunk_tiles, idx, weights in chunks:
+        out_colors[chunk_tiles] = torch.einsum("bpk,bkd->bpd", weights, colors[idx])
+        out_alphas[chunk_tiles] = weights.sum(-1, keepdim=True)
+    to_image = lambda x: tiles_to_image(x, n_cameras, width, height, tile_size)
     return to_image(out_colors), to_image(out_alphas)
 
 
