@@ -9,6 +9,7 @@ import errno
 import json
 import multiprocessing
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -320,11 +321,15 @@ def test_ns_eval_shows_its_progress_through_scoring(trained_run, tmp_path):
 def test_the_demo_shows_its_progress_through_scoring(tmp_path):
     """The README's main command: after training it scores the held-out views under five protocols, says
     where it is meanwhile and how long the scoring took."""
-    result = _command("wild-thermal-demo", "--steps", "20", "--output-dir", str(tmp_path / "demo"), cwd=tmp_path)
+    demo = ("wild-thermal-demo", "--steps", "20", "--seed", "3", "--output-dir", str(tmp_path / "demo"))
+    result = _command(*demo, cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-2000:]
     lines = [line for line in result.stderr.splitlines() if line.startswith("Scoring held-out views")]
     assert any(line.startswith("Scoring held-out views (novel, time, aligned, half, oracle): 0/") for line in lines)
     done = lines[-1].split(": ")[1].split(" ")[0]
     assert done.split("/")[0] == done.split("/")[1]  # the last line says every view is scored
     metrics = json.loads((tmp_path / "demo" / "metrics.json").read_text())
+    config = Path(metrics["config"]).read_text()
+    # --seed: the random generators' (the machine's seed) and the order the frames are visited in
+    assert re.search(r"^\s*seed: 3$", config, re.M) and re.search(r"^\s*train_order_seed: 3$", config, re.M)
     assert metrics["score_seconds"] > 0 and f"{len(metrics['per_view'])} held-out views scored in" in result.stdout

@@ -36,6 +36,9 @@ class DemoArgs:
     """Training steps at most (default: 800 on CPU, 10000 on GPU); the automatic stop may end the run sooner."""
     max_gaussians: int = 10_000
     """Gaussian budget the run starts from (the held-back frames may double it); the 128x96 demo scene needs few."""
+    seed: Optional[int] = None
+    """Seed of the random generators and of the order the training frames are visited in (default: the method's
+    config's); runs of several seeds show the spread of a score."""
 
 
 def demo_trainer_config(output_dir: Path, steps: int, max_gaussians: int, method: str = "wild-thermal"):
@@ -70,6 +73,8 @@ def main(args: DemoArgs) -> dict:
     steps = args.steps or (10_000 if device == "cuda" else 800)
     generate_demo_scene(args.output_dir / "scene")
     config = demo_trainer_config(args.output_dir, steps, args.max_gaussians)
+    if args.seed is not None:
+        config.machine.seed = config.pipeline.datamanager.train_order_seed = args.seed
     config.save_config()
     trainer = seeded_trainer(config)
     untrained = evaluate(trainer.pipeline, protocols=("novel",))

@@ -1,0 +1,41 @@
+"""`python -m experiments.score_time RUN/config.yml ...`: how long scoring a trained run's held-out views takes
+under every protocol (as `wild-thermal-demo` and the bench score them), with the scores, one JSON line per run.
+Run as a script with two packages on the same checkpoints (the package of PYTHONPATH's tree is the one timed), to
+see a change's cost and that its scores stay:
+
+    PYTHONPATH=/tmp/tree-before python experiments/score_time.py RUN/config.yml ... > before.jsonl
+    PYTHONPATH=$PWD python experiments/score_time.py RUN/config.yml ... > after.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from nerfstudio.utils.eval_utils import eval_setup
+
+from thermal_wild_ns._upstream import prepare_checkpoint_commands
+from thermal_wild_ns.pipeline.evaluation import PROTOCOLS, evaluate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="Time the scoring of trained runs under every protocol.")
+    parser.add_argument("configs", type=Path, nargs="+", help="the runs' config.yml")
+    parser.add_argument("--fit-steps", type=int, default=100, help="embedding fit steps of `half` and `oracle`")
+    args = parser.parse_args()
+    prepare_checkpoint_commands()
+    for config in args.configs:
+        _, pipeline, _, _ = eval_setup(config, test_mode="test")
+        start = time.perf_counter()
+        scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps)
+        seconds = time.perf_counter() - start
+        psnr = {k: v for k, v in scores.items() if k.startswith("psnr_")}
+        views = len(scores["per_view"])
+        record = {"config": str(config), "views": views, "seconds": round(seconds, 2), **psnr}
+        print(json.dumps(record), flush=True)
+
+
+if __name__ == "__main__":
+    main()
