@@ -17,6 +17,8 @@
 #                      splatfacto with its bilateral grid, stock splatfacto (the first STEPS (5000) steps of their
 #                      30k schedule, scored at 1,000, 2,000 and 5,000), then the full method's default (30k asked,
 #                      its automatic stop); each bench's files as it ends
+#   survey-timing [SURVEY...]  experiments.survey_timing: every phase from a survey folder to the °C map, timed
+#                      (default: survey:250 survey:1000 survey:4000 and .data/flight2/.. as metashape)
 #   trace SCENE        the full method's step at step 3,000 as the bench trains: its profile and timeline
 #   renders SCENE      the render ways (as ns-render and the viewer draw) on a model of the scene trained to step
 #                      3,400 as the bench trains: 3 rounds of 1,000 frames at 640x512 (experiments.render_fps)
@@ -111,6 +113,13 @@ case "$plan" in
     bench "$scene-bilateral-grid" --methods splatfacto "${short[@]}" --set pipeline.model.use_bilateral_grid=True
     bench "$scene-splatfacto" --methods splatfacto "${short[@]}"
     bench "$scene-wild-thermal" --methods wild-thermal --eval-at 1000 2000 5000 10000 20000 30000
+    ;;
+  survey-timing)
+    warm
+    surveys=("${@:-survey:250 survey:1000 survey:4000 metashape:$root/.data/flight2}")
+    py -m experiments.survey_timing --surveys ${surveys[@]} --output-dir /tmp/survey-timing > "$res/survey-timing.log" 2>&1
+    cp /tmp/survey-timing/survey_timing.* "$res/" 2>/dev/null; tail -n 8 "$res/survey-timing.log"
+    pack
     ;;
   trace)
     warm

@@ -10,6 +10,7 @@ rasterizer's (`torch_rasterizer.composited_chunks`), on any device."""
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Literal
 
@@ -111,7 +112,9 @@ def splat_weights(
     index = torch.stack([cat(rows, local), cat(columns, local)])
     matrix = torch.sparse_coo_tensor(index, cat(values, means), (height * width, N), check_invariants=False)
     matrix = matrix.coalesce()
-    csr, transposed = matrix.to_sparse_csr(), matrix.t().coalesce().to_sparse_csr()
+    with warnings.catch_warnings():  # torch calls its CSR tensors beta at every conversion: not the user's concern
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta state")
+        csr, transposed = matrix.to_sparse_csr(), matrix.t().coalesce().to_sparse_csr()
     alpha = (csr @ means.new_ones(N, 1)).view(1, height, width, 1)
     depth = (csr @ depths[:, None]).view(1, height, width, 1) / alpha.clamp(min=1e-10)
     return SplatWeights(csr, transposed, alpha, depth, width, height)

@@ -1,0 +1,37 @@
+"""The survey benchmark (`experiments/survey_timing.py`): every phase from a survey folder to the °C map, each in
+a fresh process through the command a user runs, its seconds and peak memory written; on a CPU, a real drone
+survey at 1/8 of its resolution for a few steps (no timing asserted)."""
+
+import json
+
+import pytest
+from real_data import FLIGHT2
+
+pytestmark = pytest.mark.slow  # trains and scores through nerfstudio's commands: minutes on a CPU
+
+
+@pytest.mark.skipif(not FLIGHT2.is_dir(), reason=f"{FLIGHT2} is not here")
+def test_every_phase_from_the_folder_to_the_orthomosaic_is_timed(tmp_path):
+    from experiments.survey_timing import PHASES, SurveyTimingArgs, main
+
+    folder = tmp_path / "flight2"
+    folder.symlink_to(FLIGHT2, target_is_directory=True)
+    args = SurveyTimingArgs(
+        surveys=[f"metashape:{folder}"],
+        output_dir=tmp_path / "out",
+        max_steps=4,
+        train_options="--pipeline.datamanager.camera-res-scale-factor 0.125 --pipeline.eval-fit-steps 0",
+        orthomosaic_options="--ground-resolution 1.0 --min-coverage 0",  # a 4-step model covers little
+    )
+    (row,) = main(args)
+    assert list(row["phases"]) == list(PHASES)
+    for phase, record in row["phases"].items():
+        assert "failed" not in record, (phase, record.get("failed"))
+        assert record["seconds"] > 0 and record["peak_host_mb"] > 100, (phase, record)
+    out = tmp_path / "out"
+    assert json.loads((out / "survey_timing.json").read_text()) == [row]
+    assert (out / "survey_timing.png").stat().st_size > 0
+    table = (out / "survey_timing.md").read_text()
+    assert table.count("\n") == 3 and "failed" not in table and "skipped" not in table
+    ortho = next(out.glob("*/ortho.tif"))  # the phases' own outputs: the map and the points
+    assert ortho.stat().st_size > 0 and next(out.glob("*/points.ply")).stat().st_size > 0
