@@ -252,17 +252,16 @@ class CroppedRender:
     parts: RenderParts
 
     def render_cameras(self, scene: Scene, cameras: Sequence[Cameras], embeds: Sequence[Tensor], ids=None) -> Rendered:
-        parts, params, cfg = self.parts, scene.params, self.parts.config
+        parts, params = self.parts, scene.params
         (camera,), (embed,) = cameras, embeds
-        view = parts.training_views.get(camera, lambda: camera.camera_to_worlds, 1, embed.device, None)
+        view = full_view(parts, camera, embed.device)
         K, camera_to_world, W, H = view.K[0], view.camera_to_world[0], view.width, view.height
         background = parts.background.rendered(K, camera_to_world, embed, W, H, view.pinhole, scene.step)
         render = alpha = None  # nothing to render: no Gaussian, or none in the crop box
-        if params["means"].shape[0] > 0 and (ids is None or ids.sum() > 0):
+        if drawn(params, ids):
             position = camera_to_world[:3, 3]  # [3]
             colors = parts.emission.rendered_radiance(params, embed, scene.step, position, scene.view_term, ids)
-            args = (True, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, parts.ranks.split)  # with depth
-            render, alpha, _ = rasterize_gaussians(params, colors, view.viewmat, view.K, W, H, ids, *args)
+            render, alpha = rasterized_with_depth(parts, params, colors, view, ids)
         return [rendered_outputs(render, alpha, background, scene.colormap)], None
 
 
@@ -274,16 +273,15 @@ class FittingRender:
     parts: RenderParts
 
     def render_cameras(self, scene: Scene, cameras: Sequence[Cameras], embeds: Sequence[Tensor], ids=None) -> Rendered:
-        parts, params, cfg = self.parts, scene.params, self.parts.config
+        parts, params = self.parts, scene.params
         (camera,), (embed,) = cameras, embeds
-        view = parts.training_views.get(camera, lambda: camera.camera_to_worlds, 1, embed.device, None)
+        view = full_view(parts, camera, embed.device)
         K, camera_to_world, W, H = view.K[0], view.camera_to_world[0], view.width, view.height
         background = parts.background.exact(K, camera_to_world, embed, W, H)
         render = alpha = None  # nothing to render: no Gaussian, or none in the crop box
-        if params["means"].shape[0] > 0 and (ids is None or ids.sum() > 0):
+        if drawn(params, ids):
             colors = parts.emission.exact_radiance(params, embed, camera_to_world[:3, 3], scene.view_term, ids)
-            args = (True, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, parts.ranks.split)  # with depth
-            render, alpha, _ = rasterize_gaussians(params, colors, view.viewmat, view.K, W, H, ids, *args)
+            render, alpha = rasterized_with_depth(parts, params, colors, view, ids)
         return [rendered_outputs(render, alpha, background, scene.colormap)], None
 
     def fixed_view(self, scene: Scene, camera: Cameras, ids: Optional[Tensor] = None) -> Callable[[Tensor], Dict]:
@@ -294,9 +292,9 @@ class FittingRender:
         parts, params, cfg = self.parts, scene.params, self.parts.config
         device = params["means"].device
         once = parts.ranks.split or resolve_backend(cfg.rasterizer, device) != "torch"
-        if once or params["means"].shape[0] == 0 or (ids is not None and ids.sum() == 0):
+        if once or not drawn(params, ids):
             return lambda embed: self.render_cameras(scene, [camera], [embed], ids)[0][0]
-        view = parts.training_views.get(camera, lambda: camera.camera_to_worlds, 1, device, None)
+        view = full_view(parts, camera, device)
         K, camera_to_world, W, H = view.K[0], view.camera_to_world[0], view.width, view.height
         crop = lambda x: x if ids is None else x[ids]
         scales, opacities = activated(params, ids)  # [N, 3], [N]
@@ -323,6 +321,24 @@ def render_modes(parts: RenderParts) -> Dict[RenderMode, object]:
 
 
 # ---------------------------------------------------------------------------------------------- shared
+def full_view(parts: RenderParts, camera: Cameras, device) -> View:
+    """The view of a camera outside training, at its full resolution."""
+    return parts.training_views.get(camera, lambda: camera.camera_to_worlds, 1, device, None)
+
+
+def drawn(params: Dict[str, Tensor], ids: Optional[Tensor]) -> bool:
+    """Whether there is a Gaussian to draw: any at all, and any in the crop box (`ids` [N] bool) where there is one."""
+    return params["means"].shape[0] > 0 and (ids is None or bool(ids.sum() > 0))
+
+
+def rasterized_with_depth(parts: RenderParts, params: Dict[str, Tensor], colors: Tensor, view: View, ids):
+    """The render [1, H, W, D + 1] (expected depth last) and alpha [1, H, W, 1] of one view, the model's settings."""
+    cfg = parts.config
+    args = (True, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, parts.ranks.split)  # with depth
+    render, alpha, _ = rasterize_gaussians(params, colors, view.viewmat, view.K, view.width, view.height, ids, *args)
+    return render, alpha
+
+
 def fixed_pose_index(camera: Cameras, config) -> Optional[int]:
     """The training image of a training camera whose pose is fixed (no pose optimizer), else None."""
     fixed = config.camera_optimizer.mode == "off" and camera.metadata and "cam_idx" in camera.metadata
