@@ -5,10 +5,10 @@ Each patch or adapter below says what upstream does, why the plugin needs someth
 upstream version it was checked against (`CHECKED`, verified when this module is imported). Nothing
 here changes upstream behaviour when this module is imported: the subclasses are used by name, and
 the callers apply each patch where a command or a method needs it. nerfstudio's command scripts
-(`nerfstudio.scripts.*`) are imported inside the hooks of their commands: the exporter needs open3d,
-which the light install leaves out, and neither is needed to train. The CPU torchvision trap is
-handled apart, in `install/torchvision_shim.py`: it must act at interpreter start, before anything
-imports torchvision (and so before this module could).
+(`nerfstudio.scripts.*`) are imported inside the hooks of their commands, and the exporter through
+`nerfstudio_exporter`: it imports open3d, which the light install leaves out, and neither is needed
+to train. The CPU torchvision trap is handled apart, in `install/torchvision_shim.py`: it must act at
+interpreter start, before anything imports torchvision (and so before this module could).
 """
 
 from __future__ import annotations
@@ -16,8 +16,11 @@ from __future__ import annotations
 import contextlib
 import copy
 import dataclasses
+import importlib
 import os
 import shutil
+import sys
+import types
 from importlib import metadata
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
@@ -686,6 +689,43 @@ class TrainerAfterLoad(Trainer):
         super()._after_train()
 
 
+class _MissingOpen3d(types.ModuleType):
+    """Stands in for open3d in nerfstudio's exporter module only: says what is missing when a point-cloud or mesh
+    export reaches for it."""
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):  # what `inspect` and `hasattr` probe on every module
+            raise AttributeError(name)
+        raise ImportError(
+            f"open3d.{name}: open3d is not installed (the light install leaves it out); nerfstudio's point-cloud and "
+            "mesh exports need it: pip install open3d"
+        )
+
+
+def nerfstudio_exporter() -> types.ModuleType:
+    """nerfstudio 1.1.5's `nerfstudio.scripts.exporter`, importable without open3d.
+
+    The module imports open3d at its top for its point-cloud and mesh exports; the Gaussian-splat export (the only
+    one this plugin extends) never uses it, and the light install has none. Where open3d does not import, that one
+    import gets a stand-in that raises on use, and open3d stays absent for everyone else."""
+    name = "nerfstudio.scripts.exporter"
+    if name in sys.modules:
+        return sys.modules[name]
+    try:
+        importlib.import_module("open3d")
+    except (ImportError, OSError):  # OSError: open3d present but its system library (libusb) missing
+        before = sys.modules.get("open3d", _MissingOpen3d)
+        sys.modules["open3d"] = _MissingOpen3d("open3d")
+        try:
+            return importlib.import_module(name)
+        finally:
+            if before is _MissingOpen3d:
+                del sys.modules["open3d"]
+            else:
+                sys.modules["open3d"] = before
+    return importlib.import_module(name)
+
+
 @contextlib.contextmanager
 def gaussian_splat_export_hooks(
     on_pipeline: Callable, extra_properties: Callable[[dict], None], header_comments: Callable[[], list]
@@ -696,7 +736,7 @@ def gaussian_splat_export_hooks(
     loaded pipeline; `extra_properties(map_to_tensors)` may add vertex properties before writing;
     `header_comments()` lines are inserted after nerfstudio's "comment Vertical Axis: z" header
     line. The PLY is written under a temporary name and renamed into place."""
-    from nerfstudio.scripts import exporter as ns_export  # a command script: see the module docstring
+    ns_export = nerfstudio_exporter()
 
     original_setup, original_write = ns_export.eval_setup, ns_export.ExportGaussianSplat.write_ply
 

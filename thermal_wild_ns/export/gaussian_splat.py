@@ -18,9 +18,8 @@ from typing import List
 
 import numpy as np
 import torch
-from nerfstudio.scripts import exporter as ns_export
 
-from thermal_wild_ns._upstream import gaussian_splat_export_hooks
+from thermal_wild_ns._upstream import gaussian_splat_export_hooks, nerfstudio_exporter
 from thermal_wild_ns.data.celsius import DjiCalibration
 from thermal_wild_ns.pipeline.photometric_state import canonical_state, to_original
 from thermal_wild_ns.pipeline.run_check import check_trained_run
@@ -78,7 +77,7 @@ def header_comments(pipeline) -> List[str]:
 
 
 @dataclass
-class ExportThermalSplat(ns_export.ExportGaussianSplat):
+class ExportThermalSplat(nerfstudio_exporter().ExportGaussianSplat):
     """ns-export gaussian-splat, plus a `thermal` property and header comments."""
 
     def main(self) -> None:
