@@ -7,7 +7,9 @@
 # with their triangulation caches in .data/cache; a plan's files go to $OUT (8 files at most come back: several go
 # into $OUT/PLAN.tgz, rewritten after each stage, so a plan stopped at its limit keeps what it finished).
 #
-#   install            the bundle (and .data/wheels_extra/*.whl where carried: the GPU tests' extra imports)
+#   install            the bundle (and .data/wheels_extra/*.whl where carried: the GPU tests' extra imports); on a
+#                      warm machine without .devicebundle, the carried wheels alone (pycolmap for a survey that is
+#                      triangulated, such as flight2: with the bundle it passes the carry limit)
 #   tests              every GPU test (tests/test_gpu_parity.py, tests/test_padded_isect.py); with THEN=PLAN, PLAN
 #                      after them if they all pass
 #   schedule SCENE METHOD...   each method's default schedule (30k steps asked; the full method's automatic stop on),
@@ -18,7 +20,8 @@
 #                      30k schedule, scored at 1,000, 2,000 and 5,000), then the full method's default (30k asked,
 #                      its automatic stop); each bench's files as it ends
 #   survey-timing [SURVEY...]  experiments.survey_timing: every phase from a survey folder to the °C map, timed
-#                      (default: survey:250 survey:1000 survey:4000 and .data/flight2/.. as metashape)
+#                      (default survey:250); one survey per call (survey:1000, survey:4000, metashape:$PWD/.data/flight2
+#                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge
 #   trace SCENE        the full method's step at step 3,000 as the bench trains: its profile and timeline
 #   renders SCENE      the render ways (as ns-render and the viewer draw) on a model of the scene trained to step
 #                      3,400 as the bench trains: 3 rounds of 1,000 frames at 640x512 (experiments.render_fps)
@@ -68,8 +71,10 @@ score() {  # RUN GPU: experiments.score_checkpoint on the quality plans' run /tm
 
 case "$plan" in
   install)
-    source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
-    tail -2 "$OUT/bundle_setup.log"
+    if [ -d .devicebundle ] || [ ! -d /tmp/site/nerfstudio ]; then  # a warm machine takes more wheels alone
+      source .devicebundle/setup.sh > "$OUT/bundle_setup.log" 2>&1
+      tail -2 "$OUT/bundle_setup.log"
+    fi
     if ls .data/wheels_extra/*.whl > /dev/null 2>&1; then
       python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
         .data/wheels_extra/*.whl 2>&1 | { grep -v WARNING || true; }
@@ -116,10 +121,13 @@ case "$plan" in
     ;;
   survey-timing)
     warm
-    surveys=("${@:-survey:250 survey:1000 survey:4000 metashape:$root/.data/flight2}")
+    surveys=("${@:-survey:250}")
+    keep() { cp /tmp/survey-timing/survey_timing.* "$res/" 2>/dev/null; pack; }
+    (while sleep 15; do keep; done) &  # the phases so far come back if the call is cut at its limit
+    packer=$!
     py -m experiments.survey_timing --surveys ${surveys[@]} --output-dir /tmp/survey-timing > "$res/survey-timing.log" 2>&1
-    cp /tmp/survey-timing/survey_timing.* "$res/" 2>/dev/null; tail -n 8 "$res/survey-timing.log"
-    pack
+    kill $packer
+    keep; tail -n 8 "$res/survey-timing.log"
     ;;
   trace)
     warm

@@ -12,8 +12,9 @@ Each phase runs in a fresh process (its peak memory is its own), through the com
 - `points`: `wild-thermal-export celsius-points`;
 - `orthomosaic`: `wild-thermal-export orthomosaic` (a georeferenced capture only; otherwise listed as skipped).
 A synthetic survey (`survey:N`, `data/survey_scene.py`) is generated first: not a phase a user meets, its
-seconds are listed apart. Writes `survey_timing.json` (rows as they finish), `survey_timing.md` and
-`survey_timing.png` (seconds per phase, stacked, per survey).
+seconds are listed apart. Writes `survey_timing.json`, `survey_timing.md` and `survey_timing.png` (seconds per
+phase, stacked, per survey) after every phase. Surveys timed in separate runs (one per device call, each within its
+limit) are tabled together with `--merge A/survey_timing.json B/survey_timing.json --surveys` (nothing more timed).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Callable, Dict, List, Optional
 
 import tyro
 
@@ -53,6 +54,9 @@ class SurveyTimingArgs:
     orthomosaic_options: str = ""
     """More `wild-thermal-export orthomosaic` options, one string (e.g. --orthomosaic-options="--ground-resolution
     0.1")."""
+    merge: List[Path] = field(default_factory=list)
+    """`survey_timing.json` files of earlier runs (a survey per device call, each within its limit): their rows go
+    into the table ahead of any timed here."""
 
 
 def _peak_memory() -> Dict[str, float]:
@@ -118,8 +122,9 @@ def dataparser_args(scene: str, cache: Path) -> List[str]:
     return ["thermal", "--data", folder, "--layout", layout, "--cache-dir", str(cache)]
 
 
-def time_survey(scene: str, args: SurveyTimingArgs) -> Dict:
-    """Every phase of one survey, in order; a phase that fails ends the survey's row."""
+def time_survey(scene: str, args: SurveyTimingArgs, on_phase: Callable[[Dict], None] = lambda row: None) -> Dict:
+    """Every phase of one survey, in order; a phase that fails ends the survey's row. `on_phase(row)` after each
+    phase (a run cut short keeps the phases it finished)."""
     from experiments.bench import scene_name
     from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 
@@ -167,6 +172,7 @@ def time_survey(scene: str, args: SurveyTimingArgs) -> Dict:
         entry, argv = phases[phase]
         result = run_phase(phase, entry, argv, folder)
         row["phases"][phase] = result
+        on_phase(row)
         print(f"{scene} {phase}: {json.dumps(result)[:300]}", flush=True)
         if "failed" in result:
             break
@@ -198,7 +204,9 @@ def markdown(rows: List[Dict]) -> str:
                 total += r["seconds"]
                 cells.append(f"{r['seconds']:.1f} ({r['peak_host_mb']:.0f} / {r['peak_gpu_mb']:.0f})")
         generated = f" (generated in {row['generate_seconds']:.0f} s)" if "generate_seconds" in row else ""
-        lines.append(f"| {row['survey']}{generated} | " + " | ".join(cells) + f" | {total:.1f} |")
+        complete = all(cell not in ("failed", "—") for cell in cells)
+        shown = f"{total:.1f}" if complete else f"{total:.1f} so far (incomplete)"
+        lines.append(f"| {row['survey']}{generated} | " + " | ".join(cells) + f" | {shown} |")
     return "\n".join(lines) + "\n"
 
 
@@ -222,14 +230,19 @@ def chart(rows: List[Dict], path: Path) -> None:
     plt.close(fig)
 
 
+def write_results(rows: List[Dict], output_dir: Path) -> None:
+    """`survey_timing.json`, `.md` and `.png` of the rows so far."""
+    (output_dir / "survey_timing.json").write_text(json.dumps(rows, indent=1))
+    (output_dir / "survey_timing.md").write_text(markdown(rows))
+    chart(rows, output_dir / "survey_timing.png")
+
+
 def main(args: SurveyTimingArgs) -> List[Dict]:
     args.output_dir.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows = [row for path in args.merge for row in json.loads(Path(path).read_text())]
     for scene in args.surveys:
-        rows.append(time_survey(scene, args))
-        (args.output_dir / "survey_timing.json").write_text(json.dumps(rows, indent=1))
-    (args.output_dir / "survey_timing.md").write_text(markdown(rows))
-    chart(rows, args.output_dir / "survey_timing.png")
+        rows.append(time_survey(scene, args, lambda row: write_results([*rows, row], args.output_dir)))
+    write_results(rows, args.output_dir)
     print(markdown(rows))
     return rows
 

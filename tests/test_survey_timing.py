@@ -7,9 +7,8 @@ import json
 import pytest
 from real_data import FLIGHT2
 
-pytestmark = pytest.mark.slow  # trains and scores through nerfstudio's commands: minutes on a CPU
 
-
+@pytest.mark.slow  # trains and scores through nerfstudio's commands: minutes on a CPU
 @pytest.mark.skipif(not FLIGHT2.is_dir(), reason=f"{FLIGHT2} is not here")
 def test_every_phase_from_the_folder_to_the_orthomosaic_is_timed(tmp_path):
     from experiments.survey_timing import PHASES, SurveyTimingArgs, main
@@ -35,3 +34,24 @@ def test_every_phase_from_the_folder_to_the_orthomosaic_is_timed(tmp_path):
     assert table.count("\n") == 3 and "failed" not in table and "skipped" not in table
     ortho = next(out.glob("*/ortho.tif"))  # the phases' own outputs: the map and the points
     assert ortho.stat().st_size > 0 and next(out.glob("*/points.ply")).stat().st_size > 0
+
+
+def test_runs_of_separate_calls_are_tabled_together_and_a_cut_row_says_so(tmp_path):
+    """Each survey may be timed in its own device call; `--merge` tables their rows, and a row whose phases did not
+    all finish gives no total as if it were whole."""
+    from experiments.survey_timing import PHASES, SurveyTimingArgs, main
+
+    record = {"seconds": 2.0, "peak_host_mb": 900.0, "peak_child_host_mb": 0.0, "peak_gpu_mb": 10.0}
+    whole = {"survey": "survey:250", "phases": {p: dict(record) for p in PHASES}}
+    cut = {"survey": "survey:1000", "phases": {"setup": dict(record), "train": {"failed": "killed"}}}
+    files = []
+    for i, row in enumerate((whole, cut)):
+        files.append(tmp_path / f"call{i}.json")
+        files[-1].write_text(json.dumps([row]))
+    rows = main(SurveyTimingArgs(surveys=[], merge=files, output_dir=tmp_path / "out"))
+    assert rows == [whole, cut]
+    table = (tmp_path / "out" / "survey_timing.md").read_text().splitlines()
+    assert len(table) == 4
+    assert table[2].endswith(f"| {2.0 * len(PHASES):.1f} |")
+    assert "failed" in table[3] and table[3].endswith("| 2.0 so far (incomplete) |")
+    assert json.loads((tmp_path / "out" / "survey_timing.json").read_text()) == rows
