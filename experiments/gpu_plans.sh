@@ -18,7 +18,8 @@
 #   baselines SCENE    the baselines a nerfstudio user would try, 3 seeds each (SEEDS), RUNS_PER_GPU (3) at once:
 #                      splatfacto with its bilateral grid, stock splatfacto (the first STEPS (5000) steps of their
 #                      30k schedule, scored at 1,000, 2,000 and 5,000), then the full method's default (30k asked,
-#                      its automatic stop); each bench's files as it ends
+#                      its automatic stop); each bench's files as it ends, with 3 held-out views in °C (the first
+#                      seed's, on a calibrated capture)
 #   survey-timing [SURVEY...]  experiments.survey_timing: every phase from a survey folder to the °C map, timed
 #                      (default survey:250); one survey per call (survey:1000, survey:4000, metashape:$PWD/.data/flight2
 #                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge
@@ -111,6 +112,9 @@ case "$plan" in
       cp "/tmp/$name/bench.json" "$res/$name-bench.json" && tail -n 2 "$res/$name.log"
       for log in "/tmp/$name"/gpu*/*/log.txt; do  # each run's own log (its fallbacks and warnings)
         [ -f "$log" ] && cp "$log" "$res/$name-$(basename "$(dirname "$log")").log"
+      done
+      for panel in "/tmp/$name"/renders/*/*_seed0/test_0[0-2]_celsius.png; do  # 3 held-out views in °C, first seed
+        [ -f "$panel" ] && cp "$panel" "$res/$name-$(basename "$panel")"
       done
       pack
     }

@@ -73,7 +73,8 @@ def test_bench_runs_end_to_end_on_cpu(tmp_path):
     for name in ("speed_accuracy.png", "speed_time.png"):  # `aligned` (a fit) and `time` (none)
         chart = cv2.imread(str(out / name))
         assert chart is not None and chart.shape[1] > 400
-    assert len(list((out / "renders" / "demo" / "wild-thermal_seed1").glob("test_*.png"))) == 5
+    renders = out / "renders" / "demo" / "wild-thermal_seed1"
+    assert len(list(renders.glob("test_??.png"))) == len(list(renders.glob("test_??_celsius.png"))) == 5
 
     # runs split over several commands merge into one table
     merged = main(BenchArgs(merge=(out / "bench.json",), output_dir=tmp_path / "merged"))
@@ -88,6 +89,24 @@ def test_aligned_scores_an_affine_render_perfectly_and_half_never_reads_the_righ
     a, b = fit_gain_offset(render, frame)
     assert scores(a * render + b, frame)["psnr"] >= 60.0
     assert fit_gain_offset(np.full((4, 4), 0.2), frame[:4, :4]) == (0.0, pytest.approx(float(frame[:4, :4].mean())))
+
+
+def test_the_celsius_panel_shows_the_error_where_it_is_on_one_fixed_scale(tmp_path):
+    from thermal_wild_ns.pipeline.evaluation import CELSIUS_ERROR_SCALE, write_celsius_panel
+
+    recorded = np.tile(np.linspace(5.0, 25.0, 64), (48, 1))  # [48, 64] °C
+    pred = recorded.copy()
+    pred[:, 32:] += 1.0  # the right half one degree warm
+    pred[0, 0] = np.nan
+    error = write_celsius_panel(tmp_path / "panel.png", recorded, pred, "frame 3")
+    assert np.isnan(error[0, 0]) and np.allclose(error[1:, :32], 0) and np.allclose(error[:, 32:], 1.0)
+    panel = cv2.imread(str(tmp_path / "panel.png"))
+    scale = 384 // 48
+    assert panel.shape == (22 + 48 * scale, 3 * 64 * scale, 3)
+    error_tile = panel[22:, 2 * 64 * scale :].astype(int).sum(-1)
+    # inferno: 0 is near black; 1 °C of a 2 °C scale is mid-palette, far brighter
+    assert CELSIUS_ERROR_SCALE > 1.0
+    assert error_tile[:, 40 * scale :].mean() > error_tile[scale:, : 30 * scale].mean() + 150
 
 
 def test_a_run_past_the_time_limit_is_recorded_as_failed_and_the_bench_goes_on(tmp_path):

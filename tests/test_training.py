@@ -3,6 +3,7 @@ model beats the untrained one on held-out views, and the checkpoint loads back (
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -63,7 +64,11 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     # every protocol scored; fitting on a half or on the frame's own state can only help the fit it scores
     assert {f"{m}_{p}" for m in ("psnr", "ssim") for p in ("novel", "time", "aligned", "half", "oracle")} <= set(after)
     assert after["psnr_aligned"] >= after["psnr_novel"] - 1e-6  # a least-squares fit never lowers PSNR
-    assert len(list((tmp_path / "after").glob("test_*.png"))) == 5
+    assert len(list((tmp_path / "after").glob("test_??.png"))) == 5
+    # the demo is calibrated (°C bounds): each view in °C too, beside the panel above with a label strip
+    celsius_panels = sorted((tmp_path / "after").glob("test_??_celsius.png"))
+    panel, celsius_panel = (cv2.imread(str(p)) for p in (tmp_path / "after" / "test_00.png", celsius_panels[0]))
+    assert len(celsius_panels) == 5 and celsius_panel.shape == (panel.shape[0] + 22, *panel.shape[1:])
 
     # checkpoint -> load (as ns-eval/ns-render/ns-viewer do) -> identical render
     _, loaded, ckpt, step = eval_setup(config.get_base_dir() / "config.yml", test_mode="test")

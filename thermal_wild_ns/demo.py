@@ -5,6 +5,7 @@ a GPU, gsplat and a longer one. Outputs (under --output-dir):
   metrics.json                 held-out PSNR/SSIM under every protocol (pipeline/evaluation.py: novel and
                                aligned against the clean frames, the others the recorded); steps, wall time
   renders/test_XX.png          recorded frame | render at its time state | 5x error (inferno colormap)
+  renders/test_XX_celsius.png  the same in °C (the demo's documented bounds), the error on a fixed 0-2 °C scale
   wild-thermal/<run>/          nerfstudio's config.yml and checkpoint (usable by ns-eval/ns-render/ns-viewer)
 """
 

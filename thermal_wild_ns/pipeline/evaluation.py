@@ -190,7 +190,8 @@ def evaluate(
     pipeline, out_dir: Optional[Path] = None, protocols=PROTOCOLS, fit_steps: int = 100, fit_lr: float = 1e-2
 ) -> Dict:
     """Mean held-out PSNR/SSIM under each protocol (`psnr_novel`, `ssim_time`, ...; per-view rows in
-    `per_view`). With `out_dir`, a PNG per view: the recorded frame | `time` render | 5x error (inferno)."""
+    `per_view`). With `out_dir`, a PNG per view: the recorded frame | `time` render | 5x error (inferno); on a
+    calibrated capture another in °C (`write_celsius_panel`)."""
     unknown = set(protocols) - set(PROTOCOLS)
     if unknown:
         raise ValueError(f"unknown protocol(s) {sorted(unknown)} (one of {', '.join(PROTOCOLS)})")
@@ -228,6 +229,9 @@ def evaluate(
             row.update({f"{k}_time": v for k, v in time_scores.items()})
             if out_dir is not None:
                 _write_panel(out_dir / f"test_{i:02d}.png", recorded, timed)
+                if to_celsius is not None:
+                    recorded_c, timed_c = to_celsius(recorded), to_celsius(np.clip(timed, 0.0, 1.0))
+                    write_celsius_panel(out_dir / f"test_{i:02d}_celsius.png", recorded_c, timed_c, f"frame {frame}")
         if "aligned" in protocols:
             a, b = fit_gain_offset(novel, gt)
             row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt, to_celsius).items()})
@@ -259,3 +263,33 @@ def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:
     )  # x5: small errors visible
     scale = max(1, 384 // gt.shape[0])
     cv2.imwrite(str(path), cv2.resize(panel, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST))
+
+
+CELSIUS_ERROR_SCALE = 2.0
+"""The °C error panel's full scale (°C): one fixed scale, so that panels of different runs and methods compare."""
+
+
+def write_celsius_panel(path: Path, recorded: np.ndarray, pred: np.ndarray, title: str) -> np.ndarray:
+    """A held-out view in °C: recorded | render (both on the recorded view's 1st–99th percentile span) | |error| on
+    0..`CELSIUS_ERROR_SCALE` °C, each labelled with its scale; `recorded` and `pred` [H, W] °C. Returns |error|
+    [H, W] °C (NaN where either is not finite)."""
+    finite = np.isfinite(recorded) & np.isfinite(pred)
+    error = np.where(finite, np.abs(pred - recorded), np.nan)
+    low, high = np.percentile(recorded[finite], [1, 99]) if finite.any() else (0.0, 1.0)
+    span = max(float(high - low), 1e-6)
+    scale = max(1, 384 // recorded.shape[0])
+    mae = float(np.nanmean(error)) if finite.any() else float("nan")
+    tiles = []
+    for top, label in (  # cv2's font has no degree sign
+        ((recorded - low) / span, f"{title}: recorded {low:.1f}-{high:.1f} C"),
+        ((pred - low) / span, "render, same scale"),
+        (error / CELSIUS_ERROR_SCALE, f"|error| 0-{CELSIUS_ERROR_SCALE:g} C, MAE {mae:.2f} C"),
+    ):
+        tile = false_colour(np.nan_to_num(top, nan=0.0))
+        tile = cv2.resize(tile, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        strip = np.zeros((22, tile.shape[1], 3), np.uint8)
+        cv2.putText(strip, label, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(np.concatenate([strip, tile], 0))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.concatenate(tiles, 1))
+    return error
