@@ -1,5 +1,6 @@
 """`python -m experiments.score_time RUN/config.yml ...`: how long scoring a trained run's held-out views takes
-under every protocol (as `wild-thermal-demo` and the bench score them), with the scores, one JSON line per run.
+under every protocol (as `wild-thermal-demo` and the bench score them), with the scores and the held-out fits'
+optimizer steps (each a render and its backward), one JSON line per run.
 Run as a script with two packages on the same checkpoints (the package of PYTHONPATH's tree is the one timed), to
 see a change's cost and that its scores stay:
 
@@ -14,6 +15,7 @@ import json
 import time
 from pathlib import Path
 
+import torch
 from nerfstudio.utils.eval_utils import eval_setup
 
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
@@ -26,14 +28,24 @@ def main() -> None:
     parser.add_argument("--fit-steps", type=int, default=100, help="embedding fit steps of `half` and `oracle`")
     args = parser.parse_args()
     prepare_checkpoint_commands()
+    fit_steps = [0]  # the held-out fits' optimizer steps, all views (each step a render and its backward)
+    adam_step = torch.optim.Adam.step
+
+    def counted(self, *args, **kwargs):
+        fit_steps[0] += 1
+        return adam_step(self, *args, **kwargs)
+
+    torch.optim.Adam.step = counted
     for config in args.configs:
         _, pipeline, _, _ = eval_setup(config, test_mode="test")
+        fit_steps[0] = 0
         start = time.perf_counter()
         scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps)
         seconds = time.perf_counter() - start
         psnr = {k: v for k, v in scores.items() if k.startswith("psnr_")}
         views = len(scores["per_view"])
-        record = {"config": str(config), "views": views, "seconds": round(seconds, 2), **psnr}
+        record = {"config": str(config), "views": views, "seconds": round(seconds, 2), "fit_steps": fit_steps[0]}
+        record.update(psnr)
         print(json.dumps(record), flush=True)
 
 
