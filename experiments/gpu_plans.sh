@@ -20,6 +20,11 @@
 #                      30k schedule, scored at 1,000, 2,000 and 5,000), then the full method's default (30k asked,
 #                      its automatic stop); each bench's files as it ends, with 3 held-out views in °C (the first
 #                      seed's, on a calibrated capture)
+#   table SCENE        the scene table from one call: the full method, wild-thermal-paper and every ablation at
+#                      their default (30k asked, the automatic stop), then splatfacto over the first STEPS (5000)
+#                      steps of its 30k schedule (its best on the real captures), SEEDS (3) seeds each, over every
+#                      GPU of the host, RUNS_PER_GPU (3) at once on each (a host of several GPUs keeps it within a
+#                      call); then here `python -m experiments.full_vs_ablations` on the two bench.json
 #   survey-timing [SURVEY...]  experiments.survey_timing: every phase from a survey folder to the °C map, timed
 #                      (default survey:250); one survey per call (survey:1000, survey:4000, metashape:$PWD/.data/flight2
 #                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge
@@ -122,6 +127,24 @@ case "$plan" in
     bench "$scene-bilateral-grid" --methods splatfacto "${short[@]}" --set pipeline.model.use_bilateral_grid=True
     bench "$scene-splatfacto" --methods splatfacto "${short[@]}"
     bench "$scene-wild-thermal" --methods wild-thermal --eval-at 1000 2000 5000 10000 20000 30000
+    ;;
+  table)
+    warm
+    scene=${1:?scene: dunr, flight2 (from .data), demo or stress:FAULT}
+    case "$scene" in demo|stress:*) path=$scene ;; *) path=$root/.data/$scene ;; esac
+    name=table-$(echo "$scene" | tr : -)
+    table() {  # PART BENCH-ARGS...: one bench of the table over every GPU, its files into the results
+      local part=$name-$1
+      shift
+      py -m experiments.bench --output-dir "/tmp/$part" --scenes "$path" --cache-dir "$root/.data/cache" \
+        --seeds "${SEEDS:-3}" --gpus "$(nvidia-smi -L | wc -l)" --runs-per-gpu "${RUNS_PER_GPU:-3}" --fps-frames 0 \
+        --fit-steps 20 --time-limit "${TIME_LIMIT:-400}" "$@" > "$res/$part.log" 2>&1
+      cp "/tmp/$part/bench.json" "$res/$part-bench.json" && tail -n 2 "$res/$part.log"
+      pack
+    }
+    table methods --methods wild-thermal wild-thermal-paper wild-thermal-3dgs wild-thermal-3dgs-histeq \
+      wild-thermal-3dgs-bbhe wild-thermal-3dgs-stab wild-thermal-3dgs-stab-bbhe wild-thermal-emission-mlp
+    table splatfacto --methods splatfacto --steps "${STEPS:-5000}" --schedule 30000 --eval-at 1000 2000 5000
     ;;
   survey-timing)
     warm

@@ -1512,6 +1512,23 @@ def test_only_the_raw_frame_3dgs_variant_prunes_few_view_gaussians_from_the_star
     assert {d.part: d.choice for d in model.decisions()}["few-view prune"] == "off across GPUs"
 
 
+def test_the_paper_method_is_the_published_full_method_without_this_plugins_additions():
+    """`wild-thermal-paper`: the paper's preprocessing on every capture and its model parts, none of the parts this
+    plugin added; the training length and growth rules are the full method's."""
+    from thermal_wild_ns.method_configs import METHODS
+
+    paper, full = (METHODS[name].config for name in ("wild-thermal-paper", "wild-thermal"))
+    preprocessing = paper.pipeline.datamanager.preprocessing
+    assert (preprocessing.variant, preprocessing.skip_when_stable) == ("stab+bbhe", False)
+    model = paper.pipeline.model
+    assert model.use_emission_mlp and model.use_background_mlp and model.heat_aware_ssim
+    assert model.alpha_lambda == full.pipeline.model.alpha_lambda > 0
+    assert not model.camera_falloff and model.camera_flat_field == 0 and model.view_sh_degree == 0
+    assert full.pipeline.model.camera_falloff and full.pipeline.model.view_sh_degree > 0  # what it leaves out
+    assert paper.auto_stop == full.auto_stop and model.max_gaussians == full.pipeline.model.max_gaussians
+    assert paper.method_name == "wild-thermal-paper"
+
+
 def test_frames_seeing_counts_in_chunks_of_cameras_what_each_camera_alone_sees(monkeypatch):
     """`frames_seeing` tests the cameras a chunk at a time, each chunk's image sizes its own: the counts are those of
     one camera at a time, however the cameras are chunked."""

@@ -217,6 +217,7 @@ def test_dunr_loads_with_dataset_level_normalisation():
         "wild-thermal-3dgs-stab",
         "wild-thermal-3dgs-stab-bbhe",
         "wild-thermal-emission-mlp",
+        "wild-thermal-paper",
     ],
 )
 def test_every_ablation_variant_trains(method, tmp_path, demo_scene_dir):
@@ -230,7 +231,7 @@ def test_every_ablation_variant_trains(method, tmp_path, demo_scene_dir):
     model = trainer.pipeline.model
     assert (
         model.emission_mlp is not None
-        if method in ("wild-thermal", "wild-thermal-emission-mlp")
+        if method in ("wild-thermal", "wild-thermal-emission-mlp", "wild-thermal-paper")
         else model.emission_mlp is None
     )
     preprocessing = config.pipeline.datamanager.preprocessing
