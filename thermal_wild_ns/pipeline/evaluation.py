@@ -281,9 +281,9 @@ def write_celsius_panel(path: Path, recorded: np.ndarray, pred: np.ndarray, titl
     mae = float(np.nanmean(error)) if finite.any() else float("nan")
     tiles = []
     for top, label in (  # cv2's font has no degree sign
-        ((recorded - low) / span, f"{title}: recorded {low:.1f}-{high:.1f} C"),
+        ((recorded - low) / span, f"{title}: recorded {low:.1f} to {high:.1f} C"),
         ((pred - low) / span, "render, same scale"),
-        (error / CELSIUS_ERROR_SCALE, f"|error| 0-{CELSIUS_ERROR_SCALE:g} C, MAE {mae:.2f} C"),
+        (error / CELSIUS_ERROR_SCALE, f"|error| 0 to {CELSIUS_ERROR_SCALE:g} C, MAE {mae:.2f} C"),
     ):
         tile = false_colour(np.nan_to_num(top, nan=0.0))
         tile = cv2.resize(tile, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
