@@ -71,7 +71,7 @@ def wild_thermal_trainer() -> GuardedTrainerConfig:
         steps_per_save=2000,
         steps_per_eval_all_images=1_000_000,
         # an upper bound: the automatic stop ends a run once its held-back frames stop improving, well
-        # before this on every measured scene (docs/results/issue16_defaults_gpu, auto_stop_dunr)
+        # before this on every measured scene (docs/results/scene_table_defaults_h100, auto_stop_dunr)
         max_num_iterations=30000,
         mixed_precision=False,
         machine=MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu"),

@@ -7,7 +7,7 @@ them at that interpolated state and is scored against them as captured (PSNR, or
 a least-squares gain + offset fit per frame: the `time` render, scored as the `aligned` protocol
 scores, on frames that are not the test views. The fit keeps a frame's global level, which nothing
 before it predicts when the camera jumped (an AGC step, one bright frame), from swamping the
-score's changes: they are the scene's (docs/results/issue16_defaults_gpu: a held-back bright frame
+score's changes: they are the scene's (docs/results/scene_table_defaults_h100: a held-back bright frame
 ended runs at their first checks without it).
 When the score has not risen by `min_improvement` dB in `patience` checks in a row, training stops,
 and the best-scoring model is kept. Quality on new views can fall after an early peak; the

@@ -1,6 +1,6 @@
 #!/bin/bash
 # The GPU runs of 2026-11-22 (issues 5 and 6), as the device tool ran them from the repository root:
-#   bash results/gpu_queues_2026-11-22.sh PLAN      (PLAN: demo | sweep | stress | equalization)
+#   bash results/gpu_queues_first.sh PLAN      (PLAN: demo | sweep | stress | equalization)
 # Each PLAN runs up to four queues side by side, one per GPU of an nvidia-h200-x4 machine, each
 # queue a list of `wild-thermal-bench` commands run one after another (one run per GPU at a time:
 # two per GPU measured not to pay). After LIMIT seconds (default 560, the device allows 600 per
