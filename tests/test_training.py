@@ -136,7 +136,6 @@ def test_short_training_run_and_checkpoint_roundtrip(tmp_path, demo_scene_dir):
     assert (tmp_path / "path.mp4").stat().st_size > 1000
 
     # wild-thermal-render: the same command, plus radiometric frames in the dataset's units
-    import cv2
     import imageio_ffmpeg
 
     from thermal_wild_ns.rendering.radiometric_render import RenderInterpolated as ThermalRenderInterpolated
@@ -257,7 +256,6 @@ def test_viewer_screenshot_shows_the_thermal_colormap(tmp_path, demo_scene_dir):
     render in the iron colormap (setup_env.sh installs Debian's chromium)."""
     import shutil
 
-    import cv2
     from scipy.spatial import cKDTree
 
     from thermal_wild_ns.analysis.viewer_screenshot import ScreenshotArgs, screenshot
