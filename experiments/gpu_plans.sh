@@ -88,7 +88,10 @@ case "$plan" in
     ;;
   tests)
     warm
-    py -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py tests/test_padded_isect.py > "$res/gpu-tests.log" 2>&1
+    # with them the held-out fits of several views in one gsplat rasterization (test_bench's `several_views`)
+    py -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py tests/test_padded_isect.py \
+      "tests/test_bench.py::test_held_out_fits_of_several_views_in_one_render_end_where_each_would_alone" \
+      > "$res/gpu-tests.log" 2>&1
     grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$res/gpu-tests.log" | head -30
     pack
     summary=$(grep -E "[0-9]+ (passed|failed)" "$res/gpu-tests.log" | tail -1)

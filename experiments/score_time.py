@@ -1,6 +1,6 @@
 """`python -m experiments.score_time RUN/config.yml ...`: how long scoring a trained run's held-out views takes
 under every protocol (as `wild-thermal-demo` and the bench score them), with the scores and the held-out fits'
-optimizer steps (each a render and its backward), one JSON line per run.
+optimizer steps (each a render of up to `--fit-views` views and its backward), one JSON line per run.
 Run as a script with two packages on the same checkpoints (the package of PYTHONPATH's tree is the one timed), to
 see a change's cost and that its scores stay:
 
@@ -26,9 +26,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description="Time the scoring of trained runs under every protocol.")
     parser.add_argument("configs", type=Path, nargs="+", help="the runs' config.yml")
     parser.add_argument("--fit-steps", type=int, default=100, help="embedding fit steps of `half` and `oracle`")
+    parser.add_argument("--fit-views", type=int, default=8, help="held-out views fitted together, one render a step")
     args = parser.parse_args()
     prepare_checkpoint_commands()
-    fit_steps = [0]  # the held-out fits' optimizer steps, all views (each step a render and its backward)
+    fit_steps = [0]  # the held-out fits' optimizer steps (each a render of several views and its backward)
     adam_step = torch.optim.Adam.step
 
     def counted(self, *args, **kwargs):
@@ -40,7 +41,7 @@ def main() -> None:
         _, pipeline, _, _ = eval_setup(config, test_mode="test")
         fit_steps[0] = 0
         start = time.perf_counter()
-        scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps)
+        scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps, fit_views=args.fit_views)
         seconds = time.perf_counter() - start
         psnr = {k: v for k, v in scores.items() if k.startswith("psnr_")}
         views = len(scores["per_view"])

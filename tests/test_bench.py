@@ -373,13 +373,13 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
 
     pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=8)
     predictions = []
-    original = evaluation.half_protocol
+    original = evaluation.half_prediction
 
-    def recording(pipeline, camera, left, state, steps, lr):
-        predictions.append(original(pipeline, camera, left, state, steps, lr))
+    def recording(pipeline, camera, left, state):
+        predictions.append(original(pipeline, camera, left, state))
         return predictions[-1]
 
-    monkeypatch.setattr(evaluation, "half_protocol", recording)
+    monkeypatch.setattr(evaluation, "half_prediction", recording)
     first = evaluation.evaluate(pipeline, protocols=("half",), fit_steps=3)
     clean = [p.copy() for p in predictions]
     predictions.clear()
@@ -400,12 +400,12 @@ def test_half_protocol_never_reads_a_right_half_pixel(tmp_path, demo_scene_dir, 
 
 
 def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_model_as_it_was(tmp_path, demo_scene_dir):
-    """`fit_embedding` (the `half` and `oracle` protocols) holds the model's parameters constant and renders
-    through the view's splat weights, computed once (`model.fitting_view`): the same Adam steps as with every
+    """`fit_embeddings` (the `half` and `oracle` protocols) holds the model's parameters constant and renders
+    through the view's splat weights, computed once (`model.fitting_views`): the same Adam steps as with every
     parameter in the graph and a full render each step give the same embedding (the embedding's gradient does
     not depend on the geometry getting one), no gradient lands in the model, and every parameter is trainable
     again after the fit, also after a fit that fails."""
-    from thermal_wild_ns.pipeline.evaluation import as_recorded, fit_embedding, thermal_output
+    from thermal_wild_ns.pipeline.evaluation import Fit, as_recorded, fit_embeddings, thermal_output
     from thermal_wild_ns.state_names import CANONICAL
 
     pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
@@ -426,7 +426,8 @@ def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_mode
             optimizer.step()
     model.zero_grad(set_to_none=True)
 
-    fitted = fit_embedding(model, camera, target, slice(None), start, 3, 1e-2)
+    fit = Fit(camera, target, slice(None), start)
+    (fitted,) = fit_embeddings(model, [fit], 3, 1e-2)
     assert not torch.equal(fitted, start) and torch.allclose(fitted, embedding.detach(), atol=1e-6)
     assert all(parameter.grad is None for parameter in model.parameters())
     assert [name for name, parameter in model.named_parameters() if parameter.requires_grad] == trainable
@@ -434,10 +435,45 @@ def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_mode
     def broken(*args, **kwargs):
         raise RuntimeError("a render that fails")
 
-    model.fitting_view = lambda camera: broken
+    model.fitting_views = lambda cameras: broken
     with pytest.raises(RuntimeError, match="a render that fails"):
-        fit_embedding(model, camera, target, slice(None), start, 3, 1e-2)
+        fit_embeddings(model, [fit], 3, 1e-2)
     assert [name for name, parameter in model.named_parameters() if parameter.requires_grad] == trainable
+
+
+@pytest.mark.parametrize("rasterized", [False, True])
+def test_held_out_fits_of_several_views_in_one_render_end_where_each_would_alone(
+    tmp_path, demo_scene_dir, monkeypatch, rasterized
+):
+    """`half` and `oracle` fit several views' states per render (`fit_views`): each view's fitted state, and so
+    every score, is the one its fit alone gives (to float rounding), through each view's splat weights (a CPU's
+    way) and through one rasterization of every camera (a GPU's way, here on the pure-torch rasterizer); the fits
+    move the scores."""
+    import thermal_wild_ns.model.renders as renders
+    import thermal_wild_ns.pipeline.evaluation as evaluation
+
+    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=8, preprocessed=True)
+    if rasterized:
+        monkeypatch.setattr(renders, "resolve_backend", lambda backend, device: "gsplat")
+    batches, original = [], evaluation.fit_embeddings
+
+    def recording(model, fits, steps, lr):
+        batches.append(len(fits))
+        return original(model, fits, steps, lr)
+
+    monkeypatch.setattr(evaluation, "fit_embeddings", recording)
+    protocols = ("half", "oracle")
+    alone = evaluation.evaluate(pipeline, protocols=protocols, fit_steps=5, fit_views=1)
+    assert batches == [1] * 10  # 5 held-out views, two fits each
+    batches.clear()
+    together = evaluation.evaluate(pipeline, protocols=protocols, fit_steps=5, fit_views=4)
+    assert batches == [4, 4, 2]
+    for one, many in zip(alone["per_view"], together["per_view"]):
+        assert one.keys() == many.keys()
+        # the same up to float rounding (one rasterization of 4 cameras sums in another order than 4 of one)
+        assert all(one[key] == pytest.approx(many[key], rel=1e-5, abs=1e-6) for key in one), (one, many)
+    unfitted = evaluation.evaluate(pipeline, protocols=protocols, fit_steps=0)
+    assert unfitted["psnr_oracle"] != pytest.approx(alone["psnr_oracle"], abs=1e-3)
 
 
 @pytest.mark.parametrize("preprocessed", [False, True])

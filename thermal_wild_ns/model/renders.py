@@ -284,29 +284,60 @@ class FittingRender:
             render, alpha = rasterized_with_depth(parts, params, colors, view, ids)
         return [rendered_outputs(render, alpha, background, scene.colormap)], None
 
-    def fixed_view(self, scene: Scene, camera: Cameras, ids: Optional[Tensor] = None) -> Callable[[Tensor], Dict]:
-        """`render_cameras` of one camera as a function of the frame embedding, for a fit that moves the state
-        alone: on the pure-torch rasterizer the splats' weights are computed once (`rendering.splat_weights`)
-        and each render after is a sparse product (the same render and gradients); with gsplat's kernels, or
-        the Gaussians split across GPUs, each call renders."""
+    def fixed_views(self, scene: Scene, cameras: Sequence[Cameras], ids: Optional[Tensor] = None) -> FixedViews:
+        """`render_cameras` of `cameras` [B] (one size) as one function of their frame embeddings [B, Df], for fits
+        that move the states alone (the geometry fixed): on the pure-torch rasterizer each camera's splat weights
+        are computed once (`rendering.splat_weights`) and each render after is a sparse product (the same render
+        and gradients); with gsplat's kernels every camera in one rasterization per call, as a training step
+        renders its cameras; with the Gaussians split across GPUs, a camera at a time."""
         parts, params, cfg = self.parts, scene.params, self.parts.config
         device = params["means"].device
-        once = parts.ranks.split or resolve_backend(cfg.rasterizer, device) != "torch"
-        if once or not drawn(params, ids):
-            return lambda embed: self.render_cameras(scene, [camera], [embed], ids)[0][0]
-        view = full_view(parts, camera, device)
-        K, camera_to_world, W, H = view.K[0], view.camera_to_world[0], view.width, view.height
-        crop = lambda x: x if ids is None else x[ids]
-        scales, opacities = activated(params, ids)  # [N, 3], [N]
-        geometry = (crop(params["means"]), crop(params["quats"]), scales, opacities, view.viewmat, view.K, W, H)
-        weights = splat_weights(*geometry, NEAR_PLANE, FAR_PLANE, cfg.rasterize_mode)
+        if parts.ranks.split or not drawn(params, ids):
+            return lambda embeds: [self.render_cameras(scene, [c], [e], ids)[0][0] for c, e in zip(cameras, embeds)]
+        views = [full_view(parts, camera, device) for camera in cameras]
+        sizes = sorted({(view.width, view.height) for view in views})
+        if len(sizes) > 1:
+            raise ValueError(f"a fit of several views needs views of one size; these: {sizes}")
+        W, H = sizes[0]
+        if resolve_backend(cfg.rasterizer, device) == "torch":
+            crop = lambda x: x if ids is None else x[ids]
+            scales, opacities = activated(params, ids)  # [N, 3], [N]
+            means, quats = crop(params["means"]), crop(params["quats"])
+            weights = [
+                splat_weights(
+                    means, quats, scales, opacities, v.viewmat, v.K, W, H, NEAR_PLANE, FAR_PLANE, cfg.rasterize_mode
+                )
+                for v in views
+            ]
+            rasterized = lambda colors: [(w.render(c), w.alpha) for w, c in zip(weights, colors)]
+        else:
+            viewmats, Ks = (
+                torch.cat([v.viewmat for v in views]),
+                torch.cat([v.K for v in views]),
+            )  # [B, 4, 4], [B, 3, 3]
 
-        def render(embed: Tensor) -> Dict:
-            background = parts.background.exact(K, camera_to_world, embed, W, H)
-            colors = parts.emission.exact_radiance(params, embed, camera_to_world[:3, 3], scene.view_term, ids)
-            return rendered_outputs(weights.render(colors), weights.alpha, background, scene.colormap)
+            def rasterized(colors: List[Tensor]) -> List[Tuple[Tensor, Tensor]]:
+                stacked = torch.stack(colors)  # [B, N, 1]
+                args = (True, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, False)  # with depth
+                render, alpha, _ = rasterize_gaussians(params, stacked, viewmats, Ks, W, H, ids, *args)
+                return [(render[b : b + 1], alpha[b : b + 1]) for b in range(len(colors))]  # [1, H, W, 2], [1, H, W, 1]
+
+        def render(embeds: Tensor) -> List[Dict]:
+            outputs = []
+            backgrounds = [parts.background.exact(v.K[0], v.camera_to_world[0], e, W, H) for v, e in zip(views, embeds)]
+            colors = [
+                parts.emission.exact_radiance(params, e, v.camera_to_world[0, :3, 3], scene.view_term, ids)
+                for v, e in zip(views, embeds)
+            ]  # each [N, 1]
+            for (image, alpha), background in zip(rasterized(colors), backgrounds):
+                outputs.append(rendered_outputs(image, alpha, background, scene.colormap))
+            return outputs
 
         return render
+
+
+FixedViews = Callable[[Tensor], List[Dict]]
+"""Several cameras' renders as a function of their frame embeddings [B, Df] (`FittingRender.fixed_views`)."""
 
 
 def render_modes(parts: RenderParts) -> Dict[RenderMode, object]:

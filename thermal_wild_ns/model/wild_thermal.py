@@ -219,11 +219,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 )
         return outputs
 
-    def fitting_view(self, camera: Cameras) -> Callable[[Tensor], Dict[str, Union[Tensor, List]]]:
-        """`get_outputs` of `camera` outside training as a function of the frame embedding [Df], for a fit of the
-        state through the render (the geometry fixed: `FittingRender.fixed_view`)."""
+    def fitting_views(self, cameras: Sequence[Cameras]) -> Callable[[Tensor], List[Dict[str, Union[Tensor, List]]]]:
+        """`get_outputs` of `cameras` [B] (one size) outside training as one function of their frame embeddings
+        [B, Df], for fits of their states through the render (the geometry fixed: `FittingRender.fixed_views`)."""
         ids = None if self.crop_box is None else self.crop_box.within(self.means).squeeze()
-        return self.renders[RenderMode.FITTING].fixed_view(self.scene(), camera, ids)
+        return self.renders[RenderMode.FITTING].fixed_views(self.scene(), cameras, ids)
 
     def scene(self) -> Scene:
         """What a render reads of the model now (`renders.Scene`)."""

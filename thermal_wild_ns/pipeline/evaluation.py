@@ -36,11 +36,12 @@ from __future__ import annotations
 import contextlib
 from functools import partial
 from pathlib import Path
-from typing import Callable, Dict, Iterator, Optional, Tuple
+from typing import Callable, Dict, Iterator, List, NamedTuple, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
 import torch
+from nerfstudio.cameras.cameras import Cameras
 
 from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.image_metrics import psnr, squared_centre_distance, ssim
@@ -131,67 +132,112 @@ def parameters_frozen(model: torch.nn.Module) -> Iterator[None]:
             parameter.requires_grad_(True)
 
 
-def fit_embedding(
-    model, camera, target: torch.Tensor, columns: slice, start: torch.Tensor, steps: int, lr: float
-) -> torch.Tensor:
-    """The frame embedding that best explains `target` ([H, W] training space) within `columns`,
-    by Adam on the L1 loss from `start`. Only those columns of the render enter the loss. The model's
-    parameters are constants meanwhile (`parameters_frozen`): the render records no graph for the
-    geometry and backward computes the embedding's gradient alone (on a CPU a fraction of the time),
-    leaving training's gradients alone."""
-    embedding = start.detach().clone().requires_grad_(True)  # a plain leaf: a Parameter would register in the model
-    optimizer = torch.optim.Adam([embedding], lr=lr)
+class Fit(NamedTuple):
+    """One held-out view's state fit (`half`, `oracle`): the frame embedding that best explains `target` within
+    `columns`, from `start`."""
+
+    camera: Cameras
+    target: torch.Tensor  # [H, W] training space
+    columns: slice  # the columns the loss sees
+    start: torch.Tensor  # [Df]
+
+
+def fit_embeddings(model, fits: Sequence[Fit], steps: int, lr: float) -> torch.Tensor:
+    """The frame embeddings [B, Df] that best explain each fit's target (`Fit`), by Adam on each view's L1 loss
+    from its start, every view in one render per step (`model.fitting_views`: on a GPU one rasterization of all
+    of them). The views' losses are summed: each embedding's gradient is its own view's and Adam's update is
+    elementwise, so each fit ends where it would alone. The model's parameters are constants meanwhile
+    (`parameters_frozen`): the render records no graph for the geometry and backward computes the embeddings'
+    gradients alone (on a CPU a fraction of the time), leaving training's gradients alone."""
+    embeddings = torch.stack([fit.start for fit in fits]).detach().clone().requires_grad_(True)  # [B, Df]
+    optimizer = torch.optim.Adam([embeddings], lr=lr)  # a plain leaf: a Parameter would register in the model
     with torch.enable_grad(), parameters_frozen(model):
-        view = model.fitting_view(camera)  # the geometry's part of the render, once
+        views = model.fitting_views([fit.camera for fit in fits])  # the geometry's part of the renders, once
         for _ in range(steps):
-            rendered = thermal_output(view(embedding))  # [H, W, 1]
-            pred = as_recorded(model, rendered, camera)[..., 0]  # compared with the recorded frame
-            loss = (pred[:, columns] - target[:, columns]).abs().mean()
-            (embedding.grad,) = torch.autograd.grad(loss, embedding)
+            losses = []
+            for fit, outputs in zip(fits, views(embeddings)):
+                pred = as_recorded(model, thermal_output(outputs), fit.camera)[..., 0]  # as the camera records it
+                losses.append((pred[:, fit.columns] - fit.target[:, fit.columns]).abs().mean())
+            (embeddings.grad,) = torch.autograd.grad(torch.stack(losses).sum(), embeddings)
             optimizer.step()
-    return embedding.detach()
+    return embeddings.detach()
 
 
-def half_protocol(pipeline, camera, left: np.ndarray, state: PhotometricState, steps: int, lr: float) -> np.ndarray:
-    """The NeRF-W prediction of a whole view [H, W] (original space) from its LEFT half only
-    (`left`, [H, W // 2] original space): the embedding fitted on the left half from `state`, then
-    a gain + offset fitted on the left half. The right half is never given, so it cannot be read."""
-    model = pipeline.model
-    cols = left.shape[1]
-    if state.embedding is not None and steps > 0:
-        target = torch.from_numpy(to_training_space(pipeline, left, state)).to(model.device)
-        width = int(camera.width.reshape(-1)[0])
-        padded = torch.zeros((target.shape[0], width), device=model.device)
-        padded[:, :cols] = target
-        embedding = fit_embedding(model, camera, padded, slice(0, cols), state.embedding, steps, lr)
-        state = PhotometricState(state.label + "+left-half", embedding, state.lut)
+def fitted_states(pipeline, fits: Sequence[Tuple[PhotometricState, Optional[Fit]]], steps: int, lr: float, views: int):
+    """Each state with its embedding fitted where it has a fit (`fit_embeddings`), `views` held-out views of one
+    size per render; the states without a fit (or with no steps) as they are."""
+    model, states = pipeline.model, [state for state, _ in fits]
+    todo = [k for k, (_, fit) in enumerate(fits) if fit is not None and steps > 0]
+    by_size: Dict[Tuple[int, int], List[int]] = {}
+    for k in todo:
+        by_size.setdefault(tuple(fits[k][1].target.shape), []).append(k)
+    chunks = [ks[i : i + views] for ks in by_size.values() for i in range(0, len(ks), views)]
+    for chunk in track(chunks, f"Fitting held-out states ({steps} steps, {views} views a render)", min_items=2):
+        embeddings = fit_embeddings(model, [fits[k][1] for k in chunk], steps, lr)
+        for k, embedding in zip(chunk, embeddings):
+            states[k] = PhotometricState(states[k].label, embedding, states[k].lut)
+    return states
+
+
+def half_fit(pipeline, camera, left: np.ndarray, state: PhotometricState) -> Tuple[PhotometricState, Optional[Fit]]:
+    """The NeRF-W protocol's state of a view from its LEFT half only (`left`, [H, W // 2] original space): `state`
+    and the fit of its embedding on the left half (None: no embedding). The right half is never given, so it
+    cannot be read."""
+    state = PhotometricState(state.label + "+left-half", state.embedding, state.lut)
+    if state.embedding is None:
+        return state, None
+    device, cols = pipeline.model.device, left.shape[1]
+    target = torch.from_numpy(to_training_space(pipeline, left, state)).to(device)
+    padded = torch.zeros((target.shape[0], int(camera.width.reshape(-1)[0])), device=device)  # [H, W]
+    padded[:, :cols] = target
+    return state, Fit(camera, padded, slice(0, cols), state.embedding)
+
+
+def half_prediction(pipeline, camera, left: np.ndarray, state: PhotometricState) -> np.ndarray:
+    """The whole view [H, W] (original space) at the state fitted on its left half (`half_fit`), then a gain +
+    offset fitted on the left half."""
     _, pred = render(pipeline, camera, state)
-    a, b = fit_gain_offset(pred[:, :cols], left)
+    a, b = fit_gain_offset(pred[:, : left.shape[1]], left)
     return (a * pred + b).astype(np.float32)
 
 
-def oracle_state(
-    pipeline, camera, frame: int, gt: np.ndarray, start: PhotometricState, steps: int, lr: float
-) -> PhotometricState:
-    """The held-out frame's own state, fitted on ALL its pixels (an upper bound, never a headline):
-    its own LUT, and the embedding optimised on the whole frame."""
+def oracle_fit(
+    pipeline, camera, frame: int, gt: np.ndarray, start: PhotometricState
+) -> Tuple[PhotometricState, Optional[Fit]]:
+    """The held-out frame's own state, fitted on ALL its pixels (an upper bound, never a headline): its own LUT,
+    and the fit of the embedding on the whole frame (None: no embedding)."""
     sequence = preprocessed_sequence(pipeline)
     lut = None if sequence is None else sequence.oracle_lut(frame)
     state = PhotometricState(f"oracle:{frame}", start.embedding, lut)
-    if state.embedding is not None and steps > 0:
-        target = torch.from_numpy(to_training_space(pipeline, gt, state)).to(pipeline.model.device)
-        state = PhotometricState(
-            state.label, fit_embedding(pipeline.model, camera, target, slice(None), state.embedding, steps, lr), lut
-        )
-    return state
+    if state.embedding is None:
+        return state, None
+    target = torch.from_numpy(to_training_space(pipeline, gt, state)).to(pipeline.model.device)
+    return state, Fit(camera, target, slice(None), state.embedding)
+
+
+class HeldOutView(NamedTuple):
+    """What the fitted protocols need of a held-out view after the fits (`evaluate`)."""
+
+    camera: Cameras
+    frame: int
+    recorded: np.ndarray  # [H, W] the frame as recorded, original space
+    to_celsius: Optional[Callable]
+    time_state: PhotometricState
+    time_scores: Optional[Dict[str, float]]
 
 
 def evaluate(
-    pipeline, out_dir: Optional[Path] = None, protocols=PROTOCOLS, fit_steps: int = 100, fit_lr: float = 1e-2
+    pipeline,
+    out_dir: Optional[Path] = None,
+    protocols=PROTOCOLS,
+    fit_steps: int = 100,
+    fit_lr: float = 1e-2,
+    fit_views: int = 8,
 ) -> Dict:
     """Mean held-out PSNR/SSIM under each protocol (`psnr_novel`, `ssim_time`, ...; per-view rows in
-    `per_view`). With `out_dir`, a PNG per view: the recorded frame | `time` render | 5x error (inferno); on a
-    calibrated capture another in °C (`write_celsius_panel`)."""
+    `per_view`). The views' `half` and `oracle` fits run after the others' scores, `fit_views` views per render.
+    With `out_dir`, a PNG per view: the recorded frame | `time` render | 5x error (inferno); on a calibrated
+    capture another in °C (`write_celsius_panel`)."""
     unknown = set(protocols) - set(PROTOCOLS)
     if unknown:
         raise ValueError(f"unknown protocol(s) {sorted(unknown)} (one of {', '.join(PROTOCOLS)})")
@@ -199,7 +245,7 @@ def evaluate(
     dataset = datamanager.eval_dataset
     pipeline.eval()
     rng = datamanager.train_dataset.thermal_range
-    rows = []
+    rows, held_out = [], []
     views = track(
         datamanager.fixed_indices_eval_dataloader,
         f"Scoring held-out views ({', '.join(protocols)})",
@@ -235,25 +281,46 @@ def evaluate(
         if "aligned" in protocols:
             a, b = fit_gain_offset(novel, gt)
             row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt, to_celsius).items()})
-        if "half" in protocols:
-            half = recorded.shape[1] // 2
-            pred = half_protocol(pipeline, camera, recorded[:, :half].copy(), time_state, fit_steps, fit_lr)
-            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], recorded[:, half:], to_celsius).items()})
-        if "oracle" in protocols:
-            state = oracle_state(pipeline, camera, frame, recorded, time_state, fit_steps, fit_lr)
-            _, pred = render(pipeline, camera, state)
-            row.update({f"{k}_oracle": v for k, v in scores(pred, recorded, to_celsius).items()})
-            if state.lut is None and time_scores is not None:  # no LUTs: the time state itself, scored above
-                own_lut_scores = time_scores
-            else:
-                own_lut = PhotometricState(f"oracle-lut:{frame}", time_state.embedding, state.lut)
-                _, pred = render(pipeline, camera, own_lut)
-                own_lut_scores = scores(pred, recorded, to_celsius)
-            row.update({f"{k}_oracle_lut": v for k, v in own_lut_scores.items()})
         rows.append(row)
+        held_out.append(HeldOutView(camera, frame, recorded, to_celsius, time_state, time_scores))
+    _score_fitted_protocols(pipeline, protocols, held_out, rows, fit_steps, fit_lr, fit_views)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}
     return {**summary, "per_view": rows, "gaussians": int(model.num_points)}
+
+
+def _score_fitted_protocols(pipeline, protocols, held_out: List[HeldOutView], rows: List[Dict], steps, lr, views):
+    """`half`, `oracle` and `oracle_lut` of every held-out view into its row: the states fitted first, several
+    views per render (`fitted_states`), then each view scored."""
+    fits = []  # per view: its half's and its oracle's (state, fit), where asked
+    for view in held_out:
+        half = view.recorded.shape[1] // 2
+        left = view.recorded[:, :half].copy()
+        half_job = half_fit(pipeline, view.camera, left, view.time_state) if "half" in protocols else None
+        oracle_job = (
+            oracle_fit(pipeline, view.camera, view.frame, view.recorded, view.time_state)
+            if "oracle" in protocols
+            else None
+        )
+        fits.append((half_job, oracle_job))
+    jobs = [job for pair in fits for job in pair if job is not None]
+    states = iter(fitted_states(pipeline, jobs, steps, lr, views))
+    for view, row, (half_job, oracle_job) in zip(held_out, rows, fits):
+        recorded, to_celsius, half = view.recorded, view.to_celsius, view.recorded.shape[1] // 2
+        if half_job is not None:
+            pred = half_prediction(pipeline, view.camera, recorded[:, :half].copy(), next(states))
+            row.update({f"{k}_half": v for k, v in scores(pred[:, half:], recorded[:, half:], to_celsius).items()})
+        if oracle_job is not None:
+            state = next(states)
+            _, pred = render(pipeline, view.camera, state)
+            row.update({f"{k}_oracle": v for k, v in scores(pred, recorded, to_celsius).items()})
+            if state.lut is None and view.time_scores is not None:  # no LUTs: the time state itself, scored
+                own_lut_scores = view.time_scores
+            else:
+                own_lut = PhotometricState(f"oracle-lut:{view.frame}", view.time_state.embedding, state.lut)
+                _, pred = render(pipeline, view.camera, own_lut)
+                own_lut_scores = scores(pred, recorded, to_celsius)
+            row.update({f"{k}_oracle_lut": v for k, v in own_lut_scores.items()})
 
 
 def _write_panel(path: Path, gt: np.ndarray, pred: np.ndarray) -> None:

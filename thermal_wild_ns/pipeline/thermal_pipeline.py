@@ -61,6 +61,9 @@ class ThermalPipelineConfig(VanillaPipelineConfig):
     eval_fit_steps: int = 100
     """Optimisation steps per held-out view of the `half` and `oracle` protocols (their frame
     embedding fit); 0 scores them without fitting an embedding."""
+    eval_fit_views: int = 8
+    """Held-out views whose fits step together, one render of them all per step (one rasterization on a GPU);
+    each view's fit ends where it would alone. Fewer: less memory."""
     checkpoint_dir: Optional[Path] = None
     """Where the run keeps its checkpoints, recorded when its config is saved, so that ns-eval,
     ns-render and ns-viewer can find a run without checkpoints before they read any data."""
@@ -223,7 +226,8 @@ class ThermalPipeline(VanillaPipeline):
         self, step: Optional[int] = None, output_path: Optional[Path] = None, get_std: bool = False
     ):
 
-        result = evaluate(self, out_dir=output_path, fit_steps=self.config.eval_fit_steps)
+        cfg = self.config
+        result = evaluate(self, out_dir=output_path, fit_steps=cfg.eval_fit_steps, fit_views=cfg.eval_fit_views)
         rows = result["per_view"]
         metrics = {key: value for key, value in result.items() if isinstance(value, float)}
         if get_std:
