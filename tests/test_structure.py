@@ -30,9 +30,7 @@ FUNCTION_LOCAL_IMPORTS = {
 """The only imports allowed inside functions, and why."""
 MODULE_LINES = 500
 CLASS_LINES = 400
-LARGER = {
-    "thermal_wild_ns._upstream": "every patch of nerfstudio's and gsplat's internals in one place, version-checked",
-}
+LARGER: dict[str, str] = {}
 """Package modules allowed past `MODULE_LINES` lines, and why."""
 
 
@@ -157,7 +155,11 @@ def test_the_rules_find_what_they_look_for():
     assert oversized("thermal_wild_ns.data.m", body + "y = 2\n") == [
         f"thermal_wild_ns.data.m: {MODULE_LINES + 1} lines (at most {MODULE_LINES}: split it by what changes together)"
     ]
-    assert oversized("thermal_wild_ns._upstream", body + "y = 2\n") == []  # listed, with its reason
+    LARGER["thermal_wild_ns.data.m"] = "a reason"  # a module listed with its reason may grow past the limit
+    try:
+        assert oversized("thermal_wild_ns.data.m", body + "y = 2\n") == []
+    finally:
+        del LARGER["thermal_wild_ns.data.m"]
     big_class = "class Hub:\n" + "    x = 1\n" * CLASS_LINES
     assert oversized("thermal_wild_ns.model.m", big_class) == [
         f"thermal_wild_ns.model.m.Hub: {CLASS_LINES + 1} lines (at most {CLASS_LINES})"

@@ -1,6 +1,6 @@
 """thermal_wild_ns: thermal-only Gaussian splatting for nerfstudio ("Thermal is Always Wild").
 
-Importing the package imports nothing heavy: each module imports what it uses (`_upstream.py`
+Importing the package imports nothing heavy: each module imports what it uses (`_upstream`
 checks the nerfstudio and gsplat versions its patches were written for when it is first imported).
 """
 

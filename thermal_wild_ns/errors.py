@@ -58,7 +58,7 @@ def faults_named(path, what: str, *also: type):
 
 EXPLAINERS: List[Callable[[BaseException, Any], Optional[str]]] = []
 """Functions that turn an uncaught error (and its traceback) into the one line a user reads, or
-None: `_upstream.py` adds the one for nerfstudio's config loading when it is imported (every command
+None: `_upstream` adds the one for nerfstudio's config loading when it is imported (every command
 that loads a run imports it), as only it knows that loader."""
 
 
