@@ -152,7 +152,13 @@ case "$plan" in
   survey-timing)
     warm
     surveys=("${@:-survey:250}")
-    keep() { cp /tmp/survey-timing/survey_timing.* "$res/" 2>/dev/null; pack; }
+    keep() {  # the table, and each survey's phase logs and scores (eval.json: the held-out views' count)
+      cp /tmp/survey-timing/survey_timing.* "$res/" 2>/dev/null
+      for f in /tmp/survey-timing/*/*.log /tmp/survey-timing/*/eval.json; do
+        [ -f "$f" ] && cp "$f" "$res/$(basename "$(dirname "$f")")-$(basename "$f")"
+      done
+      pack
+    }
     (while sleep 15; do keep; done) &  # the phases so far come back if the call is cut at its limit
     packer=$!
     py -m experiments.survey_timing --surveys ${surveys[@]} --output-dir /tmp/survey-timing > "$res/survey-timing.log" 2>&1

@@ -447,8 +447,8 @@ def test_held_out_fits_of_several_views_in_one_render_end_where_each_would_alone
 ):
     """`half` and `oracle` fit several views' states per render (`fit_views`): each view's fitted state, and so
     every score, is the one its fit alone gives (to float rounding), through each view's splat weights (a CPU's
-    way) and through one rasterization of every camera (a GPU's way, here on the pure-torch rasterizer); the fits
-    move the scores."""
+    way) and through one rasterization of every camera (a GPU's way: on a CPU the pure-torch rasterizer, on a GPU
+    gsplat's kernels in both cases); the fits move the scores."""
     import thermal_wild_ns.model.renders as renders
     import thermal_wild_ns.pipeline.evaluation as evaluation
 
@@ -468,10 +468,12 @@ def test_held_out_fits_of_several_views_in_one_render_end_where_each_would_alone
     batches.clear()
     together = evaluation.evaluate(pipeline, protocols=protocols, fit_steps=5, fit_views=4)
     assert batches == [4, 4, 2]
+    # the same up to float rounding: one rasterization of 4 cameras sums in another order than 4 of one, and on a
+    # GPU cuBLAS picks its kernels by the batch's size and gsplat's backward adds atomically (seen: 1.2e-5 relative)
+    rel = 1e-5 if pipeline.model.device.type == "cpu" else 1e-4
     for one, many in zip(alone["per_view"], together["per_view"]):
         assert one.keys() == many.keys()
-        # the same up to float rounding (one rasterization of 4 cameras sums in another order than 4 of one)
-        assert all(one[key] == pytest.approx(many[key], rel=1e-5, abs=1e-6) for key in one), (one, many)
+        assert all(one[key] == pytest.approx(many[key], rel=rel, abs=1e-6) for key in one), (one, many)
     unfitted = evaluation.evaluate(pipeline, protocols=protocols, fit_steps=0)
     assert unfitted["psnr_oracle"] != pytest.approx(alone["psnr_oracle"], abs=1e-3)
 

@@ -426,36 +426,42 @@ def test_a_profiled_section_costs_nothing_without_a_profiler_and_is_named_with_o
     assert "thermal/test" in {event.key for event in prof.key_averages()}
 
 
-def test_export_commands_import_without_open3d():
-    """The light install has no open3d, which nerfstudio's exporter imports at its top: the plugin's export
-    commands (Gaussian splat, °C points, orthomosaic) must load anyway, and a point-cloud export say what is
-    missing."""
+def test_export_commands_import_without_the_mesh_libraries():
+    """The light install has none of open3d, xatlas, pymeshlab and scikit-image, which nerfstudio's exporter modules
+    import at their tops: the plugin's export commands (Gaussian splat, °C points, orthomosaic) must load anyway, a
+    point-cloud or mesh export say what is missing, and the libraries stay absent for everyone else."""
     import subprocess
     import sys
 
-    script = """
-import sys
-sys.modules["open3d"] = None  # what an interpreter without open3d sees
-from nerfstudio.scripts import exporter  # noqa: E402
-"""
-    blocked = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
-    assert blocked.returncode != 0 and "open3d" in blocked.stderr  # nerfstudio's own import fails so
+    from thermal_wild_ns._upstream.commands import MESH_EXPORT_LIBRARIES
 
-    script = """
-import sys
-sys.modules["open3d"] = None
+    blocking = "import sys\n" + "".join(f"sys.modules[{name!r}] = None\n" for name in MESH_EXPORT_LIBRARIES)
+    for name in MESH_EXPORT_LIBRARIES:  # nerfstudio's own import fails without each of them
+        alone = f"import sys\nsys.modules[{name!r}] = None\nfrom nerfstudio.scripts import exporter\n"
+        blocked = subprocess.run([sys.executable, "-c", alone], capture_output=True, text=True)
+        assert blocked.returncode != 0 and f"import of {name} halted" in blocked.stderr, (name, blocked.stderr[-300:])
+
+    script = (
+        blocking
+        + """
 from thermal_wild_ns.export.commands import ExportThermalSplat
 from thermal_wild_ns._upstream import nerfstudio_exporter
+from nerfstudio.exporter import tsdf_utils
 exporter = nerfstudio_exporter()
 assert issubclass(ExportThermalSplat, exporter.ExportGaussianSplat)
-try:
-    exporter.o3d.io
-except ImportError as error:
-    assert "pip install open3d" in str(error), error
-else:
-    raise AssertionError("the stand-in gave an attribute")
-assert sys.modules["open3d"] is None  # others still see no open3d
+for call, pip_name in ((lambda: exporter.o3d.io.write_point_cloud("x.ply", None), "open3d"),
+                       (lambda: tsdf_utils.measure.marching_cubes(None), "scikit-image"),
+                       (lambda: tsdf_utils.pymeshlab.MeshSet(), "pymeshlab")):
+    try:
+        call()
+    except ImportError as error:
+        assert f"pip install {pip_name}" in str(error), error
+    else:
+        raise AssertionError("the stand-in ran a call")
+assert all(sys.modules[name] is None for name in %r)  # others still see none of them
 print("ok")
 """
+        % (list(MESH_EXPORT_LIBRARIES),)
+    )
     loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert loaded.returncode == 0 and loaded.stdout.strip() == "ok", loaded.stderr[-2000:]

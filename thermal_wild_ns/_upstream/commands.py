@@ -115,41 +115,58 @@ def explain_config_load_error(error: BaseException, traceback) -> Optional[str]:
     return None
 
 
-class _MissingOpen3d(types.ModuleType):
-    """Stands in for open3d in nerfstudio's exporter module only: says what is missing when a point-cloud or mesh
-    export reaches for it."""
+MESH_EXPORT_LIBRARIES = {"open3d": "open3d", "xatlas": "xatlas", "pymeshlab": "pymeshlab", "skimage": "scikit-image"}
+"""The libraries nerfstudio 1.1.5's exporter modules import at their tops for the point-cloud and mesh exports alone
+(module name: pip name); the light install has none of them."""
+
+
+class _MissingLibrary(types.ModuleType):
+    """Stands in, in nerfstudio's exporter modules only, for a library of their point-cloud and mesh exports that is
+    not installed: importing it and looking up its names pass (`from skimage import measure` at a module's top),
+    calling anything of it says what is missing."""
 
     def __getattr__(self, name: str):
         if name.startswith("__"):  # what `inspect` and `hasattr` probe on every module
             raise AttributeError(name)
+        return _MissingLibrary(f"{self.__name__}.{name}")
+
+    def __call__(self, *args, **kwargs):
+        library = self.__name__.split(".")[0]
         raise ImportError(
-            f"open3d.{name}: open3d is not installed (the light install leaves it out); nerfstudio's point-cloud and "
-            "mesh exports need it: pip install open3d"
+            f"{self.__name__}: {library} is not installed (the light install leaves it out); nerfstudio's point-cloud "
+            f"and mesh exports need it: pip install {MESH_EXPORT_LIBRARIES[library]}"
         )
 
 
-def nerfstudio_exporter() -> types.ModuleType:
-    """nerfstudio 1.1.5's `nerfstudio.scripts.exporter`, importable without open3d.
+def _imports(name: str) -> bool:
+    try:
+        importlib.import_module(name)
+    except (ImportError, OSError):  # OSError: open3d present but its system library (libusb) missing
+        return False
+    return True
 
-    The module imports open3d at its top for its point-cloud and mesh exports; the Gaussian-splat export (the only
-    one this plugin extends) never uses it, and the light install has none. Where open3d does not import, that one
-    import gets a stand-in that raises on use, and open3d stays absent for everyone else."""
+
+def nerfstudio_exporter() -> types.ModuleType:
+    """nerfstudio 1.1.5's `nerfstudio.scripts.exporter`, importable without its mesh libraries.
+
+    The module (and the `nerfstudio.exporter` modules it imports) import open3d, xatlas, pymeshlab and scikit-image
+    at their tops for the point-cloud and mesh exports; the Gaussian-splat export (the only one this plugin extends)
+    uses none, and the light install has none. Each that does not import gets a stand-in while nerfstudio's modules
+    load (`_MissingLibrary`: a call of it raises), and stays absent for everyone else."""
     name = "nerfstudio.scripts.exporter"
     if name in sys.modules:
         return sys.modules[name]
+    missing = [library for library in MESH_EXPORT_LIBRARIES if not _imports(library)]
+    before = {library: sys.modules.get(library, _MissingLibrary) for library in missing}
+    sys.modules.update({library: _MissingLibrary(library) for library in missing})
     try:
-        importlib.import_module("open3d")
-    except (ImportError, OSError):  # OSError: open3d present but its system library (libusb) missing
-        before = sys.modules.get("open3d", _MissingOpen3d)
-        sys.modules["open3d"] = _MissingOpen3d("open3d")
-        try:
-            return importlib.import_module(name)
-        finally:
-            if before is _MissingOpen3d:
-                del sys.modules["open3d"]
+        return importlib.import_module(name)
+    finally:
+        for library, module in before.items():
+            if module is _MissingLibrary:
+                del sys.modules[library]
             else:
-                sys.modules["open3d"] = before
-    return importlib.import_module(name)
+                sys.modules[library] = module
 
 
 @contextlib.contextmanager
