@@ -1,6 +1,7 @@
 """`python -m experiments.score_time RUN/config.yml ...`: how long scoring a trained run's held-out views takes
 under every protocol (as `wild-thermal-demo` and the bench score them), with the scores and the held-out fits'
-optimizer steps (each a render of up to `--fit-views` views and its backward), one JSON line per run.
+optimizer steps (each a render of up to `--fit-views` views and its backward), one JSON line per run; with
+`--profile FILE.md`, where each run's scoring time goes (cProfile, per held-out view) appended to FILE.md.
 Run as a script with two packages on the same checkpoints (the package of PYTHONPATH's tree is the one timed), to
 see a change's cost and that its scores stay:
 
@@ -11,6 +12,8 @@ see a change's cost and that its scores stay:
 from __future__ import annotations
 
 import argparse
+import contextlib
+import cProfile
 import json
 import time
 from pathlib import Path
@@ -18,6 +21,7 @@ from pathlib import Path
 import torch
 from nerfstudio.utils.eval_utils import eval_setup
 
+from experiments import device_name, python_profile_markdown, synchronize
 from thermal_wild_ns._upstream import prepare_checkpoint_commands
 from thermal_wild_ns.pipeline.evaluation import PROTOCOLS, evaluate
 
@@ -27,6 +31,9 @@ def main() -> None:
     parser.add_argument("configs", type=Path, nargs="+", help="the runs' config.yml")
     parser.add_argument("--fit-steps", type=int, default=100, help="embedding fit steps of `half` and `oracle`")
     parser.add_argument("--fit-views", type=int, default=8, help="held-out views fitted together, one render a step")
+    parser.add_argument(
+        "--profile", type=Path, default=None, help="also profile each run's scoring (cProfile, per view) into this .md"
+    )
     args = parser.parse_args()
     prepare_checkpoint_commands()
     fit_steps = [0]  # the held-out fits' optimizer steps (each a render of several views and its backward)
@@ -40,14 +47,21 @@ def main() -> None:
     for config in args.configs:
         _, pipeline, _, _ = eval_setup(config, test_mode="test")
         fit_steps[0] = 0
+        profiler = cProfile.Profile() if args.profile is not None else None
         start = time.perf_counter()
-        scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps, fit_views=args.fit_views)
+        with profiler or contextlib.nullcontext():
+            scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps, fit_views=args.fit_views)
+            synchronize()
         seconds = time.perf_counter() - start
         psnr = {k: v for k, v in scores.items() if k.startswith("psnr_")}
         views = len(scores["per_view"])
         record = {"config": str(config), "views": views, "seconds": round(seconds, 2), "fit_steps": fit_steps[0]}
         record.update(psnr)
         print(json.dumps(record), flush=True)
+        if profiler is not None:
+            header = f"# Scoring {config} on {device_name()}: {seconds:.2f} s (profiled), {views} views\n\n"
+            with open(args.profile, "a") as out:
+                out.write(header + "Per held-out view, " + python_profile_markdown(profiler, views) + "\n")
 
 
 if __name__ == "__main__":

@@ -625,3 +625,19 @@ def test_the_densification_statistics_replayed_as_a_cuda_graph_equal_them_run_ke
     assert records[0] is records[1] is records[2] and records[3] is not records[2] and records[5] is not records[4]
     assert not strategies[0]._statistics_failed
     assert states[1]["count"].max() == 3.5  # (1 + 1 + 2 + 1) accepted cameras, halved, then 1 more
+
+
+def test_a_views_scores_on_the_gpu_are_its_scores_on_the_cpu():
+    """The scorers compute PSNR and SSIM on their model's device (`evaluation.scores`): the same numbers as on a
+    CPU, to float rounding, °C errors included."""
+    import numpy as np
+
+    from thermal_wild_ns.pipeline.evaluation import scores
+
+    rng = np.random.default_rng(0)
+    gt = rng.random((512, 640), dtype=np.float32)
+    pred = np.clip(gt + 0.05 * rng.standard_normal((512, 640)).astype(np.float32), 0, 1)
+    to_celsius = lambda x: 20.0 + 30.0 * np.asarray(x, dtype=np.float64)
+    on_cpu, on_gpu = scores(pred, gt, to_celsius), scores(pred, gt, to_celsius, device="cuda")
+    assert on_cpu.keys() == on_gpu.keys()
+    assert all(on_gpu[k] == pytest.approx(on_cpu[k], rel=1e-5) for k in on_cpu), (on_cpu, on_gpu)

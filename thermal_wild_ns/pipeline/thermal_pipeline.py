@@ -216,7 +216,7 @@ class ThermalPipeline(VanillaPipeline):
         frame = int(dataset.metadata["frame_indices"][int(batch["image_idx"])])
         _, pred = render(self, camera, state_at(self, frame))
         gt = dataset.recorded_image(int(batch["image_idx"]))  # [H, W]: a generated scene's image is its truth
-        metrics = {f"{key}_time": value for key, value in scores(pred, gt).items()}
+        metrics = {f"{key}_time": value for key, value in scores(pred, gt, device=self.model.device).items()}
         metrics["num_rays"] = int(gt.size)
         image = torch.from_numpy(np.concatenate([gt, pred], axis=1)).clamp(0, 1)[..., None].expand(-1, -1, 3)
         self.train()
