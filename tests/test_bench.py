@@ -405,7 +405,8 @@ def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_mode
     parameter in the graph and a full render each step give the same embedding (the embedding's gradient does
     not depend on the geometry getting one), no gradient lands in the model, and every parameter is trainable
     again after the fit, also after a fit that fails."""
-    from thermal_wild_ns.pipeline.evaluation import Fit, as_recorded, fit_embeddings, thermal_output
+    from thermal_wild_ns.pipeline.evaluation import Fit, fit_embeddings
+    from thermal_wild_ns.pipeline.photometric_state import as_recorded, thermal_output
     from thermal_wild_ns.state_names import CANONICAL
 
     pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=4)
@@ -439,6 +440,42 @@ def test_an_embedding_fit_finds_what_the_full_backward_finds_and_leaves_the_mode
     with pytest.raises(RuntimeError, match="a render that fails"):
         fit_embeddings(model, [fit], 3, 1e-2)
     assert [name for name, parameter in model.named_parameters() if parameter.requires_grad] == trainable
+
+
+@pytest.mark.parametrize("rasterized", [False, True])
+def test_several_views_rendered_for_a_fit_in_one_pass_are_each_views_own_render(
+    tmp_path, demo_scene_dir, monkeypatch, rasterized
+):
+    """`model.fitting_views` renders several views at their own states in one pass (the MLPs once for every
+    state, one rasterization or each view's splat weights): each view is the render `get_outputs` gives it at its
+    state, as the camera records it, and each view's gradient reaches its own state alone."""
+    import thermal_wild_ns.model.renders as renders
+    from thermal_wild_ns.pipeline.photometric_state import as_recorded, thermal_output
+    from thermal_wild_ns.state_names import CANONICAL
+
+    pipeline = _trained_demo_pipeline(tmp_path, demo_scene_dir, steps=8)
+    if rasterized:
+        monkeypatch.setattr(renders, "resolve_backend", lambda backend, device: "gsplat")
+    model = pipeline.model
+    model.eval()
+    cameras = [pipeline.datamanager.eval_dataset.cameras[i : i + 1].to(model.device) for i in range(3)]
+    generator = torch.Generator().manual_seed(0)
+    start = model.state_embedding(CANONICAL).detach()
+    embeds = start + 0.3 * torch.randn(3, start.shape[0], generator=generator)  # [3, Df]: a state per view
+    with torch.enable_grad():  # a render under autograd outside training: the fitting render, one view at a time
+        each = [
+            as_recorded(model, thermal_output(model.get_outputs(c, frame_embedding=e)), c)[..., 0].detach()
+            for c, e in zip(cameras, embeds)
+        ]
+    together = model.fitting_views(cameras)(embeds)  # [3, H, W]
+    assert together.shape == (3, *each[0].shape)
+    for b in range(3):
+        assert torch.allclose(together[b], each[b], atol=1e-5), (b, (together[b] - each[b]).abs().max())
+    assert not torch.allclose(together[0], together[1], atol=1e-3)  # the states differ, and so do the views
+    leaf = embeds.clone().requires_grad_(True)
+    with torch.enable_grad():
+        (grad,) = torch.autograd.grad(model.fitting_views(cameras)(leaf)[1].sum(), leaf)
+    assert grad[1].abs().sum() > 0 and grad[0].abs().sum() == 0 and grad[2].abs().sum() == 0
 
 
 @pytest.mark.parametrize("rasterized", [False, True])
@@ -493,9 +530,9 @@ def test_state_protocols_score_the_recorded_frame_and_view_protocols_the_scene(
     targets = []
     original = evaluation.scores
 
-    def recording(pred, gt, to_celsius=None):
+    def recording(pred, gt, to_celsius=None, device="cpu"):
         targets.append(gt)
-        return original(pred, gt, to_celsius)
+        return original(pred, gt, to_celsius, device)
 
     monkeypatch.setattr(evaluation, "scores", recording)
     result = evaluation.evaluate(pipeline, fit_steps=1)

@@ -257,9 +257,9 @@ def test_a_dji_surveys_held_out_celsius_in_ns_eval_go_through_each_frames_own_ca
     ns_train([*run_args(out, STEPS, *scale), "odm-data", "--data", str(tmp_path / "survey")])
     asked, original = [], evaluation.scores
 
-    def seen(pred, gt, to_celsius=None):  # which frame's calibration each score's °C go through
+    def seen(pred, gt, to_celsius=None, device="cpu"):  # which frame's calibration each score's °C go through
         asked.append(to_celsius.keywords["frame"] if to_celsius is not None else "none")
-        return original(pred, gt, to_celsius)
+        return original(pred, gt, to_celsius, device)
 
     monkeypatch.setattr(evaluation, "scores", seen)
     run = out / "x" / "wild-thermal" / "run"

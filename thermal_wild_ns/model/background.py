@@ -171,6 +171,26 @@ class ThermalBackground:
             return torch.full((height, width, 1), self.config.background_value, device=K.device)
         return self._grid(K, camera_to_world, frame_embed, width, height, None, 0)
 
+    def exact_views(self, Ks: Tensor, camera_to_worlds: Tensor, width: int, height: int) -> Callable[[Tensor], Tensor]:
+        """`exact` of several cameras of one size (intrinsics [B, 3, 3], poses [B, 3, 4]) as one function of their
+        frame embeddings [B, Df] -> [B, H, W, 1], for fits that move the states alone: their directions encoded
+        once, the MLP called once for all of them per call."""
+        if self.mlp is None:
+            value = self.config.background_value
+            return lambda embeds: torch.full((embeds.shape[0], height, width, 1), value, device=embeds.device)
+        stride = self.config.background_stride
+        encoded = torch.stack(
+            [self.mlp.encode(ray_directions(K, c2w, width, height, stride)) for K, c2w in zip(Ks, camera_to_worlds)]
+        )  # [B, h, w, E]
+
+        def views(embeds: Tensor) -> Tensor:
+            coarse = self.mlp.from_encoded(encoded, embeds)  # [B, h, w, 1]
+            if coarse.shape[1:3] == (height, width):
+                return coarse
+            return bilinear_resize(coarse[..., 0], height, width)[..., None]  # as `upsampled`, each image
+
+        return views
+
     def viewing(self, view, frame_embed: Tensor, step: int, captured: CapturedCalls) -> Tuple[Tensor, Tensor]:
         """gsplat's view matrix [1, 4, 4] and the background [H, W, 1] of a render a user waits for
         (`renders.viewing_render`, a `camera_views.View`): one CUDA graph per camera size and intrinsics on a GPU

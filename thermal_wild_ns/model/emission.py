@@ -101,9 +101,19 @@ class GaussianEmission:
         emission = self.selected(params, frame_embed, ids)
         return self.radiance(self._with_view_term(emission, params, camera_position, view_term, ids))
 
+    def exact_radiances(self, params, frame_embeds: Tensor, camera_positions: Tensor, view_term: bool, ids=None):
+        """`exact_radiance` of several states at once: frame embeddings [B, Df], each seen from its camera position
+        [B, 3] -> [B, N, 1] (or [B, M, 1] of `ids`), the MLP called once for all of them."""
+        emission = self.selected(params, frame_embeds, ids)  # [B, N, 1], or [N, 1] without the MLP
+        emission = emission.expand(frame_embeds.shape[0], -1, -1)
+        if view_term:
+            emission = emission + torch.stack([view_term_of(params, p, ids) for p in camera_positions])
+        return self.radiance(emission)
+
     # ------------------------------------------------------------------ pieces
     def selected(self, params, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
-        """The emission [N, 1] (or [M, 1] of `ids`) without view term, evaluated as it stands."""
+        """The emission [N, 1] (or [M, 1] of `ids`) without view term, evaluated as it stands ([B, N, 1] for
+        frame embeddings [B, Df] with the MLP)."""
         base = params["emission"] if ids is None else params["emission"][ids]
         if self.mlp is None:
             return base

@@ -61,9 +61,11 @@ class EmissionMLP(nn.Module):
         self.net = PackedMLP(gaussian_dim + frame_dim, width, hidden_layers)
 
     def forward(self, base: Tensor, gaussian_embed: Tensor, frame_embed: Tensor) -> Tensor:
-        """base [N, 1], gaussian_embed [N, Dg], frame_embed [Df] -> emission [N, 1]."""
-        frame = frame_embed[None, :].expand(gaussian_embed.shape[0], -1)  # [N, Df]
-        return base + self.net(torch.cat([gaussian_embed, frame], dim=-1))
+        """base [N, 1], gaussian_embed [N, Dg], frame_embed [Df] -> emission [N, 1]; or frame embeddings [B, Df]
+        (several states in one call: the held-out fits') -> [B, N, 1]."""
+        lead, count = frame_embed.shape[:-1], gaussian_embed.shape[0]
+        frame = frame_embed[..., None, :].expand(*lead, count, -1)  # [N, Df] or [B, N, Df]
+        return base + self.net(torch.cat([gaussian_embed.expand(*lead, -1, -1), frame], dim=-1))
 
 
 class BackgroundMLP(nn.Module):
@@ -103,7 +105,17 @@ class BackgroundMLP(nn.Module):
         return self.encoding(directions.reshape(-1, 3)).reshape(*directions.shape[:-1], -1)
 
     def from_encoded(self, encoded: Tensor, frame_embed: Tensor) -> Tensor:
-        """encoded directions [..., 16], frame_embed [Df] -> background [..., 1]."""
+        """encoded directions [..., 16], frame_embed [Df] -> background [..., 1]; or several images' encoded
+        directions [B, ..., 16] each at its own frame embedding [B, Df] -> [B, ..., 1]."""
+        if frame_embed.dim() == 2:  # one state per image: [B, P, 16] against [B, Df]
+            enc = encoded.reshape(encoded.shape[0], -1, encoded.shape[-1])
+            if self.frame_affine is not None:
+                gain, shift = self.frame_affine(frame_embed)[:, None, :].unbind(-1)  # [B, 1] each
+                out = (self.net(enc)[..., 0] + self.offset) * (1.0 + gain) + shift  # [B, P]
+            else:
+                frame = frame_embed[:, None, :].expand(-1, enc.shape[1], -1)
+                out = self.net(torch.cat([enc, frame], dim=-1))[..., 0] + self.offset
+            return out.reshape(*encoded.shape[:-1], 1)
         enc = encoded.reshape(-1, encoded.shape[-1])  # [P, 16]
         if self.frame_affine is not None:
             gain, shift = self.frame_affine(frame_embed)  # [2]

@@ -23,6 +23,7 @@ from thermal_wild_ns.model.compositing import (
     background_only,
     coloured_outputs,
     composite,
+    over_background,
     rendered_outputs,
     unpacked_outputs,
 )
@@ -285,20 +286,28 @@ class FittingRender:
         return [rendered_outputs(render, alpha, background, scene.colormap)], None
 
     def fixed_views(self, scene: Scene, cameras: Sequence[Cameras], ids: Optional[Tensor] = None) -> FixedViews:
-        """`render_cameras` of `cameras` [B] (one size) as one function of their frame embeddings [B, Df], for fits
-        that move the states alone (the geometry fixed): on the pure-torch rasterizer each camera's splat weights
-        are computed once (`rendering.splat_weights`) and each render after is a sparse product (the same render
-        and gradients); with gsplat's kernels every camera in one rasterization per call, as a training step
-        renders its cameras; with the Gaussians split across GPUs, a camera at a time."""
+        """`render_cameras`' thermal images of `cameras` [B] (one size) as one function of their frame embeddings
+        [B, Df] -> [B, H, W, 1], for fits that move the states alone (the geometry fixed). Whatever does not
+        depend on the states is made once, and every call is one pass for all the views: the emission MLP once
+        for every state, the background MLP once over every view's directions (encoded once), the Gaussians on
+        the pure-torch rasterizer through each camera's splat weights (`rendering.splat_weights`: computed
+        once, each render after a sparse product: the same render and gradients), with gsplat's kernels in one
+        rasterization of every camera; with the Gaussians split across GPUs, a camera at a time."""
         parts, params, cfg = self.parts, scene.params, self.parts.config
         device = params["means"].device
         if parts.ranks.split or not drawn(params, ids):
-            return lambda embeds: [self.render_cameras(scene, [c], [e], ids)[0][0] for c, e in zip(cameras, embeds)]
+            return lambda embeds: torch.stack(
+                [self.render_cameras(scene, [c], [e], ids)[0][0]["thermal"] for c, e in zip(cameras, embeds)]
+            )
         views = [full_view(parts, camera, device) for camera in cameras]
         sizes = sorted({(view.width, view.height) for view in views})
         if len(sizes) > 1:
             raise ValueError(f"a fit of several views needs views of one size; these: {sizes}")
         W, H = sizes[0]
+        viewmats, Ks = torch.cat([v.viewmat for v in views]), torch.cat([v.K for v in views])  # [B, 4, 4], [B, 3, 3]
+        camera_to_worlds = torch.cat([v.camera_to_world for v in views])  # [B, 3, 4]
+        positions = camera_to_worlds[:, :3, 3]  # [B, 3]
+        backgrounds = parts.background.exact_views(Ks, camera_to_worlds, W, H)
         if resolve_backend(cfg.rasterizer, device) == "torch":
             crop = lambda x: x if ids is None else x[ids]
             scales, opacities = activated(params, ids)  # [N, 3], [N]
@@ -309,35 +318,29 @@ class FittingRender:
                 )
                 for v in views
             ]
-            rasterized = lambda colors: [(w.render(c), w.alpha) for w, c in zip(weights, colors)]
+            alphas = torch.cat([w.alpha for w in weights])  # [B, H, W, 1]
+            rasterized = lambda colors: torch.cat([w.render(c)[..., :1] for w, c in zip(weights, colors)])
         else:
-            viewmats, Ks = (
-                torch.cat([v.viewmat for v in views]),
-                torch.cat([v.K for v in views]),
-            )  # [B, 4, 4], [B, 3, 3]
+            alphas = None
 
-            def rasterized(colors: List[Tensor]) -> List[Tuple[Tensor, Tensor]]:
-                stacked = torch.stack(colors)  # [B, N, 1]
-                args = (True, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, False)  # with depth
-                render, alpha, _ = rasterize_gaussians(params, stacked, viewmats, Ks, W, H, ids, *args)
-                return [(render[b : b + 1], alpha[b : b + 1]) for b in range(len(colors))]  # [1, H, W, 2], [1, H, W, 1]
+            def rasterized(colors: Tensor) -> Tensor:
+                nonlocal alphas
+                args = (False, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, False)  # no depth
+                render, alpha, _ = rasterize_gaussians(params, colors, viewmats, Ks, W, H, ids, *args)
+                alphas = alpha.detach()  # [B, H, W, 1]: the geometry's, the same at every state
+                return render  # [B, H, W, 1]
 
-        def render(embeds: Tensor) -> List[Dict]:
-            outputs = []
-            backgrounds = [parts.background.exact(v.K[0], v.camera_to_world[0], e, W, H) for v, e in zip(views, embeds)]
-            colors = [
-                parts.emission.exact_radiance(params, e, v.camera_to_world[0, :3, 3], scene.view_term, ids)
-                for v, e in zip(views, embeds)
-            ]  # each [N, 1]
-            for (image, alpha), background in zip(rasterized(colors), backgrounds):
-                outputs.append(rendered_outputs(image, alpha, background, scene.colormap))
-            return outputs
+        def render(embeds: Tensor) -> Tensor:
+            colors = parts.emission.exact_radiances(params, embeds, positions, scene.view_term, ids)  # [B, N, 1]
+            emission = rasterized(colors)  # [B, H, W, 1] premultiplied
+            return over_background(emission, alphas, backgrounds(embeds))  # [B, H, W, 1]
 
         return render
 
 
-FixedViews = Callable[[Tensor], List[Dict]]
-"""Several cameras' renders as a function of their frame embeddings [B, Df] (`FittingRender.fixed_views`)."""
+FixedViews = Callable[[Tensor], Tensor]
+"""Several cameras' thermal renders [B, H, W, 1] as a function of their frame embeddings [B, Df]
+(`FittingRender.fixed_views`)."""
 
 
 def render_modes(parts: RenderParts) -> Dict[RenderMode, object]:

@@ -219,11 +219,13 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
                 )
         return outputs
 
-    def fitting_views(self, cameras: Sequence[Cameras]) -> Callable[[Tensor], List[Dict[str, Union[Tensor, List]]]]:
-        """`get_outputs` of `cameras` [B] (one size) outside training as one function of their frame embeddings
-        [B, Df], for fits of their states through the render (the geometry fixed: `FittingRender.fixed_views`)."""
+    def fitting_views(self, cameras: Sequence[Cameras]) -> Callable[[Tensor], Tensor]:
+        """The thermal renders of `cameras` [B] (one size) outside training as the camera records them
+        (`as_recorded`), as one function of their frame embeddings [B, Df] -> [B, H, W], for fits of their states
+        through the render (the geometry fixed: `FittingRender.fixed_views`)."""
         ids = None if self.crop_box is None else self.crop_box.within(self.means).squeeze()
-        return self.renders[RenderMode.FITTING].fixed_views(self.scene(), cameras, ids)
+        scene = self.renders[RenderMode.FITTING].fixed_views(self.scene(), cameras, ids)
+        return lambda embeds: torch.stack([self.as_recorded(t, c)[..., 0] for t, c in zip(scene(embeds), cameras)])
 
     def scene(self) -> Scene:
         """What a render reads of the model now (`renders.Scene`)."""

@@ -47,13 +47,11 @@ from thermal_wild_ns.data.palettes import false_colour
 from thermal_wild_ns.image_metrics import psnr, squared_centre_distance, ssim
 from thermal_wild_ns.pipeline.photometric_state import (
     PhotometricState,
-    as_recorded,
     canonical_state,
     check_same_geometry,
     preprocessed_sequence,
     render,
     state_at,
-    thermal_output,
     to_training_space,
 )
 from thermal_wild_ns.progress import track
@@ -154,14 +152,16 @@ def fit_embeddings(model, fits: Sequence[Fit], steps: int, lr: float) -> torch.T
     gradients alone (on a CPU a fraction of the time), leaving training's gradients alone."""
     embeddings = torch.stack([fit.start for fit in fits]).detach().clone().requires_grad_(True)  # [B, Df]
     optimizer = torch.optim.Adam([embeddings], lr=lr)  # a plain leaf: a Parameter would register in the model
+    targets = torch.stack([fit.target for fit in fits])  # [B, H, W]
+    seen = torch.zeros_like(targets[:, :1])  # [B, 1, W]: each view's loss columns, weighted 1 / their pixels
+    for b, fit in enumerate(fits):
+        seen[b, :, fit.columns] = 1.0
+    seen = seen / (seen.sum(dim=(1, 2), keepdim=True) * targets.shape[1])
     with torch.enable_grad(), parameters_frozen(model):
         views = model.fitting_views([fit.camera for fit in fits])  # the geometry's part of the renders, once
         for _ in range(steps):
-            losses = []
-            for fit, outputs in zip(fits, views(embeddings)):
-                pred = as_recorded(model, thermal_output(outputs), fit.camera)[..., 0]  # as the camera records it
-                losses.append((pred[:, fit.columns] - fit.target[:, fit.columns]).abs().mean())
-            (embeddings.grad,) = torch.autograd.grad(torch.stack(losses).sum(), embeddings)
+            loss = ((views(embeddings) - targets).abs() * seen).sum()  # each view's mean L1 over its columns
+            (embeddings.grad,) = torch.autograd.grad(loss, embeddings)
             optimizer.step()
     return embeddings.detach()
 
