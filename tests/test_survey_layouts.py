@@ -117,3 +117,15 @@ def test_an_opendronemap_project_is_detected_and_read_with_its_georeference(tmp_
     assert geo.crs_wkt is None
     np.testing.assert_allclose(geo.origin_ecef, geodetic_to_ecef(46.4, 6.24, 400.0))
     assert [f.split for f in capture.frames][:9] == ["test"] + ["train"] * 7 + ["test"]
+
+
+def test_the_export_commands_load_without_rasterio():
+    """rasterio (GDAL, PROJ) is needed where a survey has a georeference: the export commands load without it, so
+    a capture without one (a walked building, a generated survey) exports its °C points on an install that lacks
+    it, as the GPU image's bundle did."""
+    import subprocess
+    import sys
+
+    script = "import sys\nsys.modules['rasterio'] = None\nimport thermal_wild_ns.export.commands\nprint('ok')\n"
+    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert loaded.returncode == 0 and loaded.stdout.strip() == "ok", loaded.stderr[-1500:]

@@ -25,14 +25,10 @@ from pathlib import Path
 from typing import Optional, Tuple
 
 import numpy as np
-import rasterio
 import torch
 from nerfstudio.cameras.cameras import Cameras, CameraType
 from nerfstudio.utils.eval_utils import eval_setup
 from plyfile import PlyData, PlyElement
-from rasterio.crs import CRS
-from rasterio.transform import Affine
-from rasterio.warp import transform
 
 from thermal_wild_ns.data.georeference import Georeference
 from thermal_wild_ns.errors import InputError
@@ -69,6 +65,9 @@ class SurveyFrame:
     """Local east-north-up metres -> the project's CRS (easting, northing, ellipsoidal height)."""
 
     def __init__(self, georeference: Georeference):
+        # rasterio (GDAL, PROJ) where a survey has a georeference: a capture without one exports without it
+        from rasterio.crs import CRS
+
         self.georeference = georeference
         # no project CRS (OpenDroneMap gives a GPS origin only): the site's UTM zone, metres like a project's
         zone = int((georeference.longitude + 180) // 6) % 60 + 1
@@ -84,6 +83,7 @@ class SurveyFrame:
 
     def to_crs(self, xyz: np.ndarray) -> np.ndarray:
         """[N, 3] local -> [N, 3] CRS coordinates (float64)."""
+        from rasterio.warp import transform
 
         ecef = xyz @ self.ecef_from_local[:3, :3].T + self.ecef_from_local[:3, 3]  # [N, 3]
         x, y, z = transform("EPSG:4978", self.crs, ecef[:, 0], ecef[:, 1], ecef[:, 2])
@@ -232,6 +232,9 @@ class ExportOrthomosaic:
         height[empty] = np.nan
         corner = survey.to_crs((centre - half_e * east + half_n * north)[None])[0]  # the raster's top-left
         pixel = gsd * crs_per_metre
+        import rasterio
+        from rasterio.transform import Affine
+
         # tiled, deflate with the floating-point predictor: as survey tools write their rasters (GIS software reads
         # a window without the whole width; the predictor makes float rasters smaller, losslessly)
         profile = dict(
