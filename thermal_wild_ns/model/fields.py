@@ -65,7 +65,10 @@ class EmissionMLP(nn.Module):
         (several states in one call: the held-out fits') -> [B, N, 1]."""
         lead, count = frame_embed.shape[:-1], gaussian_embed.shape[0]
         frame = frame_embed[..., None, :].expand(*lead, count, -1)  # [N, Df] or [B, N, Df]
-        return base + self.net(torch.cat([gaussian_embed.expand(*lead, -1, -1), frame], dim=-1))
+        x = torch.cat([gaussian_embed.expand(*lead, -1, -1), frame], dim=-1)
+        # the MLP on rows [B * N, D]: on a 3-D input each in-place ReLU acts on a view of the matmul, whose
+        # backward copies the whole activation
+        return base + self.net(x.reshape(-1, x.shape[-1])).view(*lead, count, 1)
 
 
 class BackgroundMLP(nn.Module):
