@@ -289,10 +289,10 @@ class FittingRender:
         """`render_cameras`' thermal images of `cameras` [B] (one size) as one function of their frame embeddings
         [B, Df] -> [B, H, W, 1], for fits that move the states alone (the geometry fixed). Whatever does not
         depend on the states is made once, and every call is one pass for all the views: the emission MLP once
-        for every state, the background MLP once over every view's directions (encoded once), the Gaussians on
-        the pure-torch rasterizer through each camera's splat weights (`rendering.splat_weights`: computed
-        once, each render after a sparse product: the same render and gradients), with gsplat's kernels in one
-        rasterization of every camera; with the Gaussians split across GPUs, a camera at a time."""
+        for every state (on a GPU), the background MLP once over every view's directions (encoded once), the
+        Gaussians on the pure-torch rasterizer through each camera's splat weights (`rendering.splat_weights`:
+        computed once, each render after a sparse product: the same render and gradients), with gsplat's kernels
+        in one rasterization of every camera; with the Gaussians split across GPUs, a camera at a time."""
         parts, params, cfg = self.parts, scene.params, self.parts.config
         device = params["means"].device
         if parts.ranks.split or not drawn(params, ids):
@@ -320,8 +320,17 @@ class FittingRender:
             ]
             alphas = torch.cat([w.alpha for w in weights])  # [B, H, W, 1]
             rasterized = lambda colors: torch.cat([w.render(c)[..., :1] for w, c in zip(weights, colors)])
+            # on a CPU the emission one state at a time: a view's MLP activations stay in the cache (in one call for
+            # all of them a fit's step took a quarter longer), where a GPU's step pays for each call's launches
+            radiances = lambda embeds: torch.cat(
+                [
+                    parts.emission.exact_radiances(params, e[None], p[None], scene.view_term, ids)
+                    for e, p in zip(embeds, positions)
+                ]
+            )  # [B, N, 1]
         else:
             alphas = None
+            radiances = lambda embeds: parts.emission.exact_radiances(params, embeds, positions, scene.view_term, ids)
 
             def rasterized(colors: Tensor) -> Tensor:
                 nonlocal alphas
@@ -331,8 +340,7 @@ class FittingRender:
                 return render  # [B, H, W, 1]
 
         def render(embeds: Tensor) -> Tensor:
-            colors = parts.emission.exact_radiances(params, embeds, positions, scene.view_term, ids)  # [B, N, 1]
-            emission = rasterized(colors)  # [B, H, W, 1] premultiplied
+            emission = rasterized(radiances(embeds))  # [B, H, W, 1] premultiplied
             return over_background(emission, alphas, backgrounds(embeds))  # [B, H, W, 1]
 
         return render
