@@ -90,9 +90,10 @@ case "$plan" in
     ;;
   tests)
     warm
-    # with them the held-out fits of several views in one gsplat rasterization (test_bench's `several_views`)
+    # with them the held-out fits' one pass for several views, through one gsplat rasterization (test_bench)
     py -m pytest -q -p no:cacheprovider tests/test_gpu_parity.py tests/test_padded_isect.py \
       "tests/test_bench.py::test_held_out_fits_of_several_views_in_one_render_end_where_each_would_alone" \
+      "tests/test_bench.py::test_several_views_rendered_for_a_fit_in_one_pass_are_each_views_own_render" \
       > "$res/gpu-tests.log" 2>&1
     grep -E "^(E  |FAILED|[0-9]+ (passed|failed))" "$res/gpu-tests.log" | head -30
     pack
