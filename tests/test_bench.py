@@ -512,7 +512,8 @@ def test_held_out_fits_of_several_views_in_one_render_end_where_each_would_alone
         assert one.keys() == many.keys()
         assert all(one[key] == pytest.approx(many[key], rel=rel, abs=1e-6) for key in one), (one, many)
     unfitted = evaluation.evaluate(pipeline, protocols=protocols, fit_steps=0)
-    assert unfitted["psnr_oracle"] != pytest.approx(alone["psnr_oracle"], abs=1e-3)
+    # 5 steps of a model trained 8: they move the score a little (2.8e-4 dB seen on a GPU), well past rounding
+    assert unfitted["psnr_oracle"] != pytest.approx(alone["psnr_oracle"], abs=1e-5)
 
 
 @pytest.mark.parametrize("preprocessed", [False, True])
