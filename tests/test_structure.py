@@ -25,6 +25,7 @@ FUNCTION_LOCAL_IMPORTS = {
     "nerfstudio.scripts": "command scripts (the exporter needs open3d, absent from the light install)",
     "numpy.core.multiarray": "private numpy names, only for the checkpoint allow-list",
     "imageio_ffmpeg": "optional",
+    "rasterio": "only a georeferenced survey's export needs it (GDAL, PROJ); the GPU image's bundle has none",
     "torch": "the torchvision shim loads at interpreter start, before torch is wanted",
 }
 """The only imports allowed inside functions, and why."""
