@@ -56,8 +56,8 @@ def sample_map(baked: Tensor, dirs: Tensor) -> Tensor:
 
 
 def upsampled(coarse: Tensor, width: int, height: int) -> Tensor:
-    """The background on the `background_stride` grid [h, w, 1] at full resolution [H, W, 1]."""
-    if coarse.shape[:2] == (height, width):
+    """The background on the `background_stride` grid [..., h, w, 1] at full resolution [..., H, W, 1]."""
+    if coarse.shape[-3:-1] == (height, width):
         return coarse
     # coarse samples sit at the centres of stride x stride pixel blocks (align_corners=False)
     return bilinear_resize(coarse[..., 0], height, width)[..., None]
@@ -183,13 +183,7 @@ class ThermalBackground:
             [self.mlp.encode(ray_directions(K, c2w, width, height, stride)) for K, c2w in zip(Ks, camera_to_worlds)]
         )  # [B, h, w, E]
 
-        def views(embeds: Tensor) -> Tensor:
-            coarse = self.mlp.from_encoded(encoded, embeds)  # [B, h, w, 1]
-            if coarse.shape[1:3] == (height, width):
-                return coarse
-            return bilinear_resize(coarse[..., 0], height, width)[..., None]  # as `upsampled`, each image
-
-        return views
+        return lambda embeds: upsampled(self.mlp.from_encoded(encoded, embeds), width, height)  # [B, H, W, 1]
 
     def viewing(self, view, frame_embed: Tensor, step: int, captured: CapturedCalls) -> Tuple[Tensor, Tensor]:
         """gsplat's view matrix [1, 4, 4] and the background [H, W, 1] of a render a user waits for

@@ -319,9 +319,9 @@ class FittingRender:
                 for v in views
             ]
             alphas = torch.cat([w.alpha for w in weights])  # [B, H, W, 1]
-            rasterized = lambda colors: torch.cat([w.render(c)[..., :1] for w, c in zip(weights, colors)])
+            rasterized = lambda colors: (torch.cat([w.render(c)[..., :1] for w, c in zip(weights, colors)]), alphas)
             # on a CPU the emission one state at a time: a view's MLP activations stay in the cache (in one call for
-            # all of them a fit's step took a quarter longer), where a GPU's step pays for each call's launches
+            # all of them a fit's step was slower), where a GPU's step pays for each call's launches
             radiances = lambda embeds: torch.cat(
                 [
                     parts.emission.exact_radiances(params, e[None], p[None], scene.view_term, ids)
@@ -329,18 +329,12 @@ class FittingRender:
                 ]
             )  # [B, N, 1]
         else:
-            alphas = None
             radiances = lambda embeds: parts.emission.exact_radiances(params, embeds, positions, scene.view_term, ids)
-
-            def rasterized(colors: Tensor) -> Tensor:
-                nonlocal alphas
-                args = (False, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, False)  # no depth
-                render, alpha, _ = rasterize_gaussians(params, colors, viewmats, Ks, W, H, ids, *args)
-                alphas = alpha.detach()  # [B, H, W, 1]: the geometry's, the same at every state
-                return render  # [B, H, W, 1]
+            args = (False, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, False)  # no depth
+            rasterized = lambda colors: rasterize_gaussians(params, colors, viewmats, Ks, W, H, ids, *args)[:2]
 
         def render(embeds: Tensor) -> Tensor:
-            emission = rasterized(radiances(embeds))  # [B, H, W, 1] premultiplied
+            emission, alphas = rasterized(radiances(embeds))  # [B, H, W, 1] premultiplied, [B, H, W, 1]
             return over_background(emission, alphas, backgrounds(embeds))  # [B, H, W, 1]
 
         return render

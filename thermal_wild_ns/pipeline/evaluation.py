@@ -95,9 +95,9 @@ def scores(
     pred: np.ndarray, gt: np.ndarray, to_celsius: Optional[Callable] = None, device: Union[str, torch.device] = "cpu"
 ) -> Dict[str, float]:
     """PSNR and SSIM of two [H, W] images of the dataset-normalised space (data range 1), computed on `device` (a
-    scorer passes its model's: on a GPU host the SSIM of a 640x512 view costs the CPU tens of ms, six times a
-    view); with `to_celsius` (the dataset's calibration), the error in °C too: mean absolute, root mean square
-    and the 95th percentile of the absolute error over the view's pixels."""
+    scorer passes its model's: a view's six SSIMs at full resolution belong on its GPU, not on the host); with
+    `to_celsius` (the dataset's calibration), the error in °C too: mean absolute, root mean square and the 95th
+    percentile of the absolute error over the view's pixels."""
 
     def tensor(x):
         return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)).to(device)[..., None]
@@ -295,24 +295,23 @@ def evaluate(
 def _score_fitted_protocols(pipeline, protocols, held_out: List[HeldOutView], rows: List[Dict], steps, lr, views):
     """`half`, `oracle` and `oracle_lut` of every held-out view into its row: the states fitted first, several
     views per render (`fitted_states`), then each view scored."""
-    fits = []  # per view: its half's and its oracle's (state, fit), where asked
+    fits = []  # per view: its left half, and its half's and its oracle's (state, fit), where asked
     for view in held_out:
-        half = view.recorded.shape[1] // 2
-        left = view.recorded[:, :half].copy()
+        left = view.recorded[:, : view.recorded.shape[1] // 2].copy()
         half_job = half_fit(pipeline, view.camera, left, view.time_state) if "half" in protocols else None
         oracle_job = (
             oracle_fit(pipeline, view.camera, view.frame, view.recorded, view.time_state)
             if "oracle" in protocols
             else None
         )
-        fits.append((half_job, oracle_job))
-    jobs = [job for pair in fits for job in pair if job is not None]
+        fits.append((left, half_job, oracle_job))
+    jobs = [job for _, *pair in fits for job in pair if job is not None]
     device = pipeline.model.device
     states = iter(fitted_states(pipeline, jobs, steps, lr, views))
-    for view, row, (half_job, oracle_job) in zip(held_out, rows, fits):
-        recorded, to_celsius, half = view.recorded, view.to_celsius, view.recorded.shape[1] // 2
+    for view, row, (left, half_job, oracle_job) in zip(held_out, rows, fits):
+        recorded, to_celsius, half = view.recorded, view.to_celsius, left.shape[1]
         if half_job is not None:
-            pred = half_prediction(pipeline, view.camera, recorded[:, :half].copy(), next(states))
+            pred = half_prediction(pipeline, view.camera, left, next(states))
             right = scores(pred[:, half:], recorded[:, half:], to_celsius, device)
             row.update({f"{k}_half": v for k, v in right.items()})
         if oracle_job is not None:
