@@ -28,8 +28,8 @@
 #   survey-timing [SURVEY...]  experiments.survey_timing: every phase from a survey folder to the °C map, timed
 #                      (default survey:250); one survey per call (survey:1000, survey:4000, metashape:$PWD/.data/flight2
 #                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge; with
-#                      PROFILE_SCORE=SECONDS each survey's run scored again under cProfile (experiments.score_time,
-#                      FIT_VIEWS (8) views a fit's render)
+#                      PROFILE_SCORE=SECONDS each survey's run scored again (experiments.score_time) for each count
+#                      of views a fit's render in FIT_VIEWS ("8"), the first under cProfile
 #   trace SCENE        the full method's step at step 3,000 as the bench trains: its profile and timeline
 #   renders SCENE      the render ways (as ns-render and the viewer draw) on a model of the scene trained to step
 #                      3,400 as the bench trains: 3 rounds of 1,000 frames at 640x512 (experiments.render_fps)
@@ -169,9 +169,13 @@ case "$plan" in
     keep; tail -n 8 "$res/survey-timing.log"
     if [ -n "${PROFILE_SCORE:-}" ]; then  # where each survey's scoring time goes, within PROFILE_SCORE seconds
       for config in /tmp/survey-timing/*/runs/*/wild-thermal/run/config.yml; do
-        PYTHONPATH=$root:/tmp/site timeout "$PROFILE_SCORE" python3 -m experiments.score_time "$config" \
-          --fit-views "${FIT_VIEWS:-8}" --profile "$res/score-profile.md" \
-          >> "$res/score-time.jsonl" 2> "$res/score-time.log"
+        counts=(${FIT_VIEWS:-8})
+        for views in "${counts[@]}"; do  # the first count profiled, the others timed
+          profile=(); [ "$views" = "${counts[0]}" ] && profile=(--profile "$res/score-profile.md")
+          PYTHONPATH=$root:/tmp/site timeout "$PROFILE_SCORE" python3 -m experiments.score_time "$config" \
+            --fit-views "$views" "${profile[@]}" >> "$res/score-time.jsonl" 2>> "$res/score-time.log"
+          pack
+        done
       done
       pack; tail -n 1 "$res/score-time.jsonl"
     fi

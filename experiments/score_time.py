@@ -1,6 +1,7 @@
 """`python -m experiments.score_time RUN/config.yml ...`: how long scoring a trained run's held-out views takes
 under every protocol (as `wild-thermal-demo` and the bench score them), with the scores and the held-out fits'
-optimizer steps (each a render of up to `--fit-views` views and its backward), one JSON line per run; with
+optimizer steps (each a render of up to `--fit-views` views and its backward), one JSON line per run (`seconds`
+the scoring's, `setup_seconds` the run's loading before it); with
 `--profile FILE.md`, where each run's scoring time goes (cProfile, per held-out view) appended to FILE.md.
 Run as a script with two packages on the same checkpoints (the package of PYTHONPATH's tree is the one timed), to
 see a change's cost and that its scores stay:
@@ -45,7 +46,9 @@ def main() -> None:
 
     torch.optim.Adam.step = counted
     for config in args.configs:
+        start = time.perf_counter()
         _, pipeline, _, _ = eval_setup(config, test_mode="test")
+        setup_seconds = time.perf_counter() - start  # reading the run's data and checkpoint, as ns-eval does first
         fit_steps[0] = 0
         profiler = cProfile.Profile() if args.profile is not None else None
         start = time.perf_counter()
@@ -55,7 +58,8 @@ def main() -> None:
         seconds = time.perf_counter() - start
         psnr = {k: v for k, v in scores.items() if k.startswith("psnr_")}
         views = len(scores["per_view"])
-        record = {"config": str(config), "views": views, "seconds": round(seconds, 2), "fit_steps": fit_steps[0]}
+        record = {"config": str(config), "views": views, "fit_views": args.fit_views, "setup_seconds": round(setup_seconds, 2)}
+        record.update({"seconds": round(seconds, 2), "fit_steps": fit_steps[0]})
         record.update(psnr)
         print(json.dumps(record), flush=True)
         if profiler is not None:
