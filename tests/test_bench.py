@@ -461,7 +461,7 @@ def test_several_views_rendered_for_a_fit_in_one_pass_are_each_views_own_render(
     cameras = [pipeline.datamanager.eval_dataset.cameras[i : i + 1].to(model.device) for i in range(3)]
     generator = torch.Generator().manual_seed(0)
     start = model.state_embedding(CANONICAL).detach()
-    embeds = start + 0.3 * torch.randn(3, start.shape[0], generator=generator)  # [3, Df]: a state per view
+    embeds = start + 0.3 * torch.randn(3, start.shape[0], generator=generator).to(start.device)  # [3, Df]: one per view
     with torch.enable_grad():  # a render under autograd outside training: the fitting render, one view at a time
         each = [
             as_recorded(model, thermal_output(model.get_outputs(c, frame_embedding=e)), c)[..., 0].detach()
