@@ -1205,6 +1205,47 @@ def test_emission_for_the_gaussians_in_view_only_renders_the_same():
         torch.testing.assert_close(grads[1][name], grads[0][name], atol=1e-6, rtol=1e-4, msg=name)
 
 
+def test_a_fits_views_in_one_rasterization_run_the_emission_for_what_each_camera_sees_and_render_the_same(
+    monkeypatch,
+):
+    """The held-out fits' one pass through one rasterization (a GPU's way; here gsplat's path on the pure-torch
+    rasterizer) runs the emission MLP on the Gaussians each camera can see: with half the site out of view, each
+    view is `get_outputs`' render at its own state and its gradient reaches its own state alone."""
+    import thermal_wild_ns.model.renders as renders
+    from thermal_wild_ns.model.in_view import in_view
+
+    monkeypatch.setattr(renders, "resolve_backend", lambda backend, device: "gsplat")
+    torch.manual_seed(0)
+    model = make_model(n=400, view_sh_degree=1)
+    perturb_output_layers(model)
+    with torch.no_grad():
+        model.gauss_params["means"][::2] += torch.tensor([4.0, 0.0, 0.0])  # half the site out of view
+        model.gauss_params["view_sh"].normal_(0, 0.1)
+    model.eval()
+    cameras = [make_camera(1), make_camera(2)]
+    with torch.no_grad():
+        cameras[1].camera_to_worlds[0, 0, 3] = 0.5  # the second camera a little aside: its own Gaussians
+    embeds = model.frame_embed.weight[1:3].detach() + 0.3 * torch.randn(2, model.frame_embed.weight.shape[1])
+    with torch.enable_grad():
+        each = [
+            model.as_recorded(model.get_outputs(c, frame_embedding=e)["thermal"], c)[..., 0].detach()
+            for c, e in zip(cameras, embeds)
+        ]
+    rows, mlp_forward = [], model.emission_mlp.net.forward
+    monkeypatch.setattr(model.emission_mlp.net, "forward", lambda x: rows.append(x.shape[0]) or mlp_forward(x))
+    leaf = embeds.clone().requires_grad_(True)
+    with torch.enable_grad():
+        together = model.fitting_views(cameras)(leaf)  # [2, H, W]
+        (grad,) = torch.autograd.grad(together[1].sum(), leaf)
+    for b in range(2):
+        torch.testing.assert_close(together[b].detach(), each[b], atol=1e-5, rtol=1e-5)
+    assert grad[1].abs().sum() > 0 and grad[0].abs().sum() == 0
+    view = model.parts.training_views.get(cameras[0], lambda: cameras[0].camera_to_worlds, 1, model.device, 1)
+    seen = in_view(model.means, model.scales, view.viewmat[0], view.K[0], view.width, view.height)
+    assert 50 < int(seen.sum()) < 350  # the test leaves Gaussians out, and keeps some
+    assert rows and max(rows) < 2 * 350  # the MLP ran on the pairs drawn, not on both states' every Gaussian
+
+
 def test_the_view_term_follows_the_view_and_averages_to_nothing():
     """The view-dependent emission: band 1's z coefficient adds +C1 c seen from +z and -C1 c from -z;
     over all directions every band averages to zero (the emission without it is the average)."""

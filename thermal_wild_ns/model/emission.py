@@ -15,7 +15,7 @@ from torch import Tensor
 from thermal_wild_ns.model.bake import BakedValues
 from thermal_wild_ns.model.fields import EmissionMLP
 from thermal_wild_ns.model.graphed import PaddedRowCalls
-from thermal_wild_ns.model.in_view import in_view
+from thermal_wild_ns.model.in_view import in_view, in_views
 from thermal_wild_ns.model.view_emission import view_term
 
 TYPICAL_STATE_GAUSSIANS = 16_384
@@ -110,6 +110,38 @@ class GaussianEmission:
             emission = emission + torch.stack([view_term_of(params, p, ids) for p in camera_positions])
         return self.radiance(emission)
 
+    def seen_radiances(
+        self,
+        params,
+        viewmats: Tensor,
+        Ks: Tensor,
+        width: int,
+        height: int,
+        positions: Tensor,
+        view_term: bool,
+        ids=None,
+    ):
+        """`exact_radiances` as a function of the frame embeddings [B, Df] -> [B, N, 1] (or [B, M, 1] of `ids`), for
+        the Gaussians each camera (gsplat's `viewmats` [B, 4, 4], `Ks` [B, 3, 3], at `positions` [B, 3]) can see
+        (`in_views`), zero for the others (which it does not draw): the MLP runs on the (camera, Gaussian) pairs
+        drawn, a fit's time following its views, not the site. Which pairs, and their view term, are made once."""
+        means, log_scales = params["means"], params["scales"]
+        if ids is not None:
+            means, log_scales = means[ids], log_scales[ids]
+        views, seen = in_views(means, log_scales, viewmats, Ks, width, height).nonzero(as_tuple=True)  # [R] each
+        rows = seen if ids is None else ids[seen]  # [R], among all the Gaussians
+        base = params["emission"][rows]  # [R, 1]
+        gauss_embed = params["gauss_embed"][rows] if self.mlp is not None else None  # [R, Dg]
+        offset = view_term_rows(params, rows, positions[views]) if view_term else None  # [R, 1]
+        shape = (viewmats.shape[0], means.shape[0], 1)
+
+        def radiances(frame_embeds: Tensor) -> Tensor:
+            emission = base if self.mlp is None else self.mlp.rows(base, gauss_embed, frame_embeds[views])  # [R, 1]
+            emission = emission if offset is None else emission + offset
+            return self.radiance(emission.new_zeros(shape).index_put((views, seen), emission))
+
+        return radiances
+
     # ------------------------------------------------------------------ pieces
     def selected(self, params, frame_embed: Tensor, ids: Optional[Tensor] = None) -> Tensor:
         """The emission [N, 1] (or [M, 1] of `ids`) without view term, evaluated as it stands ([B, N, 1] for
@@ -168,3 +200,8 @@ def view_term_of(params, camera_position: Tensor, ids: Optional[Tensor] = None) 
     if ids is not None:
         means, coefficients = means[ids], coefficients[ids]
     return view_term(means, coefficients, camera_position)
+
+
+def view_term_rows(params, rows: Tensor, camera_positions: Tensor) -> Tensor:
+    """The view-dependent term [R, 1] of the Gaussians `rows` [R], each seen from its own camera position [R, 3]."""
+    return view_term(params["means"][rows], params["view_sh"][rows], camera_positions)

@@ -70,6 +70,11 @@ class EmissionMLP(nn.Module):
         # backward copies the whole activation
         return base + self.net(x.reshape(-1, x.shape[-1])).view(*lead, count, 1)
 
+    def rows(self, base: Tensor, gaussian_embed: Tensor, frame_embed: Tensor) -> Tensor:
+        """base [R, 1], gaussian_embed [R, Dg], frame_embed [R, Df]: each row a Gaussian under its own state ->
+        emission [R, 1]."""
+        return base + self.net(torch.cat([gaussian_embed, frame_embed], dim=-1))
+
 
 class BackgroundMLP(nn.Module):
     """b(d, e_t): thermal radiance arriving from direction d (sky, far field) in frame t.

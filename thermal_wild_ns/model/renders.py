@@ -289,10 +289,11 @@ class FittingRender:
         """`render_cameras`' thermal images of `cameras` [B] (one size) as one function of their frame embeddings
         [B, Df] -> [B, H, W, 1], for fits that move the states alone (the geometry fixed). Whatever does not
         depend on the states is made once, and every call is one pass for all the views: the emission MLP once
-        for every state (on a GPU), the background MLP once over every view's directions (encoded once), the
-        Gaussians on the pure-torch rasterizer through each camera's splat weights (`rendering.splat_weights`:
-        computed once, each render after a sparse product: the same render and gradients), with gsplat's kernels
-        in one rasterization of every camera; with the Gaussians split across GPUs, a camera at a time."""
+        for every state (on a GPU, for the Gaussians each camera can see), the background MLP once over every
+        view's directions (encoded once), the Gaussians on the pure-torch rasterizer through each camera's splat
+        weights (`rendering.splat_weights`: computed once, each render after a sparse product: the same render and
+        gradients), with gsplat's kernels in one rasterization of every camera; with the Gaussians split across
+        GPUs, a camera at a time."""
         parts, params, cfg = self.parts, scene.params, self.parts.config
         device = params["means"].device
         if parts.ranks.split or not drawn(params, ids):
@@ -329,7 +330,7 @@ class FittingRender:
                 ]
             )  # [B, N, 1]
         else:
-            radiances = lambda embeds: parts.emission.exact_radiances(params, embeds, positions, scene.view_term, ids)
+            radiances = parts.emission.seen_radiances(params, viewmats, Ks, W, H, positions, scene.view_term, ids)
             args = (False, cfg.use_absgrad, cfg.rasterize_mode, cfg.rasterizer, False)  # no depth
             rasterized = lambda colors: rasterize_gaussians(params, colors, viewmats, Ks, W, H, ids, *args)[:2]
 
