@@ -1713,3 +1713,24 @@ def test_several_cameras_per_step_need_frames_of_one_size():
     model.train()
     with pytest.raises(ValueError, match=r"one size.*\(24, 32\), \(48, 32\)"):
         model.get_training_outputs([make_camera(1), make_camera(2, width=24)])
+
+
+def test_each_switchable_part_says_what_its_default_rests_on():
+    """A run's report says why each part is on or off from the committed runs its default rests on (folders
+    that exist), and, where the run's config moved a part off its default, that option and its value."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    parts = ("emission MLP", "background MLP", "heat-aware SSIM", "alpha regulariser")
+    defaults = {d.part: d for d in make_model().decisions()}
+    for part in parts:
+        why = defaults[part].why
+        assert defaults[part].choice == "on" and why.startswith("the default: "), (part, why)
+        folders = re.findall(r"docs/results/[\w.-]+", why)
+        assert folders and all((root / folder).is_dir() for folder in folders), (part, folders)
+    moved = {d.part: d for d in make_model(heat_aware_ssim=False, alpha_lambda=0.0).decisions()}
+    assert moved["heat-aware SSIM"].choice == "off"
+    assert moved["heat-aware SSIM"].why.startswith("heat_aware_ssim False in this run's config (the default True: ")
+    assert moved["alpha regulariser"].why.startswith("alpha_lambda 0.0 in this run's config (the default 0.01: ")
+    assert moved["emission MLP"].why == defaults["emission MLP"].why

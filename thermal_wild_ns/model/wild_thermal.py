@@ -44,7 +44,7 @@ from thermal_wild_ns.model.old_checkpoints import (
     migrate_config,
     packed_optimizer_states,
 )
-from thermal_wild_ns.model.options import ThermalModelOptions
+from thermal_wild_ns.model.options import PART_EVIDENCE, ThermalModelOptions
 from thermal_wild_ns.model.renders import RenderMode, RenderParts, Scene, render_mode, render_modes
 from thermal_wild_ns.model.schedule import schedule_moves_loss, settled_step
 from thermal_wild_ns.model.strategy import BudgetedDefaultStrategy
@@ -360,9 +360,11 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("emission MLP", cfg.use_emission_mlp, "use_emission_mlp"),
             ("background MLP", cfg.use_background_mlp, "use_background_mlp"),
             ("heat-aware SSIM", cfg.heat_aware_ssim, "heat_aware_ssim"),
-            ("alpha regulariser", cfg.alpha_lambda > 0, f"alpha_lambda {cfg.alpha_lambda:g}"),
+            ("alpha regulariser", cfg.alpha_lambda > 0, "alpha_lambda"),
         )
-        entries += [Decision(part, "on" if on else "off", option, "config") for part, on, option in parts]
+        entries += [
+            Decision(part, "on" if on else "off", part_why(cfg, option), "config") for part, on, option in parts
+        ]
         entries += self.growth.part_decisions(self.growth_state, self.strategy, cfg.view_sh_degree)
         return entries + self.camera_choice.decisions(self.camera_falloff, self.camera_flat_field)
 
@@ -427,3 +429,12 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if "torch_rng_state" in state:
             torch.set_rng_state(state["torch_rng_state"])
         self.growth_state.few_view_pruned = state.get("few_view_pruned", 0)
+
+
+def part_why(config: WildThermalModelConfig, option: str) -> str:
+    """Why a switchable part is as `config` has it: at its default, what the default rests on (`PART_EVIDENCE`);
+    otherwise the option that set it, with the default and its evidence beside."""
+    value, default = getattr(config, option), WildThermalModelConfig.__dataclass_fields__[option].default
+    if value == default:
+        return f"the default: {PART_EVIDENCE[option]}"
+    return f"{option} {value} in this run's config (the default {default}: {PART_EVIDENCE[option]})"
