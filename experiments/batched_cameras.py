@@ -27,7 +27,7 @@ import tyro
 from torch import Tensor
 
 from experiments import device_name, synchronize, write_report
-from experiments.bench import scene_dataparser
+from experiments.scenes import scene_dataparser
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.rendering import world_to_camera
 from thermal_wild_ns.rendering.backend import NEAR_PLANE, rasterization

@@ -41,6 +41,7 @@ import tyro
 from experiments import device_name, synchronize, train_with_hooks
 from experiments.camera_path import evaluate_path
 from experiments.render_fps import measure_fps
+from experiments.scenes import scene_dataparser, scene_name
 from thermal_wild_ns._upstream import no_lpips_download, prepare_checkpoint_commands
 from thermal_wild_ns.data.thermal_io import load_npy
 from thermal_wild_ns.method_configs import METHODS, method_trainer
@@ -174,34 +175,6 @@ def trainer_config(method: str, scene: str, args: BenchArgs, run_dir: Path, seed
     return config
 
 
-def scene_dataparser(scene: str, output_dir: Path, cache_dir: Path):
-    """The dataparser config of a bench scene: 'demo' and 'stress:FAULT' generated under
-    `output_dir`, anything else a dataset folder (triangulation cache in `cache_dir`)."""
-    from thermal_wild_ns.data.dataparsers import ThermalDataParserConfig, ThermalDemoDataParserConfig
-
-    if scene == "demo":
-        return ThermalDemoDataParserConfig(data=output_dir / "demo-scene")
-    if scene.startswith("stress:"):
-        return ThermalDemoDataParserConfig(data=output_dir / scene_name(scene), scene=scene.split(":", 1)[1])  # type: ignore[arg-type]
-    if scene.startswith("survey:"):
-        frames = scene.split(":", 1)[1]
-        if not frames.isdigit():
-            raise ValueError(f"bench scene {scene!r}: 'survey:FRAMES' takes a number of frames, e.g. survey:48")
-        return ThermalDemoDataParserConfig(
-            data=output_dir / scene_name(scene), scene="survey", survey_frames=int(frames)
-        )
-    layout, folder = _layout_and_folder(scene)
-    return ThermalDataParserConfig(data=Path(folder), layout=layout, cache_dir=cache_dir)  # type: ignore[arg-type]
-
-
-def _layout_and_folder(scene: str) -> Tuple[str, str]:
-    """('auto', FOLDER), or (LAYOUT, FOLDER) for a scene given as 'LAYOUT:FOLDER'."""
-    from thermal_wild_ns.data.layouts import LAYOUTS
-
-    prefix, _, rest = scene.partition(":")
-    return (prefix, rest) if rest and prefix in LAYOUTS else ("auto", scene)
-
-
 def apply_setting(config, setting: str) -> None:
     """Set `path.to.field=value` on a config (frozen dataclasses along the path are replaced)."""
     import ast
@@ -257,13 +230,6 @@ def run_label(method: str, args: BenchArgs) -> str:
 def file_slug(label: str) -> str:
     """`label` as a file name (no spaces or brackets)."""
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", label).strip("_")
-
-
-def scene_name(scene: str) -> str:
-    if scene.startswith(("stress:", "survey:")):
-        return scene.replace(":", "-")
-    layout, folder = _layout_and_folder(scene)
-    return Path(folder).name if layout == "auto" else f"{Path(folder).name}-{layout}"
 
 
 def _model_megabytes(model) -> float:

@@ -11,7 +11,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from experiments.bench import scene_dataparser
+from experiments.scenes import scene_dataparser
 from thermal_wild_ns.data.content_motion import content_motion
 
 

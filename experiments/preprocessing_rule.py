@@ -19,7 +19,7 @@ from typing import List, Optional, Tuple
 import tyro
 
 from experiments import write_report
-from experiments.bench import scene_dataparser, scene_name
+from experiments.scenes import scene_dataparser, scene_name
 from thermal_wild_ns.preprocessing.stage import CONTRAST_SPREAD
 
 

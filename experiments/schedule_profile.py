@@ -24,7 +24,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 import tyro
 
 from experiments import device_name, synchronize, train_with_hooks, write_report
-from experiments.bench import BenchArgs, scene_name, setup_trainer, trainer_config
+from experiments.bench import BenchArgs, setup_trainer, trainer_config
+from experiments.scenes import scene_name
 from thermal_wild_ns.training.schedule import FULL_SCHEDULE
 
 

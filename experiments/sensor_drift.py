@@ -29,7 +29,7 @@ from typing import Tuple
 import numpy as np
 import torch
 
-from experiments.bench import scene_dataparser
+from experiments.scenes import scene_dataparser
 from thermal_wild_ns.data.content_motion import pixel_positions
 from thermal_wild_ns.data.thermal_io import read_raw_frame
 from thermal_wild_ns.preprocessing.stage import frame_contrast_spread, frame_mean_spread, frame_quantiles

@@ -43,7 +43,7 @@ import torch
 import tyro
 
 from experiments import mean_range, write_report
-from experiments.bench import scene_dataparser, scene_name
+from experiments.scenes import scene_dataparser, scene_name
 from thermal_wild_ns.data.dataparsers import ThermalDemoDataParserConfig
 from thermal_wild_ns.data.demo_scene import DemoSceneConfig, camera_to_world, clean_counts, sensor_counts, sensor_faults
 from thermal_wild_ns.image_metrics import psnr

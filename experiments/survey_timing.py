@@ -90,7 +90,7 @@ def _child(record: Path, entry: str, argv: List[str]) -> None:
 
 def setup_only(scene: str, output_dir: str, cache_dir: str) -> None:
     """The `setup` phase: the scene's dataparser read once, its caches written (`bench.scene_dataparser`)."""
-    from experiments.bench import scene_dataparser
+    from experiments.scenes import scene_dataparser
 
     parser = scene_dataparser(scene, Path(output_dir), Path(cache_dir)).setup()
     parser.get_dataparser_outputs("train")
@@ -116,16 +116,16 @@ def dataparser_args(scene: str, cache: Path) -> List[str]:
     if scene.startswith("survey:"):
         frames = scene.split(":", 1)[1]
         return ["thermal-demo-data", "--scene", "survey", "--survey-frames", frames]
-    from experiments.bench import _layout_and_folder
+    from experiments.scenes import layout_and_folder
 
-    layout, folder = _layout_and_folder(scene)
+    layout, folder = layout_and_folder(scene)
     return ["thermal", "--data", folder, "--layout", layout, "--cache-dir", str(cache)]
 
 
 def time_survey(scene: str, args: SurveyTimingArgs, on_phase: Callable[[Dict], None] = lambda row: None) -> Dict:
     """Every phase of one survey, in order; a phase that fails ends the survey's row. `on_phase(row)` after each
     phase (a run cut short keeps the phases it finished)."""
-    from experiments.bench import scene_name
+    from experiments.scenes import scene_name
     from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 
     name = scene_name(scene)

@@ -23,7 +23,8 @@ from typing import List, Optional, Tuple
 import tyro
 
 from experiments import train_with_hooks
-from experiments.bench import BenchArgs, scene_name, setup_trainer, trainer_config
+from experiments.bench import BenchArgs, setup_trainer, trainer_config
+from experiments.scenes import scene_name
 from thermal_wild_ns.progress import track
 from thermal_wild_ns.training.auto_stop import held_back_score
 

@@ -261,7 +261,7 @@ def test_unknown_method_and_protocol_are_refused(tmp_path):
 
 
 def test_a_survey_scene_is_the_synthetic_survey_of_that_many_frames_and_a_bad_count_is_refused(tmp_path):
-    from experiments.bench import scene_dataparser, scene_name
+    from experiments.scenes import scene_dataparser, scene_name
 
     config = scene_dataparser("survey:12", tmp_path, tmp_path / "cache")
     assert (config.scene, config.survey_frames) == ("survey", 12)
