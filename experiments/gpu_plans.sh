@@ -30,6 +30,10 @@
 #                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge; with
 #                      PROFILE_SCORE=SECONDS each survey's run scored again (experiments.score_time) for each count
 #                      of views a fit's render in FIT_VIEWS ("8"), the first under cProfile
+#   score-ab [SURVEY]  the survey (survey:1000) set up and trained to its automatic stop (experiments.survey_timing
+#                      --phases setup train), then its scoring timed (experiments.score_time) by the package before
+#                      (.baseline: git archive REV thermal_wild_ns experiments, where carried) and now, for each
+#                      count of views a fit's render in FIT_VIEWS ("32"): before.jsonl, after.jsonl
 #   trace SCENE        the full method's step at step 3,000 as the bench trains: its profile and timeline
 #   renders SCENE      the render ways (as ns-render and the viewer draw) on a model of the scene trained to step
 #                      3,400 as the bench trains: 3 rounds of 1,000 frames at 640x512 (experiments.render_fps)
@@ -179,6 +183,22 @@ case "$plan" in
       done
       pack; tail -n 1 "$res/score-time.jsonl"
     fi
+    ;;
+  score-ab)
+    warm
+    py -m experiments.survey_timing --surveys "${1:-survey:1000}" --phases setup train --output-dir /tmp/score-ab \
+      > "$res/survey-timing.log" 2>&1
+    config=$(ls /tmp/score-ab/*/runs/*/wild-thermal/run/config.yml | head -1)
+    for views in ${FIT_VIEWS:-32}; do
+      for side in before after; do
+        tree=$root; [ "$side" = before ] && tree=$root/.baseline
+        [ -d "$tree/thermal_wild_ns" ] || continue
+        (cd "$tree" && PYTHONPATH=$tree:/tmp/site timeout 150 python3 -m experiments.score_time "$config" \
+          --fit-views "$views" >> "$res/$side.jsonl" 2>> "$res/score-ab.log")
+        pack
+      done
+    done
+    tail -n 4 "$res"/*.jsonl
     ;;
   trace)
     warm

@@ -54,6 +54,9 @@ class SurveyTimingArgs:
     orthomosaic_options: str = ""
     """More `wild-thermal-export orthomosaic` options, one string (e.g. --orthomosaic-options="--ground-resolution
     0.1")."""
+    phases: List[str] = field(default_factory=lambda: list(PHASES))
+    """The phases to time, of setup, train, score, points, orthomosaic (each needs the ones before it to have run,
+    here or in an earlier run into the same --output-dir); a row without the others is tabled as incomplete."""
     merge: List[Path] = field(default_factory=list)
     """`survey_timing.json` files of earlier runs (a survey per device call, each within its limit): their rows go
     into the table ahead of any timed here."""
@@ -166,6 +169,8 @@ def time_survey(scene: str, args: SurveyTimingArgs, on_phase: Callable[[Dict], N
         ),
     }
     for phase in PHASES:
+        if phase not in args.phases:  # no record: the table shows the row as incomplete
+            continue
         if phase == "orthomosaic" and not _georeferenced(config):
             row["phases"][phase] = {"skipped": "the capture has no georeference (its layout gives none)"}
             continue
@@ -238,6 +243,9 @@ def write_results(rows: List[Dict], output_dir: Path) -> None:
 
 
 def main(args: SurveyTimingArgs) -> List[Dict]:
+    unknown = set(args.phases) - set(PHASES)
+    if unknown:
+        raise ValueError(f"--phases {sorted(unknown)}: each one of {', '.join(PHASES)}")
     args.output_dir.mkdir(parents=True, exist_ok=True)
     rows = [row for path in args.merge for row in json.loads(Path(path).read_text())]
     for scene in args.surveys:

@@ -55,3 +55,17 @@ def test_runs_of_separate_calls_are_tabled_together_and_a_cut_row_says_so(tmp_pa
     assert table[2].endswith(f"| {2.0 * len(PHASES):.1f} |")
     assert "failed" in table[3] and table[3].endswith("| 2.0 so far (incomplete) |")
     assert json.loads((tmp_path / "out" / "survey_timing.json").read_text()) == rows
+
+
+def test_the_phases_asked_alone_are_timed_and_the_row_says_it_is_incomplete(tmp_path):
+    """`--phases setup` times the setup alone (a fresh process reading the generated survey); the other phases
+    have no record, and the table gives no total as if the row were whole."""
+    from experiments.survey_timing import SurveyTimingArgs, main
+
+    (row,) = main(SurveyTimingArgs(surveys=["survey:12"], phases=["setup"], output_dir=tmp_path / "out"))
+    assert list(row["phases"]) == ["setup"]
+    assert "failed" not in row["phases"]["setup"] and row["phases"]["setup"]["seconds"] > 0
+    line = (tmp_path / "out" / "survey_timing.md").read_text().splitlines()[2]
+    assert line.endswith("so far (incomplete) |") and line.count("—") == 4
+    with pytest.raises(ValueError, match="--phases"):
+        main(SurveyTimingArgs(surveys=["survey:12"], phases=["render"], output_dir=tmp_path / "bad"))
