@@ -27,7 +27,9 @@
 #                      call); then here `python -m experiments.full_vs_ablations` on the two bench.json
 #   survey-timing [SURVEY...]  experiments.survey_timing: every phase from a survey folder to the °C map, timed
 #                      (default survey:250); one survey per call (survey:1000, survey:4000, metashape:$PWD/.data/flight2
-#                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge; with
+#                      after pycolmap's install), the calls' survey_timing.json tabled here with --merge; a survey
+#                      too long for one call over two calls of one warm machine (TIMED_PHASES="setup train", then
+#                      "score points orthomosaic"), the earlier call's rows kept in the table; with
 #                      PROFILE_SCORE=SECONDS each survey's run scored again (experiments.score_time) for each count
 #                      of views a fit's render in FIT_VIEWS ("8"), the first under cProfile
 #   score-ab [SURVEY]  the survey (survey:1000) set up and trained to its automatic stop (experiments.survey_timing
@@ -168,7 +170,13 @@ case "$plan" in
     }
     (while sleep 15; do keep; done) &  # the phases so far come back if the call is cut at its limit
     packer=$!
-    py -m experiments.survey_timing --surveys ${surveys[@]} --output-dir /tmp/survey-timing > "$res/survey-timing.log" 2>&1
+    earlier=()  # a warm machine's earlier call: its rows join these (a survey's phases over two calls: TIMED_PHASES)
+    if [ -f /tmp/survey-timing/survey_timing.json ]; then
+      cp /tmp/survey-timing/survey_timing.json /tmp/survey-timing-earlier.json
+      earlier=(--merge /tmp/survey-timing-earlier.json)
+    fi
+    py -m experiments.survey_timing --surveys ${surveys[@]} --phases ${TIMED_PHASES:-setup train score points orthomosaic} \
+      "${earlier[@]}" --output-dir /tmp/survey-timing > "$res/survey-timing.log" 2>&1
     kill $packer
     keep; tail -n 8 "$res/survey-timing.log"
     if [ -n "${PROFILE_SCORE:-}" ]; then  # where each survey's scoring time goes, within PROFILE_SCORE seconds

@@ -14,7 +14,8 @@ Each phase runs in a fresh process (its peak memory is its own), through the com
 A synthetic survey (`survey:N`, `data/survey_scene.py`) is generated first: not a phase a user meets, its
 seconds are listed apart. Writes `survey_timing.json`, `survey_timing.md` and `survey_timing.png` (seconds per
 phase, stacked, per survey) after every phase. Surveys timed in separate runs (one per device call, each within its
-limit) are tabled together with `--merge A/survey_timing.json B/survey_timing.json --surveys` (nothing more timed).
+limit) are tabled together with `--merge A/survey_timing.json B/survey_timing.json --surveys` (nothing more timed);
+a survey's phases timed in separate runs (`--phases`) join into its one row.
 """
 
 from __future__ import annotations
@@ -249,10 +250,23 @@ def main(args: SurveyTimingArgs) -> List[Dict]:
     args.output_dir.mkdir(parents=True, exist_ok=True)
     rows = [row for path in args.merge for row in json.loads(Path(path).read_text())]
     for scene in args.surveys:
-        rows.append(time_survey(scene, args, lambda row: write_results([*rows, row], args.output_dir)))
+        rows.append(time_survey(scene, args, lambda row: write_results(folded([*rows, row]), args.output_dir)))
+    rows = folded(rows)
     write_results(rows, args.output_dir)
     print(markdown(rows))
     return rows
+
+
+def folded(rows: List[Dict]) -> List[Dict]:
+    """The rows of one survey (its phases timed in separate runs, `--phases`) joined into one, in the order the
+    surveys first come; a phase timed again replaces its earlier record, other fields keep their first value."""
+    joined: Dict[str, Dict] = {}
+    for row in rows:
+        into = joined.setdefault(row["survey"], {"survey": row["survey"], "phases": {}})
+        into["phases"].update(row["phases"])
+        for key, value in row.items():
+            into.setdefault(key, value)
+    return [{**row, "phases": {p: row["phases"][p] for p in PHASES if p in row["phases"]}} for row in joined.values()]
 
 
 if __name__ == "__main__":

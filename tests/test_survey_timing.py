@@ -69,3 +69,20 @@ def test_the_phases_asked_alone_are_timed_and_the_row_says_it_is_incomplete(tmp_
     assert line.endswith("so far (incomplete) |") and line.count("—") == 4
     with pytest.raises(ValueError, match="--phases"):
         main(SurveyTimingArgs(surveys=["survey:12"], phases=["render"], output_dir=tmp_path / "bad"))
+
+
+def test_a_surveys_phases_timed_in_separate_runs_join_into_its_one_row(tmp_path):
+    """A large survey's phases may not fit one device call: timed in two (`--phases`), merged, they make one row in
+    the phases' order, its total whole once every phase is there."""
+    from experiments.survey_timing import PHASES, SurveyTimingArgs, main
+
+    record = {"seconds": 3.0, "peak_host_mb": 900.0, "peak_child_host_mb": 0.0, "peak_gpu_mb": 10.0}
+    first = {"survey": "survey:4000", "phases": {"setup": dict(record), "train": dict(record)}, "generate_seconds": 40}
+    second = {"survey": "survey:4000", "phases": {p: dict(record) for p in PHASES[2:]}, "generate_seconds": 0.1}
+    files = [tmp_path / "first.json", tmp_path / "second.json"]
+    for path, row in zip(files, (first, second)):
+        path.write_text(json.dumps([row]))
+    (row,) = main(SurveyTimingArgs(surveys=[], merge=files, output_dir=tmp_path / "out"))
+    assert list(row["phases"]) == list(PHASES) and row["generate_seconds"] == 40
+    line = (tmp_path / "out" / "survey_timing.md").read_text().splitlines()[2]
+    assert line.endswith(f"| {3.0 * len(PHASES):.1f} |")
