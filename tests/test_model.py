@@ -1205,12 +1205,16 @@ def test_emission_for_the_gaussians_in_view_only_renders_the_same():
         torch.testing.assert_close(grads[1][name], grads[0][name], atol=1e-6, rtol=1e-4, msg=name)
 
 
+@pytest.mark.parametrize("cropped", [False, True])
 def test_a_fits_views_in_one_rasterization_run_the_emission_for_what_each_camera_sees_and_render_the_same(
-    monkeypatch,
+    monkeypatch, cropped
 ):
     """The held-out fits' one pass through one rasterization (a GPU's way; here gsplat's path on the pure-torch
     rasterizer) runs the emission MLP on the Gaussians each camera can see: with half the site out of view, each
-    view is `get_outputs`' render at its own state and its gradient reaches its own state alone."""
+    view is `get_outputs`' render at its own state and its gradient reaches its own state alone; also within a
+    crop box (the viewer's) that keeps part of what the cameras see."""
+    from nerfstudio.data.scene_box import OrientedBox
+
     import thermal_wild_ns.model.renders as renders
     from thermal_wild_ns.model.in_view import in_view
 
@@ -1222,6 +1226,10 @@ def test_a_fits_views_in_one_rasterization_run_the_emission_for_what_each_camera
         model.gauss_params["means"][::2] += torch.tensor([4.0, 0.0, 0.0])  # half the site out of view
         model.gauss_params["view_sh"].normal_(0, 0.1)
     model.eval()
+    if cropped:
+        box = OrientedBox(R=torch.eye(3), T=torch.zeros(3), S=torch.full((3,), 1.2))
+        model.set_crop(box)
+        assert 20 < int(box.within(model.means).sum()) < 200  # the box keeps part of the site
     cameras = [make_camera(1), make_camera(2)]
     with torch.no_grad():
         cameras[1].camera_to_worlds[0, 0, 3] = 0.5  # the second camera a little aside: its own Gaussians

@@ -121,15 +121,16 @@ class GaussianEmission:
         view_term: bool,
         ids=None,
     ):
-        """`exact_radiances` as a function of the frame embeddings [B, Df] -> [B, N, 1] (or [B, M, 1] of `ids`), for
-        the Gaussians each camera (gsplat's `viewmats` [B, 4, 4], `Ks` [B, 3, 3], at `positions` [B, 3]) can see
-        (`in_views`), zero for the others (which it does not draw): the MLP runs on the (camera, Gaussian) pairs
-        drawn, a fit's time following its views, not the site. Which pairs, and their view term, are made once."""
+        """`exact_radiances` as a function of the frame embeddings [B, Df] -> [B, N, 1] (or [B, M, 1] of the crop
+        box's `ids` [N] bool), for the Gaussians each camera (gsplat's `viewmats` [B, 4, 4], `Ks` [B, 3, 3], at
+        `positions` [B, 3]) can see (`in_views`), zero for the others (which it does not draw): the MLP runs on the
+        (camera, Gaussian) pairs drawn, a fit's time following its views, not the site. Which pairs, and their view
+        term, are made once."""
         means, log_scales = params["means"], params["scales"]
         if ids is not None:
             means, log_scales = means[ids], log_scales[ids]
         views, seen = in_views(means, log_scales, viewmats, Ks, width, height).nonzero(as_tuple=True)  # [R] each
-        rows = seen if ids is None else ids[seen]  # [R], among all the Gaussians
+        rows = seen if ids is None else ids.nonzero().squeeze(-1)[seen]  # [R], among all the Gaussians
         base = params["emission"][rows]  # [R, 1]
         gauss_embed = params["gauss_embed"][rows] if self.mlp is not None else None  # [R, Dg]
         offset = view_term_rows(params, rows, positions[views]) if view_term else None  # [R, 1]
