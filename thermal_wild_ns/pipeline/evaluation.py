@@ -196,7 +196,8 @@ def fitted_states(
     for k in todo:
         by_size.setdefault(tuple(fits[k][1].target.shape), []).append(k)
     chunks = [ks[i : i + views] for ks in by_size.values() for i in range(0, len(ks), views)]
-    label = f"Fitting held-out states ({steps} steps, {views} views a render at 1/{scale} resolution)"
+    coarse = "" if scale == 1 else f" at 1/{scale} resolution"
+    label = f"Fitting held-out states ({steps} steps, {views} views a render{coarse})"
     for chunk in track(chunks, label, min_items=2):
         embeddings = fit_embeddings(model, [coarser(fits[k][1], scale) for k in chunk], steps, lr)
         for k, embedding in zip(chunk, embeddings):
