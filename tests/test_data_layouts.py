@@ -272,3 +272,43 @@ def test_mvtv_is_marked_layout_unconfirmed(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match=r"- mvtv \(MVTV \(Xu et al\.\): layout unconfirmed"):
         detect_layout(tmp_path / "empty")
+
+
+def test_a_second_setup_reads_the_scan_kept_and_a_changed_frame_is_read_again(tmp_path, monkeypatch):
+    """The commands after training set the dataparser up again: the frame scan (every frame read, the range
+    measured) is kept per set of frame files and settings, said again with its warnings, and a frame rewritten
+    makes a new scan."""
+    from pathlib import Path
+
+    import cv2
+
+    import thermal_wild_ns.data.dataparsers as dataparsers
+
+    root = tmp_path / "scene"
+    fx.write_nerfstudio(root)
+
+    def parse(parsed=None):
+        config = ThermalDataParserConfig(data=root, seed_points="random", num_random_points=16, cache_dir=tmp_path)
+        parser = config.setup()
+        parser.get_dataparser_outputs("train")
+        return parser.radiometric_range() if parsed is None else parsed(parser)
+
+    held_out = parse(lambda parser: [f.image for f in parser.capture().frames if f.split == "test"])
+    frame = Path(held_out[0])
+    image = cv2.imread(str(frame), cv2.IMREAD_UNCHANGED)
+    image[:, : image.shape[1] // 2] = 60000  # a held-out frame far above the range: named in a warning
+    cv2.imwrite(str(frame), image)
+
+    with pytest.warns(UserWarning, match=frame.name):
+        first = parse()
+    assert len(list(tmp_path.glob("scan-*.json"))) == 2  # the frames before and after the edit
+    scans = []
+    original = dataparsers.scan_frames
+    monkeypatch.setattr(dataparsers, "scan_frames", lambda *a, **k: scans.append(a[0]) or original(*a, **k))
+    with pytest.warns(UserWarning, match=frame.name):  # said again from the kept scan
+        again = parse()
+    assert again == first and not scans  # no frame scanned again
+    cv2.imwrite(str(frame), np.full_like(image, 3000))  # the frame rewritten: a new key
+    changed = parse()
+    assert len(scans) == 1 and len(list(tmp_path.glob("scan-*.json"))) == 3
+    assert changed == parse(lambda parser: parser.radiometric_range())  # kept in turn

@@ -46,6 +46,7 @@ from thermal_wild_ns.data.capture import (
 from thermal_wild_ns.data.celsius import MeasurementSettings
 from thermal_wild_ns.data.demo_scene import STRESS_FAULTS, DemoSceneConfig, generate_demo_scene, stress_scene_config
 from thermal_wild_ns.data.palettes import PALETTE_NAMES
+from thermal_wild_ns.data.scan_cache import cached_scan, scan_key
 from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey_scene
 from thermal_wild_ns.data.thermal_io import DEGENERATE_SHARE, RadiometricRange, scan_frames
 from thermal_wild_ns.data.triangulation import TriangulationConfig, cached_triangulation
@@ -173,16 +174,18 @@ class ThermalDataParser(DataParser):
         )
 
     def _scan(self, capture: ThermalCapture) -> RadiometricRange:
-        """Read every frame once (`scan_frames`); drop the degenerate ones unless told to keep them."""
-        palette = None if self.config.palette == "auto" else self.config.palette
-        scan = scan_frames(
-            [f.image for f in capture.frames],
+        """Read every frame once (`scan_frames`; kept for the commands after training: `scan_cache`); drop the
+        degenerate ones unless told to keep them."""
+        paths = [f.image for f in capture.frames]
+        settings = dict(
             sizes=[(f.width, f.height) for f in capture.frames],
             declared=capture.declared_range,
-            palette=palette or capture.palette,
+            palette=(None if self.config.palette == "auto" else self.config.palette) or capture.palette,
             percentiles=self.config.range_percentiles,
             measure=[f.split != "test" for f in capture.frames],  # held-out pixels never set the scale
         )
+        key = scan_key(paths, {**settings, "declared": repr(settings["declared"])})
+        scan = cached_scan(self._cache_root(), key, lambda: scan_frames(paths, **settings))
         self.degenerate_frames = [capture.frames[i].image.name for i in scan.degenerate]
         if scan.degenerate:
             names = ", ".join(self.degenerate_frames)
