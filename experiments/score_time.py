@@ -32,7 +32,6 @@ def main() -> None:
     parser.add_argument("configs", type=Path, nargs="+", help="the runs' config.yml")
     parser.add_argument("--fit-steps", type=int, default=100, help="embedding fit steps of `half` and `oracle`")
     parser.add_argument("--fit-views", type=int, default=8, help="held-out views fitted together, one render a step")
-    parser.add_argument("--fit-scale", type=int, default=1, help="the fits render at 1/this of the views' resolution")
     parser.add_argument(
         "--profile", type=Path, default=None, help="also profile each run's scoring (cProfile, per view) into this .md"
     )
@@ -54,13 +53,7 @@ def main() -> None:
         profiler = cProfile.Profile() if args.profile is not None else None
         start = time.perf_counter()
         with profiler or contextlib.nullcontext():
-            scores = evaluate(
-                pipeline,
-                protocols=PROTOCOLS,
-                fit_steps=args.fit_steps,
-                fit_views=args.fit_views,
-                fit_scale=args.fit_scale,
-            )
+            scores = evaluate(pipeline, protocols=PROTOCOLS, fit_steps=args.fit_steps, fit_views=args.fit_views)
             synchronize()
         seconds = time.perf_counter() - start
         psnr = {k: v for k, v in scores.items() if k.startswith("psnr_")}
@@ -69,10 +62,10 @@ def main() -> None:
             "config": str(config),
             "views": views,
             "fit_views": args.fit_views,
-            "fit_scale": args.fit_scale,
             "setup_seconds": round(setup_seconds, 2),
+            "seconds": round(seconds, 2),
+            "fit_steps": fit_steps[0],
         }
-        record.update({"seconds": round(seconds, 2), "fit_steps": fit_steps[0]})
         record.update(psnr)
         print(json.dumps(record), flush=True)
         if profiler is not None:

@@ -312,3 +312,18 @@ def test_a_second_setup_reads_the_scan_kept_and_a_changed_frame_is_read_again(tm
     changed = parse()
     assert len(scans) == 1 and len(list(tmp_path.glob("scan-*.json"))) == 3
     assert changed == parse(lambda parser: parser.radiometric_range())  # kept in turn
+
+
+def test_a_scan_that_cannot_be_kept_is_still_given_and_leaves_no_partial_file(tmp_path, monkeypatch):
+    """A cache folder that cannot take the scan (a full disk, here the rename failing) keeps nothing, half-written
+    or whole, and the scan is given all the same."""
+    import thermal_wild_ns.data.scan_cache as scan_cache
+    from thermal_wild_ns.data.thermal_io import FrameScan, RadiometricRange
+
+    def refused(*args):
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(scan_cache.os, "replace", refused)
+    scan = FrameScan(RadiometricRange(low=1.0, high=2.0, dtype="uint16"), [])
+    assert scan_cache.cached_scan(tmp_path / "cache", "key", lambda: scan) is scan
+    assert list((tmp_path / "cache").iterdir()) == []

@@ -184,8 +184,7 @@ class ThermalDataParser(DataParser):
             percentiles=self.config.range_percentiles,
             measure=[f.split != "test" for f in capture.frames],  # held-out pixels never set the scale
         )
-        key = scan_key(paths, {**settings, "declared": repr(settings["declared"])})
-        scan = cached_scan(self._cache_root(), key, lambda: scan_frames(paths, **settings))
+        scan = cached_scan(self._cache_root(), scan_key(paths, settings), lambda: scan_frames(paths, **settings))
         self.degenerate_frames = [capture.frames[i].image.name for i in scan.degenerate]
         if scan.degenerate:
             names = ", ".join(self.degenerate_frames)

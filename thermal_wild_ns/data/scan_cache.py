@@ -21,12 +21,14 @@ SCAN_CACHE_VERSION = 1
 
 
 def scan_key(paths: Sequence[Path], settings: dict) -> str:
-    """A digest of the frame files (path, size, modification time) and the scan's `settings` (JSON-able)."""
+    """A digest of the frame files (path, size, modification time) and the scan's `settings` (a value JSON has no
+    form for, such as a declared range, by its repr)."""
     files = []
     for path in paths:
         stat = os.stat(path)
         files.append([str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns])
-    text = json.dumps({"version": SCAN_CACHE_VERSION, "files": files, "settings": settings}, sort_keys=True)
+    entry = {"version": SCAN_CACHE_VERSION, "files": files, "settings": settings}
+    text = json.dumps(entry, sort_keys=True, default=repr)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -58,12 +60,14 @@ def cached_scan(folder: Path, key: str, scan: Callable[[], FrameScan]) -> FrameS
 
 
 def _keep(path: Path, entry: dict) -> Optional[Path]:
-    """`entry` written to `path` whole (a temporary file renamed), or nothing where the folder is not writable."""
+    """`entry` written to `path` whole (a temporary file renamed), or nothing where the folder cannot be written
+    (no partial file left)."""
+    partial = path.with_suffix(f".{os.getpid()}.partial")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(f".{os.getpid()}.partial")
         partial.write_text(json.dumps(entry))
         os.replace(partial, path)
         return path
     except OSError:
+        partial.unlink(missing_ok=True)
         return None

@@ -133,7 +133,7 @@ class GaussianEmission:
         rows = seen if ids is None else ids.nonzero().squeeze(-1)[seen]  # [R], among all the Gaussians
         base = params["emission"][rows]  # [R, 1]
         gauss_embed = params["gauss_embed"][rows] if self.mlp is not None else None  # [R, Dg]
-        offset = view_term_rows(params, rows, positions[views]) if view_term else None  # [R, 1]
+        offset = view_term_of(params, positions[views], rows) if view_term else None  # [R, 1], each its camera's
         shape = (viewmats.shape[0], means.shape[0], 1)
 
         def radiances(frame_embeds: Tensor) -> Tensor:
@@ -196,13 +196,8 @@ class GaussianEmission:
 
 def view_term_of(params, camera_position: Tensor, ids: Optional[Tensor] = None) -> Tensor:
     """The view-dependent term [N, 1] (or [M, 1] of `ids`) of the Gaussians in `params` seen from
-    `camera_position` [3] (`view_emission.view_term`)."""
+    `camera_position` [3] (or each from its own, [M, 3]: `view_emission.view_term`)."""
     means, coefficients = params["means"], params["view_sh"]
     if ids is not None:
         means, coefficients = means[ids], coefficients[ids]
     return view_term(means, coefficients, camera_position)
-
-
-def view_term_rows(params, rows: Tensor, camera_positions: Tensor) -> Tensor:
-    """The view-dependent term [R, 1] of the Gaussians `rows` [R], each seen from its own camera position [R, 3]."""
-    return view_term(params["means"][rows], params["view_sh"][rows], camera_positions)

@@ -219,15 +219,15 @@ class ThermalModelOptions(SplatfactoModelConfig):
 
 PART_EVIDENCE: Dict[str, str] = {
     "use_emission_mlp": "the full method leads its ablations without it (wild-thermal-3dgs and its preprocessed "
-    "variants) by 2.5-3.6 dB in `time` and `aligned` on DUNR and flight2 (docs/results/table_today_h200)",
+    "variants) in `time` and `aligned` on DUNR and flight2 (docs/results/table_today_h200)",
     "use_background_mlp": "neutral on DUNR and flight2, within the seeds' spread (docs/results/parts_dunr_h200, "
-    "docs/results/parts_flight2_h200); the generated demo and drift scenes lose 3.4-5.9 dB in `time` and `aligned` "
-    "without it (docs/results/background_mlp_cpu)",
+    "docs/results/parts_flight2_h200); the generated demo and drift scenes lose `time` and `aligned` without it "
+    "(docs/results/background_mlp_cpu)",
     "heat_aware_ssim": "the paper's loss; neutral on DUNR and flight2, within the seeds' spread "
     "(docs/results/parts_dunr_h200, docs/results/parts_flight2_h200)",
     "alpha_lambda": "the paper's regulariser; neutral on DUNR and flight2, within the seeds' spread "
-    "(docs/results/parts_dunr_h200, docs/results/parts_flight2_h200); +0.75 dB `novel` on the generated demo, "
-    "ranges overlapping (docs/results/alpha_regulariser_cpu)",
+    "(docs/results/parts_dunr_h200, docs/results/parts_flight2_h200); on the generated demo a `novel` gain whose "
+    "ranges overlap (docs/results/alpha_regulariser_cpu)",
 }
 """What the default of each switchable part of the model rests on: the committed runs (folders under docs/results)
 that a run's report cites when it says why the part is on or off."""

@@ -45,7 +45,7 @@ def sh_bands(dirs: Tensor, degree: int) -> Tensor:
 
 def view_term(means: Tensor, coefficients: Tensor, camera_position: Tensor) -> Tensor:
     """The view-dependent emission [N, 1] of Gaussians at `means` [N, 3] with band coefficients [N, K]
-    seen from `camera_position` [3]."""
+    seen from `camera_position` [3] (or [N, 3]: each Gaussian from its own camera)."""
     degree = {3: 1, 8: 2}[coefficients.shape[-1]]
     dirs = torch.nn.functional.normalize(means - camera_position, dim=-1)  # [N, 3]
     return (sh_bands(dirs, degree) * coefficients).sum(dim=-1, keepdim=True)  # [N, 1]

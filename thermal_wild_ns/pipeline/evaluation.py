@@ -34,7 +34,6 @@ and `oracle` renders are the same image.
 from __future__ import annotations
 
 import contextlib
-import copy
 from functools import partial
 from pathlib import Path
 from typing import Callable, Dict, Iterator, List, NamedTuple, Optional, Sequence, Tuple, Union
@@ -42,7 +41,6 @@ from typing import Callable, Dict, Iterator, List, NamedTuple, Optional, Sequenc
 import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
 from nerfstudio.cameras.cameras import Cameras
 
 from thermal_wild_ns.data.palettes import false_colour
@@ -168,38 +166,17 @@ def fit_embeddings(model, fits: Sequence[Fit], steps: int, lr: float) -> torch.T
     return embeddings.detach()
 
 
-def coarser(fit: Fit, factor: int) -> Fit:
-    """`fit` on 1/`factor` of its view's resolution: the camera's output rescaled as nerfstudio rescales it (each
-    coarse pixel's centre the centre of a `factor` x `factor` block), the target averaged over those blocks, the
-    loss on the blocks wholly within its columns (no pixel outside them is read)."""
-    if factor == 1:
-        return fit
-    camera = copy.copy(fit.camera)  # rescale_output_resolution sets new tensors on the object it is given
-    camera.rescale_output_resolution(1.0 / factor)
-    height, width = (int(size.reshape(-1)[0]) for size in (camera.height, camera.width))
-    blocks = fit.target[None, None, : height * factor, : width * factor]  # [1, 1, H', W']: whole blocks only
-    target = F.avg_pool2d(blocks, factor)[0, 0]  # [H / factor, W / factor]
-    start, stop, _ = fit.columns.indices(fit.target.shape[1])
-    columns = slice(-(-start // factor), min(stop // factor, width))
-    return Fit(camera, target, columns, fit.start)
-
-
-def fitted_states(
-    pipeline, fits: Sequence[Tuple[PhotometricState, Optional[Fit]]], steps: int, lr: float, views: int, scale: int = 1
-):
+def fitted_states(pipeline, fits: Sequence[Tuple[PhotometricState, Optional[Fit]]], steps: int, lr: float, views: int):
     """Each state with its embedding fitted where it has a fit (`fit_embeddings`), `views` held-out views of one
-    size per render, each render at 1/`scale` of the views' resolution (`coarser`); the states without a fit (or
-    with no steps) as they are."""
+    size per render; the states without a fit (or with no steps) as they are."""
     model, states = pipeline.model, [state for state, _ in fits]
     todo = [k for k, (_, fit) in enumerate(fits) if fit is not None and steps > 0]
     by_size: Dict[Tuple[int, int], List[int]] = {}
     for k in todo:
         by_size.setdefault(tuple(fits[k][1].target.shape), []).append(k)
     chunks = [ks[i : i + views] for ks in by_size.values() for i in range(0, len(ks), views)]
-    coarse = "" if scale == 1 else f" at 1/{scale} resolution"
-    label = f"Fitting held-out states ({steps} steps, {views} views a render{coarse})"
-    for chunk in track(chunks, label, min_items=2):
-        embeddings = fit_embeddings(model, [coarser(fits[k][1], scale) for k in chunk], steps, lr)
+    for chunk in track(chunks, f"Fitting held-out states ({steps} steps, {views} views a render)", min_items=2):
+        embeddings = fit_embeddings(model, [fits[k][1] for k in chunk], steps, lr)
         for k, embedding in zip(chunk, embeddings):
             states[k] = PhotometricState(states[k].label, embedding, states[k].lut)
     return states
@@ -259,11 +236,9 @@ def evaluate(
     fit_steps: int = 100,
     fit_lr: float = 1e-2,
     fit_views: int = 8,
-    fit_scale: int = 1,
 ) -> Dict:
     """Mean held-out PSNR/SSIM under each protocol (`psnr_novel`, `ssim_time`, ...; per-view rows in
-    `per_view`). The views' `half` and `oracle` fits run after the others' scores, `fit_views` views per render, at
-    1/`fit_scale` of their resolution (each fitted state then scored at full resolution).
+    `per_view`). The views' `half` and `oracle` fits run after the others' scores, `fit_views` views per render.
     With `out_dir`, a PNG per view: the recorded frame | `time` render | 5x error (inferno); on a calibrated
     capture another in °C (`write_celsius_panel`)."""
     unknown = set(protocols) - set(PROTOCOLS)
@@ -311,15 +286,13 @@ def evaluate(
             row.update({f"{k}_aligned": v for k, v in scores(a * novel + b, gt, to_celsius, model.device).items()})
         rows.append(row)
         held_out.append(HeldOutView(camera, frame, recorded, to_celsius, time_state, time_scores))
-    _score_fitted_protocols(pipeline, protocols, held_out, rows, fit_steps, fit_lr, fit_views, fit_scale)
+    _score_fitted_protocols(pipeline, protocols, held_out, rows, fit_steps, fit_lr, fit_views)
     keys = [k for k in rows[0] if k != "frame"]
     summary = {key: float(np.mean([r[key] for r in rows])) for key in keys}
     return {**summary, "per_view": rows, "gaussians": int(model.num_points)}
 
 
-def _score_fitted_protocols(
-    pipeline, protocols, held_out: List[HeldOutView], rows: List[Dict], steps, lr, views, scale
-):
+def _score_fitted_protocols(pipeline, protocols, held_out: List[HeldOutView], rows: List[Dict], steps, lr, views):
     """`half`, `oracle` and `oracle_lut` of every held-out view into its row: the states fitted first, several
     views per render (`fitted_states`), then each view scored."""
     fits = []  # per view: its left half, and its half's and its oracle's (state, fit), where asked
@@ -334,7 +307,7 @@ def _score_fitted_protocols(
         fits.append((left, half_job, oracle_job))
     jobs = [job for _, *pair in fits for job in pair if job is not None]
     device = pipeline.model.device
-    states = iter(fitted_states(pipeline, jobs, steps, lr, views, scale))
+    states = iter(fitted_states(pipeline, jobs, steps, lr, views))
     for view, row, (left, half_job, oracle_job) in zip(held_out, rows, fits):
         recorded, to_celsius, half = view.recorded, view.to_celsius, left.shape[1]
         if half_job is not None:
