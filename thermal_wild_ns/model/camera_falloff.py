@@ -69,9 +69,20 @@ def respond(image: Tensor, coefficients: Tensor, basis: Tensor, flat_field: Opti
     the offset's polynomial, at each pixel's `basis` [H, W, K] (`falloff_basis`) with `coefficients`
     [2, K] (row 0 the gain's, row 1 the offset's), plus the flat-field map of `flat_field` [2, n, n]
     where given (`flat_field_maps`). Few operations: it runs at every training step."""
+    return through_terms(image, response_terms(coefficients, basis, flat_field))
+
+
+def response_terms(coefficients: Tensor, basis: Tensor, flat_field: Optional[Tensor] = None) -> Tensor:
+    """The response's gain (less 1) and offset at each pixel [H, W, 2] (`respond`), a function of the camera, the
+    render size and the response's parameters alone: made once where those stay fixed (`through_terms`)."""
     terms = basis @ coefficients.T  # [H, W, 2]: the gain's and the offset's polynomial
     if flat_field is not None:
-        terms = terms + flat_field_maps(flat_field, image.shape[0], image.shape[1]).permute(1, 2, 0)
+        terms = terms + flat_field_maps(flat_field, basis.shape[0], basis.shape[1]).permute(1, 2, 0)
+    return terms
+
+
+def through_terms(image: Tensor, terms: Tensor) -> Tensor:
+    """`image` [..., H, W, 1] through the response's `terms` [..., H, W, 2] (`response_terms`)."""
     return torch.addcmul(terms[..., 1:], image, terms[..., :1] + 1.0)
 
 

@@ -6,7 +6,7 @@ its checkpoints) and are passed in."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import torch
 from nerfstudio.cameras.cameras import Cameras
@@ -15,7 +15,14 @@ from torch import Tensor
 from thermal_wild_ns.decisions import Decision
 from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.background import CameraFrameDirections
-from thermal_wild_ns.model.camera_falloff import describe_falloff, describe_flat_field, falloff_basis, respond
+from thermal_wild_ns.model.camera_falloff import (
+    describe_falloff,
+    describe_flat_field,
+    falloff_basis,
+    respond,
+    response_terms,
+    through_terms,
+)
 from thermal_wild_ns.model.camera_views import host_sizes, intrinsics
 from thermal_wild_ns.model.compositing import camera_planes, composite, over_background, thermal_outputs
 from thermal_wild_ns.model.graphed import GraphedCalls
@@ -127,10 +134,24 @@ class CameraResponse:
         (`pipeline.photometric_state.render`)."""
         if falloff is None:
             return thermal
+        return through_terms(thermal, self.terms(falloff, flat_field, camera, *thermal.shape[:2]))
+
+    def fixed(
+        self, falloff: Optional[Tensor], flat_field: Optional[Tensor], cameras: Sequence[Cameras]
+    ) -> Callable[[Tensor], Tensor]:
+        """`as_recorded` for renders [B, H, W, 1] of `cameras` [B] (one size) at their full resolution, the
+        response's terms made once: a fit calls it at every step with the cameras and the response fixed."""
+        if falloff is None:
+            return lambda thermal: thermal
+        width, height, _ = host_sizes(cameras[0])
+        terms = torch.stack([self.terms(falloff, flat_field, c, int(height), int(width)) for c in cameras])
+        return lambda thermal: through_terms(thermal, terms)  # terms [B, H, W, 2]
+
+    def terms(self, falloff: Tensor, flat_field: Optional[Tensor], camera: Cameras, height: int, width: int) -> Tensor:
+        """The response's terms [H, W, 2] (`camera_falloff.response_terms`) of `camera` at height x width."""
         _, _, pinhole = host_sizes(camera)  # the camera's full resolution, as the render
-        height, width = thermal.shape[:2]
-        basis = self.basis(intrinsics(camera)[0].to(thermal.device), pinhole, width, height, 1)
-        return respond(thermal, falloff.detach(), basis, None if flat_field is None else flat_field.detach())
+        basis = self.basis(intrinsics(camera)[0].to(falloff.device), pinhole, width, height, 1)
+        return response_terms(falloff.detach(), basis, None if flat_field is None else flat_field.detach())
 
 
 def recorded_over_background(

@@ -225,7 +225,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         through the render (the geometry fixed: `FittingRender.fixed_views`)."""
         ids = None if self.crop_box is None else self.crop_box.within(self.means).squeeze()
         scene = self.renders[RenderMode.FITTING].fixed_views(self.scene(), cameras, ids)
-        return lambda embeds: torch.stack([self.as_recorded(t, c)[..., 0] for t, c in zip(scene(embeds), cameras)])
+        recorded = self.parts.camera.fixed(self.camera_falloff, self.camera_flat_field, cameras)
+        return lambda embeds: recorded(scene(embeds))[..., 0]
 
     def scene(self) -> Scene:
         """What a render reads of the model now (`renders.Scene`)."""
