@@ -32,8 +32,9 @@
 #                      "score points orthomosaic"), the earlier call's rows kept in the table; with
 #                      PROFILE_SCORE=SECONDS each survey's run scored again (experiments.score_time) for each count
 #                      of views a fit's render in FIT_VIEWS ("8"), the first under cProfile
-#   score-ab [SURVEY]  the survey (survey:1000) set up and trained to its automatic stop (experiments.survey_timing
-#                      --phases setup train), then its scoring timed (experiments.score_time) by the package before
+#   score-ab [SURVEY]  the survey (survey:1000) as the survey-timing plan trained it on this machine, else set up and
+#                      trained to its automatic stop (experiments.survey_timing --phases setup train), then its
+#                      scoring timed (experiments.score_time) by the package before
 #                      (.baseline: git archive REV thermal_wild_ns experiments, where carried) and now, for each
 #                      count of views a fit's render in FIT_VIEWS ("32"): before.jsonl, after.jsonl
 #   trace SCENE        the full method's step at step 3,000 as the bench trains: its profile and timeline
@@ -194,9 +195,13 @@ case "$plan" in
     ;;
   score-ab)
     warm
-    py -m experiments.survey_timing --surveys "${1:-survey:1000}" --phases setup train --output-dir /tmp/score-ab \
-      > "$res/survey-timing.log" 2>&1
-    config=$(ls /tmp/score-ab/*/runs/*/wild-thermal/run/config.yml | head -1)
+    survey=${1:-survey:1000}
+    config=$(ls /tmp/survey-timing/"${survey/:/-}"/runs/*/wild-thermal/run/config.yml 2>/dev/null | head -1)
+    if [ -z "$config" ]; then  # not trained by an earlier survey-timing plan on this machine
+      py -m experiments.survey_timing --surveys "$survey" --phases setup train --output-dir /tmp/score-ab \
+        > "$res/survey-timing.log" 2>&1
+      config=$(ls /tmp/score-ab/*/runs/*/wild-thermal/run/config.yml | head -1)
+    fi
     for views in ${FIT_VIEWS:-32}; do
       for side in before after; do
         tree=$root; [ "$side" = before ] && tree=$root/.baseline

@@ -63,10 +63,16 @@ def test_the_phases_asked_alone_are_timed_and_the_row_says_it_is_incomplete(tmp_
     from experiments.survey_timing import SurveyTimingArgs, main
 
     (row,) = main(SurveyTimingArgs(surveys=["survey:12"], phases=["setup"], output_dir=tmp_path / "out"))
-    assert list(row["phases"]) == ["setup"]
+    assert list(row["phases"]) == ["setup"] and row["generate_seconds"] > 0
     assert "failed" not in row["phases"]["setup"] and row["phases"]["setup"]["seconds"] > 0
     line = (tmp_path / "out" / "survey_timing.md").read_text().splitlines()[2]
     assert line.endswith("so far (incomplete) |") and line.count("—") == 4
+    frames = sorted((tmp_path / "out" / "survey-12" / "survey-12").rglob("*.png"))
+    assert frames
+    written = [frame.stat().st_mtime_ns for frame in frames]
+    # a later run of the phases after setup reads the survey that run wrote: it is not generated again
+    (row,) = main(SurveyTimingArgs(surveys=["survey:12"], phases=["orthomosaic"], output_dir=tmp_path / "out"))
+    assert "generate_seconds" not in row and [frame.stat().st_mtime_ns for frame in frames] == written
     with pytest.raises(ValueError, match="--phases"):
         main(SurveyTimingArgs(surveys=["survey:12"], phases=["render"], output_dir=tmp_path / "bad"))
 
