@@ -23,10 +23,11 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Iterator, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from thermal_wild_ns.image_metrics import psnr
@@ -38,9 +39,11 @@ from thermal_wild_ns.pipeline.photometric_state import (
     check_same_geometry,
     preprocessed_sequence,
     render,
+    render_layers,
 )
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
+from thermal_wild_ns.training.background_probe import BackgroundVerdict, judge_background, uncovered_mean
 from thermal_wild_ns.training.checkpoints import restore, snapshot
 from thermal_wild_ns.training.model_interface import GuardedModel
 from thermal_wild_ns.training.stop_rules import HeldBackBudget, PlateauRule
@@ -104,6 +107,12 @@ class AutoStopConfig:
     between the shares the trial saw on CPU at its first check: the generated vignetting scene above it,
     the generated scene made to need the term and the tests' small one below (docs/results/view_verdict_cpu,
     "The term's radial share")."""
+    decide_background: bool = False
+    """Let the held-back frames decide whether the background MLP stays: at the first scored check they are
+    scored with it and with a constant in its place (its mean where the Gaussians leave pixels uncovered); it
+    stays where it scores higher by `min_improvement`, else the constant replaces it, and the alpha
+    regulariser with it, for the rest of the run (`background_probe.py`); one GPU only. Off: the model's
+    `use_background_mlp` alone decides (the default until runs on the real captures measure the rule)."""
     view_trial_checks: int = 1
     """With `decide_view_term`: the scored check at which the held-back frames decide (1: the first). A
     later verdict lets the term and the frame states train side by side for longer before they are judged
@@ -134,26 +143,11 @@ def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canon
     after a least-squares gain + offset fit to each frame (`radial`: and a radial fall-off,
     `fit_with_radial_falloff`)."""
 
-    datamanager, model = pipeline.datamanager, pipeline.model
-    dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
-    held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    fill = isinstance(model, GuardedModel) and not canonical
-    if fill:
-        model.interpolate_embeddings(images)
-    shared = canonical_state(pipeline) if canonical else None
-    values = []
-    for image in images:
-        t = dataset.frame_index(image)
-        camera = dataset.cameras[image : image + 1].to(model.device)
-        if shared is not None:
-            state = shared
-        else:
-            lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
-            embedding = model.frame_embed.weight[image].detach() if fill else None
-            state = PhotometricState(f"held-back:{t}", embedding, lut)
+    datamanager, values = pipeline.datamanager, []
+    for image, camera, state in held_back_views(pipeline, images, canonical):
         _, pred = render(pipeline, camera, state)  # [H, W]
         truth = datamanager.held_back_truth(image)  # [H, W]
-        check_same_geometry(pred, truth, f"held-back frame {t}")
+        check_same_geometry(pred, truth, f"held-back frame {state.label}")
         finite = np.isfinite(truth)
         if radial:
             fitted = fit_with_radial_falloff(pred, truth)  # [M]
@@ -162,6 +156,40 @@ def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canon
             fitted = a * pred[finite] + b
         values.append(float(psnr(torch.from_numpy(fitted), torch.from_numpy(truth[finite]))))
     return float(np.mean(values))
+
+
+def held_back_views(
+    pipeline, images: Sequence[int], canonical: bool = False
+) -> Iterator[Tuple[int, Cameras, PhotometricState]]:
+    """Each held-back image's index, camera (on the model's device) and photometric state: interpolated from the
+    trained frames around it, embedding and LUT alike (`canonical`: the canonical state)."""
+    datamanager, model = pipeline.datamanager, pipeline.model
+    dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
+    held_frames = [dataset.frame_index(image) for image in images]  # capture positions
+    fill = isinstance(model, GuardedModel) and not canonical
+    if fill:
+        model.interpolate_embeddings(images)
+    shared = canonical_state(pipeline) if canonical else None
+    for image in images:
+        t = dataset.frame_index(image)
+        camera = dataset.cameras[image : image + 1].to(model.device)
+        if shared is not None:
+            yield image, camera, shared
+            continue
+        lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
+        embedding = model.frame_embed.weight[image].detach() if fill else None
+        yield image, camera, PhotometricState(f"held-back:{t}", embedding, lut)
+
+
+def held_back_background(pipeline, images: Sequence[int]) -> float:
+    """The background's level where it shows in the held-back images' renders, at their states
+    (`background_probe.uncovered_mean`)."""
+    backgrounds, coverages = [], []
+    for _, camera, state in held_back_views(pipeline, images):
+        layers = render_layers(pipeline, camera, state)
+        backgrounds.append(layers["background"])
+        coverages.append(layers["coverage"])
+    return uncovered_mean(backgrounds, coverages)
 
 
 def share_images(num_images: int, held_back: Sequence[int], count: int = 12) -> Tuple[int, ...]:
@@ -223,6 +251,14 @@ class AutoStopRun:
             and not self.ranks.split
         )
         self.view_verdict: Optional[ViewTermVerdict] = None
+        self.decides_background = (
+            config.decide_background
+            and self._scores_settled_model
+            and pipeline.model.has_background_mlp()
+            and pipeline.model.background_constant is None
+            and not self.ranks.split
+        )
+        self.background_verdict: Optional[BackgroundVerdict] = None
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -296,6 +332,9 @@ class AutoStopRun:
         if self.decides_view_term and verdict is not None and verdict["step"] < start_step:  # decided before
             self.view_verdict = ViewTermVerdict(**verdict)
             self.pipeline.model.use_view_term(self.view_verdict.kept)
+        background = record.get("background")
+        if background is not None and background["step"] < start_step:  # decided before: the checkpoint holds it
+            self.background_verdict = BackgroundVerdict(**background)
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", []) if r["step"] < start_step]
         if self.budget is not None and "budget_start" in record:  # the run's own start, not the checkpoint's size
             self.budget.start = record["budget_start"]
@@ -319,6 +358,8 @@ class AutoStopRun:
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
         this_check = len(self.progress.history) + 1  # scored checks so far, a resumed run's replayed ones too
+        if self.decides_background and self.background_verdict is None:
+            self._decide_background(step)
         if self.decides_view_term and self.view_verdict is None and this_check >= self.config.view_trial_checks:
             score = self._decide_view_term(step)
         else:
@@ -355,6 +396,19 @@ class AutoStopRun:
         self.view_verdict = verdict
         CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")
         return held_back_score(pipeline, held_back)  # the plain score, as every check's
+
+    def _decide_background(self, step: int) -> None:
+        """The held-back frames' verdict on the background MLP (`judge_background`), applied to the model."""
+        pipeline, held_back = self.pipeline, self.pipeline.datamanager.held_back
+        verdict = judge_background(
+            pipeline.model,
+            lambda: held_back_score(pipeline, held_back),
+            lambda: held_back_background(pipeline, held_back),
+            self.config.min_improvement,
+            step,
+        )
+        self.background_verdict = verdict
+        CONSOLE.log(f"step {step}: {verdict.why()}")
 
     def _grow_budget(self, step: int) -> bool:
         """Apply `HeldBackBudget` to this plateaued check (each rank to its share of the Gaussians);
@@ -430,6 +484,8 @@ class AutoStopRun:
         }
         if self.view_verdict is not None:
             record["view_term"] = self.view_verdict.as_record()
+        if self.background_verdict is not None:
+            record["background"] = self.background_verdict.as_record()
         if self.budget is not None:  # per GPU across GPUs
             record["budget_start"] = self.budget.start
             record["budget_raises"] = [{"step": s, "budget": b} for s, b in self.budget.raises]
