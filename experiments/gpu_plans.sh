@@ -20,6 +20,9 @@
 #                      30k schedule, scored at 1,000, 2,000 and 5,000), then the full method's default (30k asked,
 #                      its automatic stop); each bench's files as it ends, with 3 held-out views in °C (the first
 #                      seed's, on a calibrated capture)
+#   ab SCENE SETTING   the full method at its default (30k asked, its automatic stop) and with SETTING (a bench
+#                      --set, e.g. auto_stop.decide_background=True), SEEDS (3) seeds each, RUNS_PER_GPU (3) at once,
+#                      one bench each: default-bench.json, set-bench.json (merged here by experiments.bench --merge)
 #   table SCENE        the scene table from one call: the full method, wild-thermal-paper and every ablation at
 #                      their default (30k asked, the automatic stop), then splatfacto over the first STEPS (5000)
 #                      steps of its 30k schedule (its best on the real captures), SEEDS (3) seeds each, over every
@@ -140,6 +143,18 @@ case "$plan" in
     bench "$scene-bilateral-grid" --methods splatfacto "${short[@]}" --set pipeline.model.use_bilateral_grid=True
     bench "$scene-splatfacto" --methods splatfacto "${short[@]}"
     bench "$scene-wild-thermal" --methods wild-thermal --eval-at 1000 2000 5000 10000 20000 30000
+    ;;
+  ab)
+    warm
+    scene=${1:?scene: dunr or flight2}; setting=${2:?setting: path.to.field=value}
+    for arm in default set; do
+      extra=(); [ "$arm" = set ] && extra=(--set "$setting")
+      py -m experiments.bench --output-dir "/tmp/ab-$arm" --scenes "$root/.data/$scene" --cache-dir "$root/.data/cache" \
+        --methods wild-thermal --seeds "${SEEDS:-3}" --runs-per-gpu "${RUNS_PER_GPU:-3}" --fps-frames 0 --fit-steps 20 \
+        --eval-at 30000 "${extra[@]}" > "$res/$arm.log" 2>&1
+      cp "/tmp/ab-$arm/bench.json" "$res/$arm-bench.json" && tail -n 2 "$res/$arm.log"  # each run's auto_stop too
+      pack
+    done
     ;;
   table)
     warm
