@@ -126,6 +126,10 @@ def test_a_run_keeps_the_background_mlp_its_held_back_frames_gain_from(tmp_path,
     assert verdict["step"] == 3 and verdict["kept"] and verdict["with_constant"] == 19.5
     assert trainer.pipeline.model.background_constant is None
     assert decisions["background MLP"]["choice"] == "on" and decisions["alpha regulariser"]["choice"] == "on"
+    assert (
+        decisions["background MLP"]["decided_by"] == "data"
+        and "20.00 dB with the background MLP" in (decisions["background MLP"]["why"])
+    )
 
 
 def test_a_run_leaves_the_background_mlp_its_held_back_frames_do_not_gain_from(tmp_path, demo_scene_dir, monkeypatch):
@@ -160,3 +164,14 @@ def test_nothing_is_judged_with_the_rule_off_or_without_a_background_mlp(tmp_pat
     config.pipeline.model.alpha_lambda = 0.0
     trainer = seeded_trainer(config)
     assert not trainer.pipeline.model.has_background_mlp() and not trainer.auto_stop.decides_background
+
+
+def test_the_decision_is_pending_until_the_first_scored_check_and_a_run_that_ends_before_it_keeps_the_mlp():
+    from types import SimpleNamespace
+
+    from thermal_wild_ns.training.decisions import background_decision
+
+    pending = SimpleNamespace(background_verdict=None)
+    assert background_decision(pending).choice == "to be decided"
+    ended = background_decision(pending, last_step=7)
+    assert ended.choice == "on" and "ended at step 7" in ended.why and ended.decided_by == "data"
