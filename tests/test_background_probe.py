@@ -3,6 +3,7 @@ background shows keeps it, one whose Gaussians cover every pixel leaves a consta
 that left it keeps the constant through its checkpoints, its report and a resume."""
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -59,7 +60,8 @@ def test_the_background_mlp_stays_where_it_shows_and_leaves_where_the_gaussians_
 
     def score():
         with torch.no_grad():
-            return float(psnr(render()["thermal"], truth))
+            value = float(psnr(render()["thermal"], truth))
+        return value, value  # the held-back frames' and the trained views' (here one view for both)
 
     def mean_background():
         with torch.no_grad():
@@ -78,6 +80,17 @@ def test_the_background_mlp_stays_where_it_shows_and_leaves_where_the_gaussians_
         assert verdict.with_mlp > verdict.with_constant + 1.0
         with torch.no_grad():
             assert torch.equal(render()["background"], first["background"])  # the MLP's again
+
+
+@pytest.mark.parametrize("held_gain, trained_gain, kept", [(0.0, 0.0, False), (0.5, 0.0, True), (0.0, 0.5, True)])
+def test_the_mlp_stays_where_the_held_back_frames_or_the_trained_views_gain_from_it(held_gain, trained_gain, kept):
+    """Two held-back frames may miss the sky that other frames show: a gain on either set keeps the MLP."""
+    constants = []
+    model = SimpleNamespace(use_background_constant=constants.append)
+    scored = iter([(20.0 + held_gain, 30.0 + trained_gain), (20.0, 30.0)])  # with the MLP, then the constant
+    verdict = judge_background(model, lambda: next(scored), lambda: 0.3, min_gain=0.05, step=5)
+    assert verdict.kept is kept and constants == ([0.3, None] if kept else [0.3])
+    assert f"trained views {30.0 + trained_gain:.2f} and 30.00 dB" in verdict.why()
 
 
 def test_a_constant_background_takes_the_alpha_regulariser_with_it_and_comes_back_from_a_checkpoint():
@@ -106,13 +119,14 @@ def test_a_constant_background_takes_the_alpha_regulariser_with_it_and_comes_bac
 
 def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12):
     """The demo with its background MLP decided at the first scored check (checks at steps 3, 7 and 11), the
-    held-back scores following `scores` (with the MLP and with the constant at the verdict, then one a check)."""
+    scores following `scores`: at the verdict the held-back frames' and the trained views' with the MLP, then
+    both with the constant; then one a check."""
     config = demo_trainer_config(tmp_path, steps=steps, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir
     config.auto_stop.check_every, config.auto_stop.patience = 4, 10
     config.auto_stop.decide_background = True
     calls = iter(scores)
-    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", lambda pipeline, images: next(calls))
+    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", lambda *args, **kwargs: next(calls))
     monkeypatch.setattr(WildThermalModel, "settled_step", property(lambda self: 0))
     trainer = seeded_trainer(config)
     trainer.train()
@@ -122,7 +136,7 @@ def _run(tmp_path, demo_scene_dir, monkeypatch, scores, steps=12):
 
 
 def test_a_run_keeps_the_background_mlp_its_held_back_frames_gain_from(tmp_path, demo_scene_dir, monkeypatch):
-    trainer, verdict, decisions = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 19.5, 20.4, 21.0, 22.0])
+    trainer, verdict, decisions = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 30.0, 19.5, 30.0, 20.4, 21, 22])
     assert verdict["step"] == 3 and verdict["kept"] and verdict["with_constant"] == 19.5
     assert trainer.pipeline.model.background_constant is None
     assert decisions["background MLP"]["choice"] == "on" and decisions["alpha regulariser"]["choice"] == "on"
@@ -133,7 +147,7 @@ def test_a_run_keeps_the_background_mlp_its_held_back_frames_gain_from(tmp_path,
 
 
 def test_a_run_leaves_the_background_mlp_its_held_back_frames_do_not_gain_from(tmp_path, demo_scene_dir, monkeypatch):
-    trainer, verdict, decisions = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 19.99, 20.4, 21.0, 22.0])
+    trainer, verdict, decisions = _run(tmp_path, demo_scene_dir, monkeypatch, [20.0, 30.0, 19.99, 29.99, 20.4, 21, 22])
     model = trainer.pipeline.model
     assert not verdict["kept"] and model.background_constant == pytest.approx(verdict["value"])
     assert decisions["background MLP"]["decided_by"] == "data" and "constant" in decisions["background MLP"]["choice"]
@@ -142,7 +156,7 @@ def test_a_run_leaves_the_background_mlp_its_held_back_frames_do_not_gain_from(t
     config = trainer.config
     config.load_dir, config.max_num_iterations = trainer.checkpoint_dir, 16
     calls = iter([23.0])
-    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", lambda pipeline, images: next(calls))
+    monkeypatch.setattr("thermal_wild_ns.training.auto_stop.held_back_score", lambda *args, **kwargs: next(calls))
     resumed = seeded_trainer(config)
     resumed.train()
     assert resumed.pipeline.model.background_constant == pytest.approx(verdict["value"])
@@ -167,8 +181,6 @@ def test_nothing_is_judged_with_the_rule_off_or_without_a_background_mlp(tmp_pat
 
 
 def test_the_decision_is_pending_until_the_first_scored_check_and_a_run_that_ends_before_it_keeps_the_mlp():
-    from types import SimpleNamespace
-
     from thermal_wild_ns.training.decisions import background_decision
 
     pending = SimpleNamespace(background_verdict=None)

@@ -40,6 +40,7 @@ from thermal_wild_ns.pipeline.photometric_state import (
     preprocessed_sequence,
     render,
     render_layers,
+    resolve_state,
 )
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
@@ -108,11 +109,12 @@ class AutoStopConfig:
     the generated scene made to need the term and the tests' small one below (docs/results/view_verdict_cpu,
     "The term's radial share")."""
     decide_background: bool = False
-    """Let the held-back frames decide whether the background MLP stays: at the first scored check they are
-    scored with it and with a constant in its place (its mean where the Gaussians leave pixels uncovered); it
-    stays where it scores higher by `min_improvement`, else the constant replaces it, and the alpha
-    regulariser with it, for the rest of the run (`background_probe.py`); one GPU only. Off: the model's
-    `use_background_mlp` alone decides (the default until runs on the real captures measure the rule)."""
+    """Let the held-back frames decide whether the background MLP stays: at the first scored check they and
+    twelve trained views spread over the capture are scored with it and with a constant in its place (its mean
+    where the Gaussians leave pixels uncovered); it stays where either scores higher with it by
+    `min_improvement`, else the constant replaces it, and the alpha regulariser with it, for the rest of the
+    run (`background_probe.py`); one GPU only. Off: the model's `use_background_mlp` alone decides (the default
+    until runs on the real captures measure the rule)."""
     view_trial_checks: int = 1
     """With `decide_view_term`: the scored check at which the held-back frames decide (1: the first). A
     later verdict lets the term and the frame states train side by side for longer before they are judged
@@ -136,15 +138,17 @@ def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
 
 
-def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canonical: bool = False) -> float:
+def held_back_score(
+    pipeline, images: Sequence[int], radial: bool = False, canonical: bool = False, own: bool = False
+) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
-    around them, embedding and LUT alike (`canonical`: at the canonical state, every novel view's),
-    after a least-squares gain + offset fit to each frame (`radial`: and a radial fall-off,
-    `fit_with_radial_falloff`)."""
+    around them, embedding and LUT alike (`canonical`: at the canonical state, every novel view's;
+    `own`: trained images at their own states), after a least-squares gain + offset fit to each frame
+    (`radial`: and a radial fall-off, `fit_with_radial_falloff`)."""
 
     datamanager, values = pipeline.datamanager, []
-    for image, camera, state in held_back_views(pipeline, images, canonical):
+    for image, camera, state in held_back_views(pipeline, images, canonical, own):
         _, pred = render(pipeline, camera, state)  # [H, W]
         truth = datamanager.held_back_truth(image)  # [H, W]
         check_same_geometry(pred, truth, f"held-back frame {state.label}")
@@ -159,33 +163,35 @@ def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canon
 
 
 def held_back_views(
-    pipeline, images: Sequence[int], canonical: bool = False
+    pipeline, images: Sequence[int], canonical: bool = False, own: bool = False
 ) -> Iterator[Tuple[int, Cameras, PhotometricState]]:
     """Each held-back image's index, camera (on the model's device) and photometric state: interpolated from the
-    trained frames around it, embedding and LUT alike (`canonical`: the canonical state)."""
+    trained frames around it, embedding and LUT alike (`canonical`: the canonical state; `own`: trained images
+    at their own training states)."""
     datamanager, model = pipeline.datamanager, pipeline.model
     dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
     held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    fill = isinstance(model, GuardedModel) and not canonical
+    fill = isinstance(model, GuardedModel) and not canonical and not own
     if fill:
         model.interpolate_embeddings(images)
     shared = canonical_state(pipeline) if canonical else None
     for image in images:
         t = dataset.frame_index(image)
         camera = dataset.cameras[image : image + 1].to(model.device)
-        if shared is not None:
-            yield image, camera, shared
+        if shared is not None or own:
+            yield image, camera, shared if shared is not None else resolve_state(pipeline, f"frame:{t}")
             continue
         lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
         embedding = model.frame_embed.weight[image].detach() if fill else None
         yield image, camera, PhotometricState(f"held-back:{t}", embedding, lut)
 
 
-def held_back_background(pipeline, images: Sequence[int]) -> float:
-    """The background's level where it shows in the held-back images' renders, at their states
-    (`background_probe.uncovered_mean`)."""
+def held_back_background(pipeline, held_back: Sequence[int], trained: Sequence[int]) -> float:
+    """The background's level where it shows in the renders of the held-back images and of `trained` images, at
+    their states (`background_probe.uncovered_mean`)."""
     backgrounds, coverages = [], []
-    for _, camera, state in held_back_views(pipeline, images):
+    views = [*held_back_views(pipeline, held_back), *held_back_views(pipeline, trained, own=True)]
+    for _, camera, state in views:
         layers = render_layers(pipeline, camera, state)
         backgrounds.append(layers["background"])
         coverages.append(layers["coverage"])
@@ -400,10 +406,12 @@ class AutoStopRun:
     def _decide_background(self, step: int) -> None:
         """The held-back frames' verdict on the background MLP (`judge_background`), applied to the model."""
         pipeline, held_back = self.pipeline, self.pipeline.datamanager.held_back
+        # the trained views too: two held-back frames may miss the sky that other frames show
+        trained = share_images(len(pipeline.datamanager.train_dataset), held_back)
         verdict = judge_background(
             pipeline.model,
-            lambda: held_back_score(pipeline, held_back),
-            lambda: held_back_background(pipeline, held_back),
+            lambda: (held_back_score(pipeline, held_back), held_back_score(pipeline, trained, own=True)),
+            lambda: held_back_background(pipeline, held_back, trained),
             self.config.min_improvement,
             step,
         )

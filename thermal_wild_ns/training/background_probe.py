@@ -5,30 +5,35 @@ its level drifting with the camera. Where the Gaussians cover every pixel (a nad
 frame) it shows nowhere, and costs its forward and backward at every step for nothing; on both real captures it
 is worth nothing measurable (docs/results/parts_dunr_h200, docs/results/parts_flight2_h200), on generated scenes
 with sky several dB (docs/results/background_mlp_cpu). So a scene decides: at the automatic stop's first scored
-check the held-back frames are scored as trained, then with a constant in the MLP's place (its mean over the
-pixels the Gaussians leave uncovered in those frames, at their states), the Gaussians as they are. The MLP
-stays where it scores higher by `min_gain`; otherwise the constant replaces it for the rest of the run, and
-with it the alpha regulariser goes, which compares each frame with what the background predicts
+check the held-back frames, and trained views spread over the capture (two held-back frames may miss the sky
+other frames show), are scored as trained, then with a constant in the MLP's place (its mean over the pixels
+the Gaussians leave uncovered in those views, at their states), the Gaussians as they are. The MLP stays where
+either set scores higher with it by `min_gain`; otherwise the constant replaces it for the rest of the run,
+and with it the alpha regulariser goes, which compares each frame with what the background predicts
 (`WildThermalModel.use_background_constant`).
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Callable, Sequence
+from typing import Callable, Sequence, Tuple
 
 import numpy as np
 
 
 @dataclass
 class BackgroundVerdict:
-    """What the held-back frames scored at `step` with the background MLP and with a constant in its place."""
+    """What the held-back frames and the trained views scored at `step` with the background MLP and with a
+    constant in its place (PSNR, dB, as every check's: a gain and offset fitted to each frame)."""
 
     step: int
     with_mlp: float
-    """The held-back frames' score (PSNR, dB, as every check's) with the background MLP."""
+    """The held-back frames' score with the background MLP."""
     with_constant: float
     """Their score with the constant `value` in its place."""
+    trained_with_mlp: float
+    """The trained views' score (each at its own state) with the MLP."""
+    trained_with_constant: float
     value: float
     kept: bool
 
@@ -39,7 +44,8 @@ class BackgroundVerdict:
         verdict = "stays" if self.kept else f"left for the constant {self.value:.4f}"
         return (
             f"at step {self.step:,} the held-back frames scored {self.with_mlp:.2f} dB with the background MLP and "
-            f"{self.with_constant:.2f} dB with a constant in its place: the MLP {verdict}"
+            f"{self.with_constant:.2f} dB with a constant in its place, trained views {self.trained_with_mlp:.2f} "
+            f"and {self.trained_with_constant:.2f} dB: the MLP {verdict}"
         )
 
 
@@ -54,15 +60,15 @@ def uncovered_mean(backgrounds: Sequence[np.ndarray], coverages: Sequence[np.nda
 
 
 def judge_background(
-    model, score: Callable[[], float], mean_background: Callable[[], float], min_gain: float, step: int
+    model, scores: Callable[[], Tuple[float, float]], mean_background: Callable[[], float], min_gain: float, step: int
 ) -> BackgroundVerdict:
-    """Score the held-back frames (`score()`) of `model` with its background MLP, then with the constant
-    `mean_background()` in its place (`use_background_constant`); keep the MLP where it gains `min_gain`,
-    else leave the constant in its place."""
-    with_mlp, value = score(), mean_background()
+    """Score the held-back frames and the trained views (`scores()`) of `model` with its background MLP, then
+    with the constant `mean_background()` in its place (`use_background_constant`); keep the MLP where either
+    gains `min_gain` with it, else leave the constant in its place."""
+    (held, trained), value = scores(), mean_background()
     model.use_background_constant(value)
-    with_constant = score()
-    kept = with_mlp - with_constant >= min_gain
+    held_constant, trained_constant = scores()
+    kept = held - held_constant >= min_gain or trained - trained_constant >= min_gain
     if kept:
         model.use_background_constant(None)
-    return BackgroundVerdict(step, with_mlp, with_constant, value, kept)
+    return BackgroundVerdict(step, held, held_constant, trained, trained_constant, value, kept)
