@@ -187,3 +187,30 @@ def test_the_decision_is_pending_until_the_first_scored_check_and_a_run_that_end
     assert background_decision(pending).choice == "to be decided"
     ended = background_decision(pending, last_step=7)
     assert ended.choice == "on" and "ended at step 7" in ended.why and ended.decided_by == "data"
+
+
+def test_trained_views_are_scored_at_their_own_states_and_the_backgrounds_level_read_from_both_sets(
+    tmp_path, demo_scene_dir
+):
+    """`held_back_score(own=True)` renders trained images at their own training states: where every frame has
+    one embedding it is the canonical state's score, where their embeddings differ it is not; the background's
+    level is read from the held-back and the trained views' renders."""
+    from thermal_wild_ns.training.auto_stop import held_back_background, held_back_score, share_images
+
+    config = demo_trainer_config(tmp_path, steps=4, max_gaussians=3000)
+    config.pipeline.datamanager.dataparser.data = demo_scene_dir
+    trainer = seeded_trainer(config)
+    trainer.train()
+    pipeline, held = trainer.pipeline, trainer.pipeline.datamanager.held_back
+    trained = share_images(len(pipeline.datamanager.train_dataset), held, count=4)
+    weight = pipeline.model.frame_embed.weight
+    with torch.no_grad():
+        weight.copy_(torch.randn(weight.shape[1], generator=torch.Generator().manual_seed(0)).expand_as(weight))
+    own, canonical = held_back_score(pipeline, trained, own=True), held_back_score(pipeline, trained, canonical=True)
+    assert own == pytest.approx(canonical, abs=1e-4)
+    with torch.no_grad():
+        weight.copy_(3.0 * torch.randn(weight.shape, generator=torch.Generator().manual_seed(1)))
+    own, canonical = held_back_score(pipeline, trained, own=True), held_back_score(pipeline, trained, canonical=True)
+    assert abs(own - canonical) > 0.01, (own, canonical)
+    level = held_back_background(pipeline, held, trained)
+    assert np.isfinite(level)
