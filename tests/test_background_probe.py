@@ -164,8 +164,8 @@ def test_a_run_leaves_the_background_mlp_its_held_back_frames_do_not_gain_from(t
 
 
 def test_nothing_is_judged_with_the_rule_off_or_without_a_background_mlp(tmp_path, demo_scene_dir):
-    """Off (the default until runs on real captures show the rule's effect): the run scores as ever, no verdict;
-    a model built without the MLP has nothing to judge."""
+    """Off (the default: the verdict at the first check lost 4.3 dB on a survey seed, docs/results/
+    background_rule_cpu): the run scores as ever, no verdict; a model built without the MLP has nothing to judge."""
     from thermal_wild_ns.training.auto_stop import AutoStopConfig
 
     assert AutoStopConfig().decide_background is False
