@@ -33,7 +33,7 @@ from thermal_wild_ns.data.survey_scene import SurveySceneConfig, generate_survey
 from thermal_wild_ns.method_configs import method_trainer
 from thermal_wild_ns.multi_gpu import join_process_group, multi_gpu_config
 from thermal_wild_ns.pipeline.ranks import RankGroup
-from thermal_wild_ns.training.auto_stop import held_back_score
+from thermal_wild_ns.training.held_back import held_back_score
 from thermal_wild_ns.training.trainer import seeded_trainer
 
 

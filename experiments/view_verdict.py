@@ -26,7 +26,7 @@ from experiments import train_with_hooks
 from experiments.bench import BenchArgs, setup_trainer, trainer_config
 from experiments.scenes import scene_name
 from thermal_wild_ns.progress import track
-from thermal_wild_ns.training.auto_stop import held_back_score
+from thermal_wild_ns.training.held_back import held_back_score
 
 
 @dataclass

@@ -11,7 +11,8 @@ from demo_trainers import demo_trainer
 from thermal_wild_ns.demo import demo_trainer_config
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.training import auto_stop
-from thermal_wild_ns.training.auto_stop import AutoStopConfig, held_back_images
+from thermal_wild_ns.training.auto_stop import AutoStopConfig
+from thermal_wild_ns.training.held_back import held_back_images
 from thermal_wild_ns.training.stop_rules import HeldBackBudget, PlateauRule
 from thermal_wild_ns.training.trainer import seeded_trainer
 

@@ -195,7 +195,7 @@ def test_trained_views_are_scored_at_their_own_states_and_the_backgrounds_level_
     """`held_back_score(own=True)` renders trained images at their own training states: where every frame has
     one embedding it is the canonical state's score, where their embeddings differ it is not; the background's
     level is read from the held-back and the trained views' renders."""
-    from thermal_wild_ns.training.auto_stop import held_back_background, held_back_score, share_images
+    from thermal_wild_ns.training.held_back import held_back_background, held_back_score, share_images
 
     config = demo_trainer_config(tmp_path, steps=4, max_gaussians=3000)
     config.pipeline.datamanager.dataparser.data = demo_scene_dir

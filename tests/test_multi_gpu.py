@@ -15,7 +15,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from thermal_wild_ns.multi_gpu import join_process_group
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.rendering.torch_rasterizer import rasterization
-from thermal_wild_ns.training.auto_stop import held_back_images, held_back_score
+from thermal_wild_ns.training.held_back import held_back_images, held_back_score
 
 ROOT = Path(__file__).resolve().parents[1]
 TORCHRUN = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]

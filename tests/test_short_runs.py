@@ -15,7 +15,7 @@ from demo_trainers import demo_trainer
 from ns_runs import check_run_end_to_end, ns_train, run_args
 from real_data import DUNR
 
-from thermal_wild_ns.training.auto_stop import held_back_score
+from thermal_wild_ns.training.held_back import held_back_score
 
 
 def test_the_held_back_score_renders_at_full_resolution_at_every_step_of_the_warm_up(tmp_path, demo_scene_dir):

@@ -19,8 +19,9 @@ from thermal_wild_ns.errors import InputError
 from thermal_wild_ns.model.view_emission import radial_part
 from thermal_wild_ns.model.wild_thermal import WildThermalModel
 from thermal_wild_ns.pipeline.evaluation import centre_r2, fit_gain_offset, fit_with_radial_falloff
-from thermal_wild_ns.training.auto_stop import AutoStopConfig, held_back_score, share_images
+from thermal_wild_ns.training.auto_stop import AutoStopConfig
 from thermal_wild_ns.training.decisions import view_term_decision
+from thermal_wild_ns.training.held_back import held_back_score, share_images
 from thermal_wild_ns.training.trainer import seeded_trainer
 from thermal_wild_ns.training.view_probe import judge_view_term, radial_share
 
