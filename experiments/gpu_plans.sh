@@ -21,7 +21,7 @@
 #                      its automatic stop); each bench's files as it ends, with 3 held-out views in °C (the first
 #                      seed's, on a calibrated capture)
 #   ab SCENE SETTING   the full method at its default (30k asked, its automatic stop) and with SETTING (a bench
-#                      --set, e.g. auto_stop.decide_background=True), SEEDS (3) seeds each, RUNS_PER_GPU (3) at once,
+#                      --set, e.g. pipeline.model.alpha_lambda=0.0), SEEDS (3) seeds each, RUNS_PER_GPU (3) at once,
 #                      one bench each: default-bench.json, set-bench.json (merged here by experiments.bench --merge)
 #   table SCENE        the scene table from one call: the full method, wild-thermal-paper and every ablation at
 #                      their default (30k asked, the automatic stop), then splatfacto over the first STEPS (5000)
@@ -152,7 +152,7 @@ case "$plan" in
       py -m experiments.bench --output-dir "/tmp/ab-$arm" --scenes "$root/.data/$scene" --cache-dir "$root/.data/cache" \
         --methods wild-thermal --seeds "${SEEDS:-3}" --runs-per-gpu "${RUNS_PER_GPU:-3}" --fps-frames 0 --fit-steps 20 \
         --eval-at 30000 "${extra[@]}" > "$res/$arm.log" 2>&1
-      cp "/tmp/ab-$arm/bench.json" "$res/$arm-bench.json" && tail -n 2 "$res/$arm.log"  # each run's auto_stop too
+      cp "/tmp/ab-$arm/bench.json" "$res/$arm-bench.json" && tail -n 2 "$res/$arm.log"
       pack
     done
     ;;

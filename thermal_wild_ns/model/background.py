@@ -109,14 +109,10 @@ class ThermalBackground:
     In training (and under autograd) the MLP runs on every grid point; a training camera whose pose
     is fixed (`cam_idx`) has its encoded directions computed once. Every other render samples the
     baked map (`baked_map`) along the camera-frame directions of its intrinsics, rotated. One method
-    per render mode (`renders.py`). Where the held-back frames found the MLP worth no more than a constant
-    (`use_constant`), the constant renders instead and the MLP is left as it was."""
+    per render mode (`renders.py`)."""
 
     def __init__(self, mlp: Optional[BackgroundMLP], config):
         self.mlp = mlp
-        self.trained_mlp = mlp  # what `use_constant(None)` brings back
-        self.constant: Optional[float] = None
-        """The value that replaced the MLP (`use_constant`); None: the MLP renders (or there is none)."""
         self.config = config
         self.baked = BakedValues()
         self._encoded_directions: Dict[tuple, Tensor] = {}  # (training camera, width, height) -> encoded grid
@@ -124,16 +120,6 @@ class ThermalBackground:
         # training renders' MLP forward and backward replayed as CUDA graphs, one per frame size
         self.graphed = GraphedCalls("background MLP") if mlp is not None and config.graphed_background else None
         self._grids: Dict[Tuple[int, int], BackgroundGrid] = {}
-
-    @property
-    def value(self) -> float:
-        """The constant background's value (without an MLP, or in its place)."""
-        return self.config.background_value if self.constant is None else self.constant
-
-    def use_constant(self, value: Optional[float]) -> None:
-        """Render the constant `value` in the MLP's place from now on; None: the MLP again."""
-        self.constant = None if value is None else float(value)
-        self.mlp = self.trained_mlp if value is None else None
 
     def baked_map(self, frame_embed: Tensor, step: int) -> Tensor:
         """The MLP over every direction under `frame_embed` (`background_map`), kept until the
@@ -158,7 +144,7 @@ class ThermalBackground:
         if self.mlp is None:
             if self.config.random_background:
                 return torch.rand(1, 1, 1, device=K.device).expand(height, width, 1)
-            return torch.full((height, width, 1), self.value, device=K.device)
+            return torch.full((height, width, 1), self.config.background_value, device=K.device)
         return self._grid(K, camera_to_world, frame_embed, width, height, cam_idx, slot)
 
     def rendered(
@@ -174,7 +160,7 @@ class ThermalBackground:
         """[H, W, 1] of a render outside training and autograd: the baked map (`baked_map`) along the camera's pixel
         directions (`pinhole`: `K`'s fx, fy, cx, cy on the host, else read from `K`)."""
         if self.mlp is None:
-            return torch.full((height, width, 1), self.value, device=K.device)
+            return torch.full((height, width, 1), self.config.background_value, device=K.device)
         dirs = self.frame_directions(K, width, height, pinhole)
         return self.from_map(self.baked_map(frame_embed, step), dirs, camera_to_world, width, height)
 
@@ -182,7 +168,7 @@ class ThermalBackground:
         """[H, W, 1] of a render outside training under autograd (a fit through the render): the MLP itself on the
         grid, as in training."""
         if self.mlp is None:
-            return torch.full((height, width, 1), self.value, device=K.device)
+            return torch.full((height, width, 1), self.config.background_value, device=K.device)
         return self._grid(K, camera_to_world, frame_embed, width, height, None, 0)
 
     def exact_views(self, Ks: Tensor, camera_to_worlds: Tensor, width: int, height: int) -> Callable[[Tensor], Tensor]:
@@ -190,7 +176,7 @@ class ThermalBackground:
         frame embeddings [B, Df] -> [B, H, W, 1], for fits that move the states alone: their directions encoded
         once, the MLP called once for all of them per call."""
         if self.mlp is None:
-            value = self.value
+            value = self.config.background_value
             return lambda embeds: torch.full((embeds.shape[0], height, width, 1), value, device=embeds.device)
         stride = self.config.background_stride
         encoded = torch.stack(
@@ -204,9 +190,9 @@ class ThermalBackground:
         (`renders.viewing_render`, a `camera_views.View`): one CUDA graph per camera size and intrinsics on a GPU
         (`captured`), the baked map one of its inputs, so a new state needs no new graph."""
         width, height = view.width, view.height
-        key = ("view", width, height, view.pinhole, self.constant)  # a graph of the constant holds its value
+        key = ("view", width, height, view.pinhole)
         if self.mlp is None:  # a constant background
-            value = self.value
+            value = self.config.background_value
             prepare = lambda camera_to_world, K: (
                 world_to_camera(camera_to_world),
                 torch.full((height, width, 1), value, device=K.device),

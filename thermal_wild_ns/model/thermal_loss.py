@@ -83,9 +83,6 @@ class ThermalLoss(nn.Module):
         self._frame_checks: Dict[tuple, tuple] = {}  # (training image, shape) -> (all finite, contrast, original)
         self._warned_nonfinite = False
         self.graphed = GraphedCalls("loss") if config.graphed_loss else None
-        self.alpha_on = config.alpha_lambda > 0
-        """Whether the alpha regulariser is a term: off with a constant in the background MLP's place, which
-        predicts no pixel of its own (`WildThermalModel.use_background_constant`)."""
         self.resized_frames = ResizedFrames()  # the training frames at the warm-up's sizes: `frame_of`
 
     def to_original_space(self, values: Tensor, image: int) -> Optional[Tensor]:
@@ -165,14 +162,14 @@ class ThermalLoss(nn.Module):
         inputs = (compared_pred, compared_gt.detach(), contrast, outputs["accumulation"], background)
         graphable = image is not None and compared_pred is pred and contrast is not None and torch.is_grad_enabled()
         if self.graphed is not None and graphable:
-            terms = self.graphed(self.alpha_on, self.terms, *inputs, slot=slot)  # the step's: kernels replayed
+            terms = self.graphed(None, self.terms, *inputs, slot=slot)  # the training step's: kernels replayed
         else:
             terms = self.terms(*inputs, alpha_target=gt, l1_scale=l1_scale)
         return dict(zip(self.term_names, terms))
 
     @property
     def term_names(self) -> Tuple[str, ...]:
-        return ("l1_loss", "ssim_loss") + (("alpha_loss",) if self.alpha_on else ())
+        return ("l1_loss", "ssim_loss") + (("alpha_loss",) if self.config.alpha_lambda > 0 else ())
 
     def terms(
         self,
@@ -192,6 +189,6 @@ class ThermalLoss(nn.Module):
         alpha_target = gt if alpha_target is None else alpha_target
         similarity = heat_aware_ssim(pred, gt, contrast) if cfg.heat_aware_ssim else ssim(pred, gt, data_range=1.0)
         terms = (cfg.l1_lambda * l1_scale * (gt - pred).abs().mean(), cfg.ssim_lambda * (1.0 - similarity))
-        if self.alpha_on:
+        if cfg.alpha_lambda > 0:
             terms += (cfg.alpha_lambda * alpha_regularizer(alpha, alpha_target, background, cfg.alpha_reg_tolerance),)
         return terms

@@ -157,7 +157,7 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     @property
     def uses_frame_embedding(self) -> bool:
         """Whether renders depend on the frame embedding (through either MLP)."""
-        return self.emission_mlp is not None or self.parts.background.mlp is not None
+        return self.emission_mlp is not None or self.background_mlp is not None
 
     def state_embedding(self, name: StateName) -> Tensor:
         """The frame embedding [Df] of the photometric state `name` (`FrameStates.embedding`)."""
@@ -363,12 +363,9 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
             ("heat-aware SSIM", cfg.heat_aware_ssim, "heat_aware_ssim"),
             ("alpha regulariser", cfg.alpha_lambda > 0, "alpha_lambda"),
         )
-        constant = self.background_constant
-        for part, on, option in parts:
-            if constant is not None and on and option in ("use_background_mlp", "alpha_lambda"):
-                entries.append(Decision(part, *background_left(option, constant), "data"))
-            else:
-                entries.append(Decision(part, "on" if on else "off", part_why(cfg, option), "config"))
+        entries += [
+            Decision(part, "on" if on else "off", part_why(cfg, option), "config") for part, on, option in parts
+        ]
         entries += self.growth.part_decisions(self.growth_state, self.strategy, cfg.view_sh_degree)
         return entries + self.camera_choice.decisions(self.camera_falloff, self.camera_flat_field)
 
@@ -399,21 +396,6 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     def renders_view_term(self) -> bool:
         return self.growth.renders_view_term(self.growth_state, self.training, self.step)
 
-    def has_background_mlp(self) -> bool:
-        return self.background_mlp is not None
-
-    @property
-    def background_constant(self) -> Optional[float]:
-        """The constant rendered in the background MLP's place (`use_background_constant`); None: the MLP's."""
-        return self.parts.background.constant
-
-    def use_background_constant(self, value: Optional[float]) -> None:
-        """Render the constant `value` in the background MLP's place from now on (None: the MLP again), and with
-        it no alpha regulariser: it penalises opacity where the background predicts the frame, and a constant
-        predicts no pixel of its own (every frame value near it would count as background)."""
-        self.parts.background.use_constant(value)
-        self.thermal_loss.alpha_on = value is None and self.config.alpha_lambda > 0
-
     def optimizer_states_of(self, states: dict) -> dict:
         return packed_optimizer_states(states, self._mlps())
 
@@ -437,13 +419,8 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
     # a resume continues the run, and its decisions count what the whole run pruned
     def get_extra_state(self) -> dict:
         state = {k: v for k, v in self.strategy_state.items() if v is not None}
-        pruned, constant = self.growth_state.few_view_pruned, self.background_constant
-        return {
-            "strategy_state": state,
-            "torch_rng_state": torch.get_rng_state(),
-            "few_view_pruned": pruned,
-            "background_constant": constant,
-        }
+        pruned = self.growth_state.few_view_pruned
+        return {"strategy_state": state, "torch_rng_state": torch.get_rng_state(), "few_view_pruned": pruned}
 
     def set_extra_state(self, state: dict) -> None:
         if not state:
@@ -453,17 +430,6 @@ class WildThermalModel(GreyColourAccessors, SplatfactoModel):
         if "torch_rng_state" in state:
             torch.set_rng_state(state["torch_rng_state"])
         self.growth_state.few_view_pruned = state.get("few_view_pruned", 0)
-        if self.background_mlp is not None:
-            self.use_background_constant(state.get("background_constant"))
-
-
-def background_left(option: str, constant: float) -> Tuple[str, str]:
-    """What a part of the background's became where the held-back frames replaced the background MLP by
-    `constant` (`AutoStopConfig.decide_background`), and why."""
-    if option == "use_background_mlp":
-        why = "the held-back frames scored no better with it than with a constant in its place (auto_stop.json)"
-        return f"off: a constant {constant:.4f} in its place", why
-    return "off", "the background MLP left (a constant background predicts no pixel of its own)"
 
 
 def part_why(config: WildThermalModelConfig, option: str) -> str:

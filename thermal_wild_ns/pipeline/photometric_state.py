@@ -141,8 +141,7 @@ def render_layers(pipeline, camera, state: PhotometricState, recorded: bool = Fa
     """`render` ('training', 'original'), with the Gaussians' 'coverage' of each pixel ([H, W]
     accumulated opacity, 0..1; ones for a model without it: where it is low the pixel is the
     background model, not the scene) and their 'depth' ([H, W] along the camera's axis, the
-    model's units; NaN for a model without it) and the 'background' behind them ([H, W], training space; NaN
-    for a model without one). `recorded`: through the camera's own fall-off
+    model's units; NaN for a model without it). `recorded`: through the camera's own fall-off
     (`as_recorded`), for a comparison with a recorded frame; else the scene (the exports)."""
     model = pipeline.model
     was_training = model.training
@@ -154,17 +153,13 @@ def render_layers(pipeline, camera, state: PhotometricState, recorded: bool = Fa
             if recorded:
                 thermal = as_recorded(model, thermal, camera)
             rendered = thermal[..., 0].float().cpu().numpy()  # [H, W]
-            per_pixel = lambda key: outputs.get(key) is not None and outputs[key].shape[:2] == thermal.shape[:2]
-            plane = lambda key, missing: (
-                outputs[key][..., 0].float().cpu().numpy() if per_pixel(key) else missing(rendered)
-            )  # splatfacto's background is one colour
-            coverage = plane("accumulation", np.ones_like)
-            nans = lambda like: np.full_like(like, np.nan)
-            depth, background = plane("depth", nans), plane("background", nans)
+            alpha, depth = outputs.get("accumulation"), outputs.get("depth")
+            coverage = np.ones_like(rendered) if alpha is None else alpha[..., 0].float().cpu().numpy()
+            depth = np.full_like(rendered, np.nan) if depth is None else depth[..., 0].float().cpu().numpy()
     finally:
         model.train(was_training)
     original = to_original(pipeline, rendered, state)
-    return {"training": rendered, "original": original, "coverage": coverage, "depth": depth, "background": background}
+    return {"training": rendered, "original": original, "coverage": coverage, "depth": depth}
 
 
 def check_same_geometry(pred: np.ndarray, frame: np.ndarray, what: str) -> None:

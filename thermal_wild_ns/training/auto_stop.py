@@ -31,15 +31,8 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from thermal_wild_ns.pipeline.datamanager import ThermalDatamanager
 from thermal_wild_ns.pipeline.ranks import RankGroup
 from thermal_wild_ns.pipeline.run_check import PARTIAL_FOLDER, write_atomically, write_text_atomically
-from thermal_wild_ns.training.background_probe import BackgroundVerdict, judge_background
 from thermal_wild_ns.training.checkpoints import restore, snapshot
-from thermal_wild_ns.training.held_back import (
-    held_back_background,
-    held_back_images,
-    held_back_score,
-    scene_renders,
-    share_images,
-)
+from thermal_wild_ns.training.held_back import held_back_images, held_back_score, scene_renders, share_images
 from thermal_wild_ns.training.model_interface import GuardedModel
 from thermal_wild_ns.training.stop_rules import HeldBackBudget, PlateauRule
 from thermal_wild_ns.training.view_probe import ViewTermVerdict, judge_view_term, verdict_check
@@ -102,14 +95,6 @@ class AutoStopConfig:
     between the shares the trial saw on CPU at its first check: the generated vignetting scene above it,
     the generated scene made to need the term and the tests' small one below (docs/results/view_verdict_cpu,
     "The term's radial share")."""
-    decide_background: bool = False
-    """Let the held-back frames decide whether the background MLP stays: at the first scored check they and
-    twelve trained views spread over the capture are scored with it and with a constant in its place (its mean
-    where the Gaussians leave pixels uncovered); it stays where either scores higher with it by
-    `min_improvement`, else the constant replaces it, and the alpha regulariser with it, for the rest of the
-    run (`background_probe.py`); one GPU only. Off by default: on the synthetic survey the one run it left the
-    MLP in lost 4.3 dB `novel` though the constant scored as well at the verdict (docs/results/background_rule_cpu);
-    the model's `use_background_mlp` alone decides."""
     view_trial_checks: int = 1
     """With `decide_view_term`: the scored check at which the held-back frames decide (1: the first). A
     later verdict lets the term and the frame states train side by side for longer before they are judged
@@ -166,14 +151,6 @@ class AutoStopRun:
             and not self.ranks.split
         )
         self.view_verdict: Optional[ViewTermVerdict] = None
-        self.decides_background = (
-            config.decide_background
-            and self._scores_settled_model
-            and pipeline.model.has_background_mlp()
-            and pipeline.model.background_constant is None
-            and not self.ranks.split
-        )
-        self.background_verdict: Optional[BackgroundVerdict] = None
 
     @classmethod
     def start(cls, config: AutoStopConfig, pipeline, optimizers, run_dir: Path, steps_asked: int):
@@ -247,9 +224,6 @@ class AutoStopRun:
         if self.decides_view_term and verdict is not None and verdict["step"] < start_step:  # decided before
             self.view_verdict = ViewTermVerdict(**verdict)
             self.pipeline.model.use_view_term(self.view_verdict.kept)
-        background = record.get("background")
-        if background is not None and background["step"] < start_step:  # decided before: the checkpoint holds it
-            self.background_verdict = BackgroundVerdict(**background)
         raises = [(r["step"], r["budget"]) for r in record.get("budget_raises", []) if r["step"] < start_step]
         if self.budget is not None and "budget_start" in record:  # the run's own start, not the checkpoint's size
             self.budget.start = record["budget_start"]
@@ -273,8 +247,6 @@ class AutoStopRun:
         if self._scores_settled_model and step < self.pipeline.model.settled_step:
             return False
         this_check = len(self.progress.history) + 1  # scored checks so far, a resumed run's replayed ones too
-        if self.decides_background and self.background_verdict is None:
-            self._decide_background(step)
         if self.decides_view_term and self.view_verdict is None and this_check >= self.config.view_trial_checks:
             score = self._decide_view_term(step)
         else:
@@ -311,21 +283,6 @@ class AutoStopRun:
         self.view_verdict = verdict
         CONSOLE.log(f"step {step}: view term {'kept' if verdict.kept else 'off'}: {verdict.why()}")
         return held_back_score(pipeline, held_back)  # the plain score, as every check's
-
-    def _decide_background(self, step: int) -> None:
-        """The held-back frames' verdict on the background MLP (`judge_background`), applied to the model."""
-        pipeline, held_back = self.pipeline, self.pipeline.datamanager.held_back
-        # the trained views too: two held-back frames may miss the sky that other frames show
-        trained = share_images(len(pipeline.datamanager.train_dataset), held_back)
-        verdict = judge_background(
-            pipeline.model,
-            lambda: (held_back_score(pipeline, held_back), held_back_score(pipeline, trained, own=True)),
-            lambda: held_back_background(pipeline, held_back, trained),
-            self.config.min_improvement,
-            step,
-        )
-        self.background_verdict = verdict
-        CONSOLE.log(f"step {step}: {verdict.why()}")
 
     def _grow_budget(self, step: int) -> bool:
         """Apply `HeldBackBudget` to this plateaued check (each rank to its share of the Gaussians);
@@ -401,8 +358,6 @@ class AutoStopRun:
         }
         if self.view_verdict is not None:
             record["view_term"] = self.view_verdict.as_record()
-        if self.background_verdict is not None:
-            record["background"] = self.background_verdict.as_record()
         if self.budget is not None:  # per GPU across GPUs
             record["budget_start"] = self.budget.start
             record["budget_raises"] = [{"step": s, "budget": b} for s, b in self.budget.raises]

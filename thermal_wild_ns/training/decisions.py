@@ -100,22 +100,6 @@ def view_term_decision(auto_stop, last_step: Optional[int] = None) -> Decision:
     return Decision("view-dependent emission", "on" if verdict.kept else "off", verdict.why(), "data")
 
 
-def background_decision(auto_stop, last_step: Optional[int] = None) -> Decision:
-    """The background MLP where the held-back frames decide it (`background_probe.py`): pending (at the start),
-    kept, or a constant in its place; kept where the run ended (`last_step`) before a scored check."""
-    verdict = auto_stop.background_verdict
-    if verdict is None:
-        ended = last_step is not None
-        why = (
-            f"the run ended at step {last_step:,}, before the held-back frames' verdict"
-            if ended
-            else "the held-back frames decide at the first scored check"
-        )
-        return Decision("background MLP", "on" if ended else "to be decided", why, "data")
-    choice = "on" if verdict.kept else f"off: a constant {verdict.value:.4f} in its place"
-    return Decision("background MLP", choice, verdict.why(), "data")
-
-
 class RunDecisions:
     """The decisions of one run: `start(trainer)` after set-up, `finish(trainer, last_step)` before
     the final checkpoint; each prints them and writes `decisions.json` (rank 0 only across GPUs)."""
@@ -136,9 +120,6 @@ class RunDecisions:
         if stop is not None and stop.decides_view_term:  # the data's entry replaces the config's
             entries = [d for d in entries if d.part != "view-dependent emission"]
             entries.append(view_term_decision(stop, last_step))
-        if stop is not None and stop.decides_background:
-            entries = [d for d in entries if d.part != "background MLP"]
-            entries.append(background_decision(stop, last_step))
         cameras = cameras_decision(trainer.config)
         if cameras is not None:
             entries.append(cameras)

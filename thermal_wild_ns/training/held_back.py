@@ -1,15 +1,14 @@
 """The frames the automatic stop holds back, and how a model is scored on them: which training images are held
-back (`held_back_images`), their states (interpolated from the trained frames around them, `held_back_views`),
-their score (`held_back_score`: PSNR after a gain and offset fitted to each frame, as the `aligned` protocol),
-and the trained views the verdicts look at besides (`share_images`, `scene_renders`)."""
+back (`held_back_images`), their score (`held_back_score`: rendered at the state interpolated from the trained
+frames around them, PSNR after a gain and offset fitted to each frame, as the `aligned` protocol), and the
+trained views the view term's verdict looks at besides (`share_images`, `scene_renders`)."""
 
 from __future__ import annotations
 
-from typing import Iterator, List, Sequence, Tuple
+from typing import List, Sequence, Tuple
 
 import numpy as np
 import torch
-from nerfstudio.cameras.cameras import Cameras
 
 from thermal_wild_ns.image_metrics import psnr
 from thermal_wild_ns.pipeline.evaluation import fit_gain_offset, fit_with_radial_falloff
@@ -19,10 +18,7 @@ from thermal_wild_ns.pipeline.photometric_state import (
     check_same_geometry,
     preprocessed_sequence,
     render,
-    render_layers,
-    resolve_state,
 )
-from thermal_wild_ns.training.background_probe import uncovered_mean
 from thermal_wild_ns.training.model_interface import GuardedModel
 
 
@@ -35,20 +31,33 @@ def held_back_images(num_images: int, count: int) -> Tuple[int, ...]:
     return tuple(int(round((k + 1) * (num_images - 1) / (count + 1))) for k in range(count))
 
 
-def held_back_score(
-    pipeline, images: Sequence[int], radial: bool = False, canonical: bool = False, own: bool = False
-) -> float:
+def held_back_score(pipeline, images: Sequence[int], radial: bool = False, canonical: bool = False) -> float:
     """Mean PSNR (original radiometric space, dataset-normalised, range 1: as the evaluation's) of
     the held-back images rendered at the photometric state interpolated from the trained frames
-    around them, embedding and LUT alike (`canonical`: at the canonical state, every novel view's;
-    `own`: trained images at their own states), after a least-squares gain + offset fit to each frame
-    (`radial`: and a radial fall-off, `fit_with_radial_falloff`)."""
+    around them, embedding and LUT alike (`canonical`: at the canonical state, every novel view's),
+    after a least-squares gain + offset fit to each frame (`radial`: and a radial fall-off,
+    `fit_with_radial_falloff`)."""
 
-    datamanager, values = pipeline.datamanager, []
-    for image, camera, state in held_back_views(pipeline, images, canonical, own):
+    datamanager, model = pipeline.datamanager, pipeline.model
+    dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
+    held_frames = [dataset.frame_index(image) for image in images]  # capture positions
+    fill = isinstance(model, GuardedModel) and not canonical
+    if fill:
+        model.interpolate_embeddings(images)
+    shared = canonical_state(pipeline) if canonical else None
+    values = []
+    for image in images:
+        t = dataset.frame_index(image)
+        camera = dataset.cameras[image : image + 1].to(model.device)
+        if shared is not None:
+            state = shared
+        else:
+            lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
+            embedding = model.frame_embed.weight[image].detach() if fill else None
+            state = PhotometricState(f"held-back:{t}", embedding, lut)
         _, pred = render(pipeline, camera, state)  # [H, W]
         truth = datamanager.held_back_truth(image)  # [H, W]
-        check_same_geometry(pred, truth, f"held-back frame {state.label}")
+        check_same_geometry(pred, truth, f"held-back frame {t}")
         finite = np.isfinite(truth)
         if radial:
             fitted = fit_with_radial_falloff(pred, truth)  # [M]
@@ -57,42 +66,6 @@ def held_back_score(
             fitted = a * pred[finite] + b
         values.append(float(psnr(torch.from_numpy(fitted), torch.from_numpy(truth[finite]))))
     return float(np.mean(values))
-
-
-def held_back_views(
-    pipeline, images: Sequence[int], canonical: bool = False, own: bool = False
-) -> Iterator[Tuple[int, Cameras, PhotometricState]]:
-    """Each held-back image's index, camera (on the model's device) and photometric state: interpolated from the
-    trained frames around it, embedding and LUT alike (`canonical`: the canonical state; `own`: trained images
-    at their own training states)."""
-    datamanager, model = pipeline.datamanager, pipeline.model
-    dataset, sequence = datamanager.train_dataset, preprocessed_sequence(pipeline)
-    held_frames = [dataset.frame_index(image) for image in images]  # capture positions
-    fill = isinstance(model, GuardedModel) and not canonical and not own
-    if fill:
-        model.interpolate_embeddings(images)
-    shared = canonical_state(pipeline) if canonical else None
-    for image in images:
-        t = dataset.frame_index(image)
-        camera = dataset.cameras[image : image + 1].to(model.device)
-        if shared is not None or own:
-            yield image, camera, shared if shared is not None else resolve_state(pipeline, f"frame:{t}")
-            continue
-        lut = None if sequence is None else sequence.lut_at(t, without=held_frames)
-        embedding = model.frame_embed.weight[image].detach() if fill else None
-        yield image, camera, PhotometricState(f"held-back:{t}", embedding, lut)
-
-
-def held_back_background(pipeline, held_back: Sequence[int], trained: Sequence[int]) -> float:
-    """The background's level where it shows in the renders of the held-back images and of `trained` images, at
-    their states (`background_probe.uncovered_mean`)."""
-    backgrounds, coverages = [], []
-    views = [*held_back_views(pipeline, held_back), *held_back_views(pipeline, trained, own=True)]
-    for _, camera, state in views:
-        layers = render_layers(pipeline, camera, state)
-        backgrounds.append(layers["background"])
-        coverages.append(layers["coverage"])
-    return uncovered_mean(backgrounds, coverages)
 
 
 def share_images(num_images: int, held_back: Sequence[int], count: int = 12) -> Tuple[int, ...]:

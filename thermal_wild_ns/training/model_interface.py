@@ -76,17 +76,6 @@ class GuardedModel(Protocol):
         """Whether the view term takes part in renders from now on (off: zeroed, no gradient)."""
         ...
 
-    def has_background_mlp(self) -> bool:
-        """Whether the model was built with a background MLP."""
-        ...
-
-    background_constant: Optional[float]
-    """The constant rendered in the background MLP's place; None: the MLP's (or no MLP)."""
-
-    def use_background_constant(self, value: Optional[float]) -> None:
-        """Render the constant `value` in the background MLP's place from now on (None: the MLP again)."""
-        ...
-
     def try_view_term(self) -> None:
         """Put the view term on trial: in every other training render, in no render outside training."""
         ...
